@@ -1,0 +1,56 @@
+"""Safe byte encoding of engine state: nested dicts/lists of numbers, strings and numpy arrays.
+
+msgpack with one extension type for ndarrays; no pickle, so stored state cannot execute code on restore.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import numpy as np
+
+__all__ = ["dumps", "loads"]
+
+_ND = 1
+_FORMAT = b"PNS1"  # pednav state, version 1
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in "biuf":
+            raise TypeError(f"cannot encode array of dtype {obj.dtype}")
+        head = msgpack.packb([obj.dtype.str, list(obj.shape)])
+        return msgpack.ExtType(_ND, head + np.ascontiguousarray(obj).tobytes())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, tuple):
+        return list(obj)
+    raise TypeError(f"cannot encode {type(obj).__name__}")
+
+
+def _ext_hook(code: int, data: bytes) -> Any:
+    if code != _ND:
+        raise ValueError(f"unknown extension type {code}")
+    unpacker = msgpack.Unpacker(raw=False)
+    unpacker.feed(data)
+    dtype, shape = next(unpacker)
+    offset = unpacker.tell()
+    if np.dtype(dtype).kind not in "biuf":
+        raise ValueError(f"refusing array dtype {dtype}")
+    return np.frombuffer(data[offset:], dtype=np.dtype(dtype)).reshape(shape).copy()
+
+
+def dumps(state: dict[str, Any]) -> bytes:
+    """Encode a state dict to bytes."""
+    return _FORMAT + msgpack.packb(state, default=_default, use_bin_type=True, strict_types=False)
+
+
+def loads(blob: bytes) -> dict[str, Any]:
+    """Decode bytes made by :func:`dumps`; raises ``ValueError`` on anything else."""
+    if not blob.startswith(_FORMAT):
+        raise ValueError("not a pednav state blob (bad header)")
+    out = msgpack.unpackb(blob[len(_FORMAT):], ext_hook=_ext_hook, raw=False, strict_map_key=False)
+    if not isinstance(out, dict):
+        raise ValueError("state blob does not hold a mapping")
+    return out

@@ -1,0 +1,101 @@
+"""Value types of the engine contract (DESIGN.md): what ``Engine.feed`` returns."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+__all__ = ["Behaviour", "Mode", "SensorConfig", "Position", "Event", "Update"]
+
+Behaviour = Literal["stand", "walk", "run", "other"]
+Mode = Literal["zupt", "pdr", "idle"]
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Sensor settings the device must use next.
+
+    Parameters
+    ----------
+    gyro_on : bool
+        Whether the gyroscope must sample.
+    acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
+        Output data rates [Hz]; ``gyr_rate_hz`` is 0 when the gyroscope is off, ``mag_rate_hz`` 0 when the
+        magnetometer is not needed.
+    """
+
+    gyro_on: bool
+    acc_rate_hz: float
+    gyr_rate_hz: float
+    mag_rate_hz: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Position:
+    """One navigation output, emitted per detected stance (ZUPT-KF) or step (Gait-DR).
+
+    Parameters
+    ----------
+    t_ns : int
+        Time of the stance / heel strike [ns], device clock.
+    north, east, down : float
+        Position in the session's NED frame [m], origin at the first stance.
+    heading_rad : float
+        Walking heading, clockwise from north [rad].
+    behaviour : Behaviour
+        Behaviour label at that time.
+    mode : Mode
+        Navigation mode that produced the position.
+    step_length_m : float
+        Horizontal length of the step (stride of the instrumented foot) that ended here [m].
+    gyro_on : bool
+        Whether the gyroscope was on for that step.
+    """
+
+    t_ns: int
+    north: float
+    east: float
+    down: float
+    heading_rad: float
+    behaviour: str
+    mode: str
+    step_length_m: float
+    gyro_on: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something the client may want to show or log: mode switch, calibration done, examination failed."""
+
+    t_ns: int
+    kind: str
+    detail: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Update:
+    """Result of one ``Engine.feed`` call."""
+
+    positions: list[Position]
+    events: list[Event]
+    sensor_config: SensorConfig
+    behaviour: str
+    mode: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "positions": [p.to_dict() for p in self.positions],
+            "events": [e.to_dict() for e in self.events],
+            "sensor_config": self.sensor_config.to_dict(),
+            "behaviour": self.behaviour,
+            "mode": self.mode,
+        }

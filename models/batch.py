@@ -1,0 +1,215 @@
+"""Sensor batches: the one data type that flows from importers and the API into the engine.
+
+Each sensor stream has its own int64 nanosecond timestamps (Android ``SensorEvent`` clock) and SI values:
+specific force in m/s^2 (body frame, reads +9.81 m/s^2 away from the Earth at rest), angular rate in
+rad/s (body frame), magnetic field in uT (body frame). A stream that the device did not send (gyroscope
+off, no magnetometer) is simply empty.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["BatchError", "SensorBatch", "STREAMS"]
+
+STREAMS: tuple[str, ...] = ("acc", "gyr", "mag")
+
+# Plausibility limits used by validate(); generous on purpose (running shoes see > 16 g and > 30 rad/s).
+_ACC_G_LIKE = 2.5  # m/s^2; a median |a| below this is a batch in g (1 g reads 1.0)
+_ACC_MEDIAN_MAX = 50.0  # m/s^2; even running keeps the median |a| far below this
+_GYR_MAX = 60.0  # rad/s; values beyond this almost certainly are deg/s
+_MAG_RANGE = (5.0, 200.0)  # uT, median |m| (Earth 20-70 uT, indoor disturbances widen it)
+
+
+class BatchError(ValueError):
+    """A batch is malformed or its units are implausible.
+
+    Attributes
+    ----------
+    field : str
+        Name of the offending field, e.g. ``"acc_t_ns"`` or ``"gyr"``.
+    problem : str
+        Human-readable description of what is wrong.
+    """
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(f"{field}: {problem}")
+        self.field = field
+        self.problem = problem
+
+
+def _empty_t() -> np.ndarray:
+    return np.zeros(0, dtype=np.int64)
+
+
+def _empty_v() -> np.ndarray:
+    return np.zeros((0, 3), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class SensorBatch:
+    """Samples of up to three sensor streams, each with its own timestamps.
+
+    Parameters
+    ----------
+    acc_t_ns, gyr_t_ns, mag_t_ns : ndarray of int64, shape (N,), (M,), (K,)
+        Sample times [ns], strictly increasing within a stream.
+    acc : ndarray, shape (N, 3)
+        Specific force [m/s^2], body frame.
+    gyr : ndarray, shape (M, 3)
+        Angular rate [rad/s], body frame.
+    mag : ndarray, shape (K, 3)
+        Magnetic flux density [uT], body frame.
+    """
+
+    acc_t_ns: np.ndarray = field(default_factory=_empty_t)
+    acc: np.ndarray = field(default_factory=_empty_v)
+    gyr_t_ns: np.ndarray = field(default_factory=_empty_t)
+    gyr: np.ndarray = field(default_factory=_empty_v)
+    mag_t_ns: np.ndarray = field(default_factory=_empty_t)
+    mag: np.ndarray = field(default_factory=_empty_v)
+
+    def __post_init__(self) -> None:
+        for name in STREAMS:
+            t = np.asarray(getattr(self, f"{name}_t_ns"))
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if t.size and not np.issubdtype(t.dtype, np.integer):
+                raise BatchError(f"{name}_t_ns", f"timestamps must be integer nanoseconds, got {t.dtype}")
+            t = t.astype(np.int64, copy=False).reshape(-1)
+            v = v.reshape(-1, 3) if v.size else _empty_v()
+            if len(t) != len(v):
+                raise BatchError(name, f"{len(v)} samples but {len(t)} timestamps")
+            object.__setattr__(self, f"{name}_t_ns", t)
+            object.__setattr__(self, name, v)
+
+    # ------------------------------------------------------------------ basic properties
+    def __len__(self) -> int:
+        return int(self.acc_t_ns.size)
+
+    @property
+    def is_empty(self) -> bool:
+        return self.acc_t_ns.size == 0 and self.gyr_t_ns.size == 0 and self.mag_t_ns.size == 0
+
+    def stream(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(t_ns, values)`` of stream ``name`` (one of ``acc``, ``gyr``, ``mag``)."""
+        return getattr(self, f"{name}_t_ns"), getattr(self, name)
+
+    @property
+    def t_start_ns(self) -> int | None:
+        starts = [t[0] for t in (self.acc_t_ns, self.gyr_t_ns, self.mag_t_ns) if t.size]
+        return int(min(starts)) if starts else None
+
+    @property
+    def t_end_ns(self) -> int | None:
+        ends = [t[-1] for t in (self.acc_t_ns, self.gyr_t_ns, self.mag_t_ns) if t.size]
+        return int(max(ends)) if ends else None
+
+    def rate_hz(self, name: str = "acc") -> float:
+        """Median sample rate of a stream [Hz]; ``nan`` with fewer than two samples."""
+        t = self.stream(name)[0]
+        if t.size < 2:
+            return float("nan")
+        return 1e9 / float(np.median(np.diff(t)))
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_arrays(
+        cls,
+        t_s: np.ndarray,
+        acc: np.ndarray,
+        gyr: np.ndarray | None = None,
+        mag: np.ndarray | None = None,
+    ) -> SensorBatch:
+        """Build a batch whose streams share one time axis given in seconds."""
+        t_ns = np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.int64)
+        kw: dict[str, np.ndarray] = {"acc_t_ns": t_ns, "acc": acc}
+        if gyr is not None:
+            kw.update(gyr_t_ns=t_ns.copy(), gyr=gyr)
+        if mag is not None:
+            kw.update(mag_t_ns=t_ns.copy(), mag=mag)
+        return cls(**kw)
+
+    @classmethod
+    def concat(cls, batches: list[SensorBatch]) -> SensorBatch:
+        """Concatenate batches stream by stream (no sorting, no validation)."""
+        kw: dict[str, np.ndarray] = {}
+        for name in STREAMS:
+            kw[f"{name}_t_ns"] = np.concatenate([_empty_t()] + [b.stream(name)[0] for b in batches])
+            kw[name] = np.concatenate([_empty_v()] + [b.stream(name)[1] for b in batches])
+        return cls(**kw)
+
+    def time_slice(self, t0_ns: int | None, t1_ns: int | None) -> SensorBatch:
+        """Samples with ``t0_ns <= t < t1_ns`` in every stream (``None`` = unbounded)."""
+        kw: dict[str, np.ndarray] = {}
+        for name in STREAMS:
+            t, v = self.stream(name)
+            m = np.ones(t.size, dtype=bool)
+            if t0_ns is not None:
+                m &= t >= t0_ns
+            if t1_ns is not None:
+                m &= t < t1_ns
+            kw[f"{name}_t_ns"], kw[name] = t[m], v[m]
+        return SensorBatch(**kw)
+
+    def split_seconds(self, seconds: float) -> list[SensorBatch]:
+        """Split into consecutive pieces of ``seconds`` duration (all streams cut at the same instants)."""
+        t0, t1 = self.t_start_ns, self.t_end_ns
+        if t0 is None or t1 is None:
+            return []
+        step = int(round(seconds * 1e9))
+        if step <= 0:
+            raise ValueError("seconds must be positive")
+        edges = list(range(t0, t1 + 1, step)) + [t1 + 1]
+        return [self.time_slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+    def without(self, name: str) -> SensorBatch:
+        """A copy with stream ``name`` emptied (e.g. the gyroscope switched off)."""
+        return SensorBatch(**{**self._kwargs(), f"{name}_t_ns": _empty_t(), name: _empty_v()})
+
+    def _kwargs(self) -> dict[str, np.ndarray]:
+        kw: dict[str, np.ndarray] = {}
+        for name in STREAMS:
+            kw[f"{name}_t_ns"], kw[name] = self.stream(name)
+        return kw
+
+    # ------------------------------------------------------------------ validation
+    def validate(self, *, check_units: bool = True) -> SensorBatch:
+        """Raise :class:`BatchError` naming the field and the problem; return ``self`` when valid.
+
+        Checks: finite values, strictly increasing timestamps per stream (duplicates and reversals are
+        errors), and with ``check_units`` plausible magnitudes (accelerometer in m/s^2 not g, gyroscope in
+        rad/s not deg/s, magnetometer in uT not gauss or nT).
+        """
+        for name in STREAMS:
+            t, v = self.stream(name)
+            if not np.all(np.isfinite(v)):
+                bad = int(np.argmax(~np.all(np.isfinite(v), axis=1)))
+                raise BatchError(name, f"sample {bad} is not finite (NaN or inf)")
+            if t.size > 1:
+                d = np.diff(t)
+                if np.any(d == 0):
+                    i = int(np.argmax(d == 0)) + 1
+                    raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(t[i])} at sample {i}")
+                if np.any(d < 0):
+                    i = int(np.argmax(d < 0)) + 1
+                    raise BatchError(f"{name}_t_ns", f"timestamps go backwards at sample {i}")
+        if not check_units:
+            return self
+        if self.acc.shape[0] >= 10:
+            med = float(np.median(np.linalg.norm(self.acc, axis=1)))
+            if med < _ACC_G_LIKE:
+                raise BatchError("acc", f"median |a| = {med:.3g}; looks like g, expected m/s^2 (about 9.81 at rest)")
+            if med > _ACC_MEDIAN_MAX:
+                raise BatchError("acc", f"median |a| = {med:.3g} m/s^2 is implausible (expected about 9.81 at rest)")
+        if self.gyr.shape[0] >= 10:
+            peak = float(np.max(np.abs(self.gyr)))
+            if peak > _GYR_MAX:
+                raise BatchError("gyr", f"peak |w| = {peak:.3g}; looks like deg/s, expected rad/s")
+        if self.mag.shape[0] >= 10:
+            med = float(np.median(np.linalg.norm(self.mag, axis=1)))
+            if not (_MAG_RANGE[0] <= med <= _MAG_RANGE[1]):
+                hint = "gauss (x100)" if med < _MAG_RANGE[0] else "nT (/1000)"
+                raise BatchError("mag", f"median |m| = {med:.3g} uT is outside {_MAG_RANGE}; looks like {hint}")
+        return self
