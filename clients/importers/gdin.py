@@ -1,0 +1,261 @@
+"""Gait Driven Inertial Navigation dataset (datasets/gdin/ABOUT.md): truth files, format C and pairing.
+
+Layout::
+
+    own*/SensorConnectData_NN.csv        sensor data, formats A/B (clients.importers.sensorconnect)
+    llio_mat/SensorConnectData_NN_*.mat  sensor data, format C (imu_data N x 6 SI, timestamps [s])
+    own*/SensorConnectData_NN.mat        ground truth: GCP_meters, GCP_stride_numbers, GCP_exist_and_correct
+    stride_gcp/SensorConnectData_NN_*.csv  per-stride rows: strideIndex, timestamp [s], gcpX, gcpY [m]
+
+Recordings are paired by experiment number NN. The stride table's ``strideIndex`` counts samples of a 200 Hz
+series; for files at another rate (exp 42/43 at 250 Hz) the stride sample is found by its ``timestamp``.
+Arrays other than ``imu_data``/``timestamps`` in format C files (pyshoeTrajectory, traj_wcf, gt ...) are the
+dataset authors' estimates or unrelated leftovers and are never imported.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy.io as sio
+
+from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch, seconds_to_ns
+from clients.importers.sensorconnect import load_sensorconnect
+from clients.importers.sensorconnect import sniff as sniff_sensorconnect
+from clients.recording import Recording, RecordingMeta, Truth
+
+__all__ = [
+    "GdinEntry",
+    "sniff",
+    "load",
+    "load_llio_mat",
+    "load_truth_mat",
+    "load_stride_gcp",
+    "find_gdin",
+    "load_gdin",
+    "experiment_number",
+]
+
+_EXP = re.compile(r"SensorConnectData_(\d+)")
+
+
+def experiment_number(path: str | Path) -> int | None:
+    """Experiment number NN from a ``SensorConnectData_NN...`` file name, else ``None``."""
+    m = _EXP.search(Path(path).name)
+    return int(m.group(1)) if m else None
+
+
+def _mat_names(p: Path) -> set[str]:
+    try:
+        return {n for n, _, _ in sio.whosmat(p)}
+    except Exception:  # noqa: BLE001 - not a MATLAB file
+        return set()
+
+
+def sniff(path: str | Path) -> bool:
+    """True for a format C ``.mat`` (``imu_data`` and ``timestamps``)."""
+    p = Path(path)
+    return p.suffix.lower() == ".mat" and {"imu_data", "timestamps"} <= _mat_names(p)
+
+
+def load(path: str | Path) -> Recording:
+    """Load a gdin sensor file (format A, B or C), attaching its truth when the dataset layout is around it."""
+    p = Path(path)
+    exp = experiment_number(p)
+    root = p.parent.parent
+    if exp is not None:
+        for e in find_gdin(root):
+            if e.exp == exp and e.sensor_path.resolve() == p.resolve():
+                return load_gdin(e)
+    if sniff(p):
+        return load_llio_mat(p)
+    return load_sensorconnect(p)
+
+
+def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
+    """Read a format C file: ``imu_data`` (N x 6: acc [m/s^2], gyro [rad/s]) and ``timestamps`` (1 x N, [s]).
+
+    Returns
+    -------
+    Recording
+        No magnetometer, no unit conversion, ``truth`` ``None``.
+    """
+    p = Path(path)
+    try:
+        d = sio.loadmat(p, variable_names=["imu_data", "timestamps"])
+    except Exception as exc:  # noqa: BLE001
+        raise ImporterError(p, "file", f"not a readable MATLAB file ({exc})") from exc
+    for key in ("imu_data", "timestamps"):
+        if key not in d:
+            raise ImporterError(p, key, "variable missing (not a gdin format C file)")
+    imu = np.asarray(d["imu_data"], dtype=np.float64)
+    ts = np.asarray(d["timestamps"], dtype=np.float64).reshape(-1)
+    if imu.ndim != 2 or imu.shape[1] != 6:
+        raise ImporterError(p, "imu_data", f"expected N x 6 (acc m/s^2, gyro rad/s), got shape {imu.shape}")
+    if imu.shape[0] == 0:
+        raise ImporterError(p, "imu_data", "no samples (empty)")
+    if ts.size != imu.shape[0]:
+        raise ImporterError(p, "timestamps", f"{ts.size} timestamps for {imu.shape[0]} imu_data rows")
+    check_finite(p, [f"imu_data[:,{i}]" for i in range(6)], imu)
+    t_ns = seconds_to_ns(p, "timestamps", ts)
+    t_ns, imu, notes = clean_timestamps(p, "timestamps", t_ns, imu)
+    batch = make_batch(p, t_ns, imu[:, :3], t_ns.copy(), imu[:, 3:])
+    meta = RecordingMeta(
+        source_format="gdin-llio-mat",
+        rate_hz=float(batch.rate_hz("acc")),
+        units_converted={},
+        mount="foot (MicroStrain 3DM-GX5-25 on one shoe; body axes of the sensor)",
+        notes=tuple(notes),
+    )
+    return Recording(name=name or p.stem, batch=batch, meta=meta, truth=None)
+
+
+def load_truth_mat(path: str | Path) -> dict[str, Any]:
+    """Read a gdin ground-truth ``.mat``.
+
+    Returns
+    -------
+    dict
+        ``gcp_m`` (K, 2) float [m] (cast from possibly integer storage), ``gcp_stride_numbers`` (K,) int,
+        ``gcp_exist_and_correct`` bool, ``number_of_strides`` int or None, ``tile_edge_length_m`` float or
+        None, ``closed_loop`` bool (first and last GCP coincide), ``truth_path_length_m`` float.
+    """
+    p = Path(path)
+    try:
+        d = sio.loadmat(p)
+    except Exception as exc:  # noqa: BLE001
+        raise ImporterError(p, "file", f"not a readable MATLAB file ({exc})") from exc
+    for key in ("GCP_meters", "GCP_stride_numbers", "GCP_exist_and_correct"):
+        if key not in d:
+            raise ImporterError(p, key, "variable missing (not a gdin ground-truth file)")
+    gcp = np.asarray(d["GCP_meters"]).astype(np.float64)  # some files store integers: cast before differencing
+    if gcp.ndim != 2 or gcp.shape[1] != 2 or gcp.shape[0] < 2:
+        raise ImporterError(p, "GCP_meters", f"expected K x 2 (K >= 2) points [m], got shape {gcp.shape}")
+    check_finite(p, ["GCP_meters x", "GCP_meters y"], gcp)
+    sn = np.asarray(d["GCP_stride_numbers"]).astype(np.int64).reshape(-1)
+    if sn.size != gcp.shape[0]:
+        raise ImporterError(p, "GCP_stride_numbers", f"{sn.size} entries for {gcp.shape[0]} GCPs")
+    n_str = int(np.asarray(d["numberOfStrides"]).reshape(-1)[0]) if "numberOfStrides" in d else None
+    tile = float(np.asarray(d["tile_edge_length"]).reshape(-1)[0]) if "tile_edge_length" in d else None
+    seg = np.linalg.norm(np.diff(gcp, axis=0), axis=1)
+    return {
+        "gcp_m": gcp,
+        "gcp_stride_numbers": sn,
+        "gcp_exist_and_correct": bool(int(np.asarray(d["GCP_exist_and_correct"]).reshape(-1)[0]) != 0),
+        "number_of_strides": n_str,
+        "tile_edge_length_m": tile,
+        "closed_loop": bool(np.linalg.norm(gcp[-1] - gcp[0]) < 1e-6),
+        "truth_path_length_m": float(seg.sum()),
+    }
+
+
+def load_stride_gcp(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a ``stride_gcp`` CSV (header ``strideIndex,timestamp,gcpX,gcpY``).
+
+    Returns
+    -------
+    dict
+        ``stride_index`` (S,) int64 (200 Hz sample numbers), ``t_s`` (S,) float [s], ``gcp_xy`` (S, 2) [m].
+    """
+    p = Path(path)
+    with open(p, encoding="utf-8") as fh:
+        header = [c.strip() for c in fh.readline().strip().split(",")]
+    if header != ["strideIndex", "timestamp", "gcpX", "gcpY"]:
+        raise ImporterError(p, "header", f"expected strideIndex,timestamp,gcpX,gcpY, got {','.join(header)}")
+    a = np.atleast_2d(np.genfromtxt(p, delimiter=",", skip_header=1, dtype=np.float64))
+    if a.size == 0:
+        raise ImporterError(p, "rows", "no strides (empty file)")
+    check_finite(p, header, a)
+    if np.any(np.diff(a[:, 1]) <= 0):
+        raise ImporterError(p, "timestamp", "stride timestamps are not strictly increasing")
+    return {"stride_index": np.round(a[:, 0]).astype(np.int64), "t_s": a[:, 1].copy(), "gcp_xy": a[:, 2:4].copy()}
+
+
+@dataclass(frozen=True)
+class GdinEntry:
+    """One gdin recording: its sensor file and the truth files paired by experiment number."""
+
+    exp: int
+    sensor_path: Path
+    truth_path: Path | None
+    stride_path: Path | None
+
+    @property
+    def name(self) -> str:
+        return f"exp{self.exp:02d}"
+
+
+def find_gdin(root: str | Path) -> list[GdinEntry]:
+    """Pair every gdin sensor file under ``root`` with its truth by experiment number (sorted by NN).
+
+    Sensor files: ``*/SensorConnectData_NN.csv`` (formats A/B) and ``llio_mat/SensorConnectData_NN_*.mat``
+    (format C). Truth: ``*/SensorConnectData_NN.mat`` (excluding llio_mat) and
+    ``stride_gcp/SensorConnectData_NN_*.csv``.
+    """
+    r = Path(root)
+    sensors: dict[int, Path] = {}
+    truths: dict[int, Path] = {}
+    strides: dict[int, Path] = {}
+    for f in sorted(r.glob("*/SensorConnectData_*")):
+        exp = experiment_number(f)
+        if exp is None:
+            continue
+        folder = f.parent.name
+        if folder == "stride_gcp" and f.suffix.lower() == ".csv":
+            strides[exp] = f
+        elif folder == "llio_mat" and f.suffix.lower() == ".mat":
+            sensors.setdefault(exp, f)
+        elif f.suffix.lower() == ".csv" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
+            sensors[exp] = f  # a CSV beats a format C copy of the same experiment (it has the magnetometer)
+        elif f.suffix.lower() == ".mat" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
+            truths[exp] = f
+    return [GdinEntry(e, sensors[e], truths.get(e), strides.get(e)) for e in sorted(sensors)]
+
+
+def _stride_times(rec: Recording, table: dict[str, np.ndarray]) -> tuple[np.ndarray, str]:
+    """Batch-clock times [ns] of the stride samples: by strideIndex for 200 Hz files, by timestamp otherwise."""
+    t = rec.batch.acc_t_ns
+    idx = table["stride_index"]
+    by_index_ok = abs(rec.meta.rate_hz - 200.0) < 5.0 and idx.max() < t.size
+    if by_index_ok:
+        # the table's timestamps must agree with the file's clock at those samples (else it is not 200 Hz-indexed)
+        by_index_ok = bool(np.all(np.abs(t[idx] * 1e-9 - table["t_s"]) < 0.5 / rec.meta.rate_hz + 1e-6))
+    if by_index_ok:
+        return t[idx].copy(), "strideIndex"
+    target = np.round(table["t_s"] * 1e9).astype(np.int64)
+    j = np.clip(np.searchsorted(t, target), 1, t.size - 1)
+    j = np.where(np.abs(t[j - 1] - target) <= np.abs(t[j] - target), j - 1, j)
+    return t[j].copy(), "timestamp"
+
+
+def load_gdin(entry: GdinEntry) -> Recording:
+    """Load a gdin recording with its truth.
+
+    ``truth.extra`` keys: ``exp``, the keys of :func:`load_truth_mat` (when a truth .mat exists), and with a
+    stride table ``stride_t_ns`` (S,) int64 [ns on the batch clock], ``stride_gcp_xy`` (S, 2) [m, authors'
+    frame], ``stride_index`` (S,), ``stride_mapping`` (``"strideIndex"`` or ``"timestamp"``).
+    """
+    if entry.sensor_path.suffix.lower() == ".mat":
+        rec = load_llio_mat(entry.sensor_path, name=entry.name)
+    elif sniff_sensorconnect(entry.sensor_path):
+        rec = load_sensorconnect(entry.sensor_path, name=entry.name)
+    else:
+        raise ImporterError(entry.sensor_path, "file", "not a gdin sensor file (format A, B or C)")
+    extra: dict[str, Any] = {"exp": entry.exp}
+    if entry.truth_path is not None:
+        extra.update(load_truth_mat(entry.truth_path))
+    if entry.stride_path is not None:
+        table = load_stride_gcp(entry.stride_path)
+        t_ns, how = _stride_times(rec, table)
+        extra.update(
+            stride_t_ns=t_ns,
+            stride_gcp_xy=table["gcp_xy"],
+            stride_index=table["stride_index"],
+            stride_mapping=how,
+        )
+    truth = Truth(extra=extra) if len(extra) > 1 else None
+    return Recording(name=rec.name, batch=rec.batch, meta=rec.meta, truth=truth)

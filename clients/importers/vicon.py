@@ -1,0 +1,98 @@
+"""University of Toronto VICON trials (pyshoe format, datasets/vicon/ABOUT.md).
+
+Each ``.mat`` holds ``imu`` (N x 6: specific force [m/s^2] then angular rate [rad/s], body z axis down),
+``ts`` (1 x N, [s]) and ``gt`` (N x 3, Vicon foot position [m], z up) on the same timestamps. The files are
+already SI: no unit is converted. The ``zv_*``/``G_*``/``trial_error`` fields are per-trial oracles and are
+deliberately NOT imported into the recording (nothing downstream may read them).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import scipy.io as sio
+
+from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch, seconds_to_ns
+from clients.recording import Recording, RecordingMeta, Truth
+
+__all__ = ["sniff", "load", "load_vicon"]
+
+_IMU_COLUMNS = ["imu[:,0] acc_x", "imu[:,1] acc_y", "imu[:,2] acc_z", "imu[:,3] gyr_x", "imu[:,4] gyr_y", "imu[:,5] gyr_z"]
+
+
+def sniff(path: str | Path) -> bool:
+    """True when ``path`` is a ``.mat`` file with the VICON variables ``imu``, ``ts`` and ``gt``."""
+    p = Path(path)
+    if p.suffix.lower() != ".mat":
+        return False
+    try:
+        names = {n for n, _, _ in sio.whosmat(p)}
+    except Exception:  # noqa: BLE001 - not a readable MATLAB file
+        return False
+    return {"imu", "ts", "gt"} <= names and "imu_data" not in names
+
+
+def load(path: str | Path) -> Recording:
+    """Alias of :func:`load_vicon` (uniform importer interface)."""
+    return load_vicon(path)
+
+
+def load_vicon(path: str | Path) -> Recording:
+    """Read one VICON trial.
+
+    Parameters
+    ----------
+    path : str or Path
+        The trial's ``.mat`` file.
+
+    Returns
+    -------
+    Recording
+        ``batch``: acc [m/s^2] and gyr [rad/s] in the sensor's body frame (z down) on the ``ts`` clock
+        converted to int64 ns; no magnetometer. ``truth.positions``: Vicon positions [m] per sample in the
+        capture frame (x, y horizontal, z UP), ``truth.t_ns`` = the same timestamps.
+
+    Raises
+    ------
+    ImporterError
+        Missing variables, wrong shapes, NaN/inf, empty, non-monotonic or conflicting duplicated times.
+    """
+    p = Path(path)
+    try:
+        d = sio.loadmat(p)
+    except Exception as exc:  # noqa: BLE001 - scipy raises several types for broken files
+        raise ImporterError(p, "file", f"not a readable MATLAB file ({exc})") from exc
+    for key in ("imu", "ts", "gt"):
+        if key not in d:
+            raise ImporterError(p, key, "variable missing (not a University of Toronto VICON trial)")
+    imu = np.asarray(d["imu"], dtype=np.float64)
+    ts = np.asarray(d["ts"], dtype=np.float64).reshape(-1)
+    gt = np.asarray(d["gt"], dtype=np.float64)
+    if imu.ndim != 2 or imu.shape[1] != 6:
+        raise ImporterError(p, "imu", f"expected N x 6 (acc m/s^2, gyro rad/s), got shape {imu.shape}")
+    if imu.shape[0] == 0:
+        raise ImporterError(p, "imu", "no samples (empty)")
+    if ts.size != imu.shape[0]:
+        raise ImporterError(p, "ts", f"{ts.size} timestamps for {imu.shape[0]} imu rows")
+    if gt.shape != (imu.shape[0], 3):
+        raise ImporterError(p, "gt", f"expected {imu.shape[0]} x 3 positions, got shape {gt.shape}")
+    check_finite(p, _IMU_COLUMNS, imu)
+    check_finite(p, ["gt x", "gt y", "gt z"], gt)
+    t_ns = seconds_to_ns(p, "ts", ts)
+    t_ns, rows, notes = clean_timestamps(p, "ts", t_ns, np.hstack([imu, gt]))
+    imu, gt = rows[:, :6], rows[:, 6:]
+    batch = make_batch(p, t_ns, imu[:, :3], t_ns.copy(), imu[:, 3:])
+    meta = RecordingMeta(
+        source_format="vicon-mat",
+        rate_hz=float(batch.rate_hz("acc")),
+        units_converted={},
+        mount="foot (University of Toronto VICON set: body z axis down at rest)",
+        notes=tuple(notes),
+    )
+    truth = Truth(
+        t_ns=t_ns.copy(),
+        positions=gt,
+        extra={"frame": "vicon capture frame: x, y horizontal, z up (right-handed)"},
+    )
+    return Recording(name=p.stem, batch=batch, meta=meta, truth=truth)
