@@ -1,0 +1,51 @@
+"""Engine settings: one configuration serves every user and recording."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["EngineConfig"]
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Settings of the engine; one configuration serves every user and recording.
+
+    Parameters
+    ----------
+    full_rate_hz : float
+        Accelerometer/gyroscope rate requested while the ZUPT-KF runs [Hz].
+    pdr_rate_hz : float
+        Accelerometer/magnetometer rate requested in Gait-DR (004 Section 4.3) [Hz].
+    stand_rate_hz : float
+        Lowest accelerometer rate that still wakes on motion while standing [Hz].
+    mag_rate_hz : float
+        Magnetometer rate while the ZUPT-KF runs [Hz].
+    l0_m : float
+        Distance walked under the ZUPT-KF before switching to Gait-DR (004 Table 2, L0) [m].
+    t0_s : float
+        Interval between step-length model examinations in Gait-DR (004 Table 1/3, T0) [s].
+    max_sample_age_s : float
+        A gyroscope/magnetometer sample older than this is not paired with an accelerometer sample [s].
+    """
+
+    full_rate_hz: float = 200.0
+    pdr_rate_hz: float = 25.0
+    stand_rate_hz: float = 12.5
+    mag_rate_hz: float = 50.0
+    l0_m: float = 40.0
+    t0_s: float = 30.0
+    max_sample_age_s: float = 0.05
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> EngineConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"EngineConfig: unknown fields {sorted(unknown)}")
+        return cls(**d)

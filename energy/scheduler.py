@@ -1,0 +1,166 @@
+"""The energy-aware state machine of 004 Section 4: gyroscope strategy (Table 1), ZUPT-KF <-> Gait-DR switching
+(Table 2), step-length model examination (Table 3) and de-sampling (Section 4.3).
+
+Pure decisions: the engine tells the scheduler what happened (behaviour label, ZUPT-KF distance, calibration
+ready, examination result) and asks it which navigation mode to run and which sensor configuration the device
+must use next. No numerics here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from energy.config import EngineConfig
+from energy.profile import Profile
+from energy.types import Event, SensorConfig
+
+__all__ = ["Scheduler"]
+
+_MOVING = ("walk", "run")
+
+
+class Scheduler:
+    """Decides navigation mode and sensor configuration.
+
+    Parameters
+    ----------
+    mode : {"zupt", "pdr", "auto"}
+        Engine mode (see :class:`energy.engine.Engine`).
+    config : EngineConfig
+        Rates, L0, T0.
+    profile : Profile
+        Per-user calibrations; a calibrated behaviour resumes in Gait-DR after one examination.
+    """
+
+    def __init__(self, mode: str, config: EngineConfig, profile: Profile) -> None:
+        self.mode = mode
+        self.config = config
+        self.profile = profile
+        self.working = "zupt"  # navigation mode: "zupt" or "pdr"
+        self.behaviour = "stand"
+        self.calibrating: str | None = None  # behaviour whose initialisation runs
+        self.l_zupt_m = 0.0  # 004 Table 2, L_ZUPT-KF of the running initialisation
+        self.last_exam_s = 0.0
+        self.exam_active = False  # 004 Table 1: gyro on till a whole step is completed
+
+    # ------------------------------------------------------------------ inputs
+    def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
+        """A new behaviour label (004 Table 2: a new motion behaviour sends Gait-DR back to ZUPT-KF)."""
+        events: list[Event] = []
+        if label == self.behaviour:
+            return events
+        events.append(Event(t_ns, "behaviour", {"from": self.behaviour, "to": label}))
+        previous, self.behaviour = self.behaviour, label
+        if self.mode != "auto" or label not in _MOVING:
+            return events
+        if self.working == "pdr" and previous in _MOVING and label != previous:
+            if self.profile.is_calibrated(label):
+                events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
+            else:
+                events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
+        elif self.working == "zupt" and self.calibrating != label:
+            if self.profile.is_calibrated(label):
+                events += self._switch("pdr", t_ns, reason=f"profile has {label} calibration")
+                events += self._start_exam(t_s, t_ns, reason="check stored calibration")
+            else:
+                self.calibrating, self.l_zupt_m = label, 0.0
+        return events
+
+    def on_zupt_distance(self, d_m: float, t_ns: int) -> list[Event]:
+        """ZUPT-KF moved ``d_m`` metres horizontally (one stance to the next)."""
+        if self.working != "zupt" or self.mode == "zupt":
+            return []
+        if self.calibrating is None and self.behaviour in _MOVING:
+            self.calibrating = self.behaviour
+        self.l_zupt_m += d_m
+        return []
+
+    def ready_for_pdr(self) -> bool:
+        """004 Table 2: L_ZUPT-KF >= L0 ends the initialisation."""
+        return self.mode != "zupt" and self.working == "zupt" and self.l_zupt_m >= self.config.l0_m
+
+    def on_calibrated(self, t_s: float, t_ns: int) -> list[Event]:
+        """The engine fitted the step model and KF II after L0: switch to Gait-DR."""
+        events = [Event(t_ns, "calibration_done", {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m})]
+        self.calibrating = None
+        self.last_exam_s = t_s
+        events += self._switch("pdr", t_ns, reason="initialisation complete")
+        return events
+
+    def exam_due(self, t_s: float) -> bool:
+        """004 Table 1: Delta T_G >= T0 turns the gyroscope on for one step (auto mode, Gait-DR, moving)."""
+        return (
+            self.mode == "auto"
+            and self.working == "pdr"
+            and not self.exam_active
+            and self.behaviour in _MOVING
+            and t_s - self.last_exam_s >= self.config.t0_s
+        )
+
+    def start_exam(self, t_s: float, t_ns: int) -> list[Event]:
+        return self._start_exam(t_s, t_ns, reason="T0 elapsed")
+
+    def on_exam_result(self, passed: bool, d_kf: float, d_sl: float, t_s: float, t_ns: int) -> list[Event]:
+        """004 Table 3: |d_KF - d_SL| <= 3 sigma_d keeps Gait-DR, otherwise re-initialise."""
+        self.exam_active = False
+        self.last_exam_s = t_s
+        detail = {"d_kf_m": d_kf, "d_sl_m": d_sl, "behaviour": self.behaviour}
+        if passed:
+            return [Event(t_ns, "examination_passed", detail)]
+        events = [Event(t_ns, "examination_failed", detail)]
+        self.calibrating, self.l_zupt_m = self.behaviour, 0.0
+        events += self._switch("zupt", t_ns, reason="step-length model no longer fits")
+        return events
+
+    # ------------------------------------------------------------------ outputs
+    def gyro_wanted(self) -> bool:
+        """004 Table 1."""
+        if self.mode == "zupt":
+            return True
+        if self.mode == "auto" and self.behaviour == "stand":
+            return False
+        if self.working == "zupt":
+            return True
+        return self.exam_active
+
+    def sensor_config(self) -> SensorConfig:
+        c = self.config
+        gyro = self.gyro_wanted()
+        if self.mode == "auto" and self.behaviour == "stand":
+            return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0)
+        if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
+            return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz)
+        return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz)  # 004 Section 4.3
+
+    # ------------------------------------------------------------------ internals
+    def _switch(self, working: str, t_ns: int, reason: str) -> list[Event]:
+        if working == self.working:
+            return []
+        previous, self.working = self.working, working
+        if working == "zupt":
+            self.exam_active = False
+        return [Event(t_ns, "mode_switch", {"from": previous, "to": working, "reason": reason})]
+
+    def _start_exam(self, t_s: float, t_ns: int, reason: str) -> list[Event]:
+        self.exam_active = True
+        return [Event(t_ns, "examination_started", {"reason": reason, "behaviour": self.behaviour})]
+
+    def get_state(self) -> dict[str, Any]:
+        return {
+            "mode": self.mode,
+            "config": self.config.to_dict(),
+            "profile": self.profile.to_dict(),
+            "working": self.working,
+            "behaviour": self.behaviour,
+            "calibrating": self.calibrating,
+            "l_zupt_m": self.l_zupt_m,
+            "last_exam_s": self.last_exam_s,
+            "exam_active": self.exam_active,
+        }
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any]) -> Scheduler:
+        obj = cls(d["mode"], EngineConfig.from_dict(d["config"]), Profile.from_dict(d["profile"]))
+        for key in ("working", "behaviour", "calibrating", "l_zupt_m", "last_exam_s", "exam_active"):
+            setattr(obj, key, d[key])
+        return obj
