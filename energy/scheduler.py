@@ -57,6 +57,7 @@ class Scheduler:
             if self.profile.is_calibrated(label):
                 events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
             else:
+                self.calibrating, self.l_zupt_m = label, 0.0
                 events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
         elif self.working == "zupt" and self.calibrating != label:
             if self.profile.is_calibrated(label):

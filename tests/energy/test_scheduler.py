@@ -1,0 +1,119 @@
+"""The scheduler as a specification of 004 Tables 1-3."""
+
+from __future__ import annotations
+
+import pytest
+
+from energy.config import EngineConfig
+from energy.profile import BehaviourCalibration, Profile
+from energy.scheduler import Scheduler
+
+CFG = EngineConfig(l0_m=20.0, t0_s=30.0)
+
+
+def walk_to(s: Scheduler, metres: float, step: float = 1.4) -> None:
+    done = 0.0
+    while done < metres:
+        s.on_zupt_distance(step, 0)
+        done += step
+
+
+def calibrated(*behaviours: str) -> Profile:
+    return Profile({b: BehaviourCalibration(sigma_d_m=0.05, calibrated=True, n_steps=30) for b in behaviours})
+
+
+# ---------------------------------------------------------------- Table 1: gyroscope strategy
+@pytest.mark.parametrize("working", ["zupt", "pdr"])
+def test_table1_static_behaviour_turns_gyro_off(working: str) -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.working = working
+    s.on_behaviour("stand", 1.0, 1)
+    assert not s.gyro_wanted()
+    cfg = s.sensor_config()
+    assert not cfg.gyro_on and cfg.gyr_rate_hz == 0 and cfg.acc_rate_hz == CFG.stand_rate_hz
+
+
+def test_table1_zupt_mode_keeps_gyro_on_while_moving() -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    assert s.working == "zupt" and s.gyro_wanted()
+    assert s.sensor_config().acc_rate_hz == CFG.full_rate_hz
+
+
+def test_table1_gait_dr_gyro_off_until_t0_then_on_for_one_step() -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    assert s.ready_for_pdr()
+    s.on_calibrated(10.0, 10)
+    assert s.working == "pdr" and not s.gyro_wanted()
+    assert s.sensor_config().acc_rate_hz == CFG.pdr_rate_hz  # 004 Section 4.3 de-sampling
+    assert not s.exam_due(10.0 + CFG.t0_s - 0.1)
+    assert s.exam_due(10.0 + CFG.t0_s)
+    s.start_exam(40.0, 40)
+    assert s.gyro_wanted() and s.sensor_config().acc_rate_hz == CFG.full_rate_hz
+    s.on_exam_result(True, 1.40, 1.41, 41.0, 41)
+    assert s.working == "pdr" and not s.gyro_wanted()
+
+
+# ---------------------------------------------------------------- Table 2: mode switching
+def test_table2_stays_in_zupt_below_l0() -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m - 2.0)
+    assert not s.ready_for_pdr()
+
+
+def test_table2_new_behaviour_sends_gait_dr_back_to_zupt() -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    events = s.on_behaviour("run", 12.0, 12)
+    assert s.working == "zupt" and s.calibrating == "run" and s.l_zupt_m == 0.0
+    assert any(e.kind == "mode_switch" and e.detail["to"] == "zupt" for e in events)
+
+
+def test_table2_calibrated_behaviour_resumes_gait_dr_with_an_examination() -> None:
+    s = Scheduler("auto", CFG, calibrated("walk"))
+    events = s.on_behaviour("walk", 1.0, 1)
+    assert s.working == "pdr" and s.exam_active
+    assert {e.kind for e in events} >= {"mode_switch", "examination_started"}
+
+
+def test_pdr_mode_ignores_behaviour_changes_and_zupt_mode_never_switches() -> None:
+    s = Scheduler("pdr", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(5.0, 5)
+    s.on_behaviour("run", 6.0, 6)
+    assert s.working == "pdr" and not s.gyro_wanted()
+    z = Scheduler("zupt", CFG, Profile())
+    z.on_behaviour("walk", 1.0, 1)
+    walk_to(z, 10 * CFG.l0_m)
+    assert not z.ready_for_pdr() and z.gyro_wanted()
+    z.on_behaviour("stand", 2.0, 2)
+    assert z.gyro_wanted() and z.sensor_config().acc_rate_hz == CFG.full_rate_hz
+
+
+# ---------------------------------------------------------------- Table 3: examination
+@pytest.mark.parametrize("passed, working", [(True, "pdr"), (False, "zupt")])
+def test_table3_examination_outcome(passed: bool, working: str) -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    s.start_exam(40.0, 40)
+    events = s.on_exam_result(passed, 1.4, 1.2, 41.0, 41)
+    assert s.working == working and not s.exam_active and s.last_exam_s == 41.0
+    assert events[0].kind == ("examination_passed" if passed else "examination_failed")
+    if not passed:
+        assert s.calibrating == "walk" and s.l_zupt_m == 0.0
+
+
+def test_state_round_trip() -> None:
+    s = Scheduler("auto", CFG, calibrated("run"))
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, 7.0)
+    r = Scheduler.from_state(s.get_state())
+    assert r.get_state() == s.get_state()
