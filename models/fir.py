@@ -1,0 +1,195 @@
+"""Hamming-window linear-phase FIR filters and the anti-aliasing decimator (004 Section 2.2 and 4.3).
+
+The step-length model of 004 eq. (15) uses acceleration filtered by a Hamming-window, linear-phase FIR
+filter; the adaptive de-sampling of 004 Section 4.3 lowers the rate of the Gait-PDR mode (e.g. 200 -> 25 Hz),
+which needs an anti-aliasing low-pass before samples are dropped. Both are streaming and chunk-invariant:
+feeding a signal in one call or in arbitrary pieces gives the same output (the filter keeps the last
+``numtaps - 1`` inputs as state).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+__all__ = ["hamming_lowpass", "FirFilter", "Decimator"]
+
+
+def hamming_lowpass(numtaps: int, cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    """Design a linear-phase low-pass FIR with a Hamming window (004 Section 2.2).
+
+    Parameters
+    ----------
+    numtaps : int
+        Filter length; must be odd (type-I linear phase, group delay ``(numtaps - 1) / 2`` samples).
+    cutoff_hz : float
+        -6 dB cut-off frequency [Hz], ``0 < cutoff_hz < rate_hz / 2``.
+    rate_hz : float
+        Sampling rate [Hz].
+
+    Returns
+    -------
+    ndarray, shape (numtaps,)
+        Symmetric taps with unit DC gain.
+    """
+    if numtaps < 1 or numtaps % 2 == 0:
+        raise ValueError(f"numtaps must be odd and positive, got {numtaps}")
+    if not 0.0 < cutoff_hz < rate_hz / 2.0:
+        raise ValueError(f"cutoff {cutoff_hz} Hz must lie in (0, {rate_hz / 2.0}) Hz")
+    return signal.firwin(numtaps, cutoff_hz, window="hamming", fs=rate_hz)
+
+
+class FirFilter:
+    """Streaming FIR filter over one or more channels.
+
+    The output at input sample ``n`` is ``sum_k h[k] x[n - k]`` (causal, delayed by the group delay
+    ``(numtaps - 1) / 2`` samples for linear-phase taps). Before the first sample the history is filled
+    with the first sample (no start-up transient for a signal at rest), which keeps the filter
+    chunk-invariant.
+
+    Parameters
+    ----------
+    taps : ndarray, shape (L,)
+        FIR coefficients.
+    channels : int
+        Number of channels (columns) of the signal.
+    """
+
+    def __init__(self, taps: np.ndarray, channels: int = 1) -> None:
+        self.taps = np.asarray(taps, dtype=np.float64).reshape(-1)
+        self.channels = int(channels)
+        self._hist: np.ndarray | None = None  # last L-1 inputs, oldest first, shape (L-1, C)
+
+    @property
+    def delay_samples(self) -> float:
+        """Group delay [samples] of linear-phase taps."""
+        return (self.taps.size - 1) / 2.0
+
+    def process(self, x: np.ndarray) -> np.ndarray:
+        """Filter the next chunk.
+
+        Parameters
+        ----------
+        x : ndarray, shape (N, C) or (N,) when ``channels == 1``
+            Input samples (any unit; the output has the same unit).
+
+        Returns
+        -------
+        ndarray, same shape as ``x``
+        """
+        x = np.asarray(x, dtype=np.float64)
+        squeeze = x.ndim == 1
+        x2 = x.reshape(-1, self.channels)
+        if x2.shape[0] == 0:
+            return x.copy()
+        n_hist = self.taps.size - 1
+        if self._hist is None:
+            self._hist = np.repeat(x2[:1], n_hist, axis=0)
+        ext = np.concatenate([self._hist, x2], axis=0)
+        y = np.empty_like(x2)
+        for c in range(self.channels):
+            y[:, c] = np.convolve(ext[:, c], self.taps, mode="valid")
+        self._hist = ext[ext.shape[0] - n_hist :].copy() if n_hist else ext[:0].copy()
+        return y.reshape(-1) if squeeze else y
+
+    def get_state(self) -> dict:
+        """Plain-data state for ``energy.codec``."""
+        return {"taps": self.taps.copy(), "channels": self.channels,
+                "hist": None if self._hist is None else self._hist.copy()}
+
+    @classmethod
+    def from_state(cls, d: dict) -> FirFilter:
+        """Rebuild from :meth:`get_state` output."""
+        f = cls(np.asarray(d["taps"]), int(d["channels"]))
+        f._hist = None if d["hist"] is None else np.asarray(d["hist"], dtype=np.float64).copy()
+        return f
+
+
+class Decimator:
+    """Anti-aliased integer down-sampling of a timestamped stream (004 Section 4.3 de-sampling).
+
+    A Hamming-window low-pass at the input rate (cut-off ``0.4 * rate_out_hz``) followed by keeping every
+    ``factor``-th sample. The kept output is stamped with the time of the input sample at the centre of the
+    filter (the group delay is compensated): outputs sit on input samples 0, factor, 2 factor, ... and
+    appear ``(numtaps - 1) / 2`` input samples later (the filter's latency).
+
+    Parameters
+    ----------
+    rate_in_hz : float
+        Nominal input rate [Hz].
+    rate_out_hz : float
+        Requested output rate [Hz]; the factor is ``round(rate_in_hz / rate_out_hz)`` (>= 1) and the actual
+        output rate is ``rate_in_hz / factor`` (see :attr:`rate_out_actual_hz`).
+    channels : int
+        Number of signal columns.
+    taps_per_factor : int
+        Filter length is ``taps_per_factor * factor + 1`` (longer = sharper transition).
+    """
+
+    def __init__(self, rate_in_hz: float, rate_out_hz: float, channels: int = 3,
+                 taps_per_factor: int = 16) -> None:
+        self.rate_in_hz = float(rate_in_hz)
+        self.rate_out_hz = float(rate_out_hz)
+        self.factor = max(1, int(round(self.rate_in_hz / self.rate_out_hz)))
+        self.channels = int(channels)
+        self.taps_per_factor = int(taps_per_factor)
+        if self.factor == 1:
+            taps = np.ones(1)
+        else:
+            taps = hamming_lowpass(self.taps_per_factor * self.factor + 1, 0.4 * self.rate_in_hz / self.factor,
+                                   self.rate_in_hz)
+        self._fir = FirFilter(taps, self.channels)
+        self._count = 0  # input samples consumed so far
+        self._t_hist = np.zeros(0, dtype=np.int64)  # timestamps of the last `delay` inputs
+
+    @property
+    def rate_out_actual_hz(self) -> float:
+        """Output rate [Hz] actually produced."""
+        return self.rate_in_hz / self.factor
+
+    def process(self, t_ns: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Down-sample the next chunk.
+
+        Parameters
+        ----------
+        t_ns : ndarray of int64, shape (N,)
+            Input sample times [ns].
+        x : ndarray, shape (N, C)
+            Input samples (any unit).
+
+        Returns
+        -------
+        t_out_ns : ndarray of int64, shape (M,)
+            Times [ns] of the output samples (group delay compensated).
+        y : ndarray, shape (M, C)
+            Filtered, down-sampled samples.
+        """
+        t_ns = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        x = np.asarray(x, dtype=np.float64).reshape(-1, self.channels)
+        y = self._fir.process(x)
+        delay = int(self._fir.delay_samples)
+        if self._count == 0 and t_ns.size:
+            self._t_hist = np.repeat(t_ns[:1], delay)  # matches the FIR's replicated start
+        t_all = np.concatenate([self._t_hist, t_ns])
+        t_centre = t_all[: t_ns.size]  # input time `delay` samples before each output
+        idx = np.arange(self._count, self._count + t_ns.size)
+        # output n is centred on input n - delay: keep inputs 0, factor, 2 factor, ... (none before the start)
+        keep = (idx >= delay) & (((idx - delay) % self.factor) == 0)
+        self._count += t_ns.size
+        self._t_hist = t_all[t_all.size - delay :].copy() if delay else t_all[:0].copy()
+        return t_centre[keep].copy(), y[keep]
+
+    def get_state(self) -> dict:
+        """Plain-data state for ``energy.codec``."""
+        return {"rate_in_hz": self.rate_in_hz, "rate_out_hz": self.rate_out_hz, "channels": self.channels,
+                "taps_per_factor": self.taps_per_factor, "fir": self._fir.get_state(), "count": self._count,
+                "t_hist": self._t_hist.copy()}
+
+    @classmethod
+    def from_state(cls, d: dict) -> Decimator:
+        """Rebuild from :meth:`get_state` output."""
+        obj = cls(d["rate_in_hz"], d["rate_out_hz"], int(d["channels"]), int(d["taps_per_factor"]))
+        obj._fir = FirFilter.from_state(d["fir"])
+        obj._count = int(d["count"])
+        obj._t_hist = np.asarray(d["t_hist"], dtype=np.int64).copy()
+        return obj
