@@ -1,0 +1,481 @@
+"""Gait/IMU synthesiser: foot-mounted specific force, angular rate and magnetic field with ground truth.
+
+The foot trajectory is built first and the sensor signals are derived from it analytically, so a strapdown
+integration of the noise-free signals reproduces the truth:
+
+- stance phases: the foot rests (zero velocity, constant attitude);
+- swing phases: horizontal travel along the stride direction with a minimum-jerk profile
+  ``s(tau) = L (10 tau^3 - 15 tau^4 + 6 tau^5)``, a vertical lift ``-h 64 tau^3 (1 - tau)^3`` (NED, up is
+  negative), a foot pitch profile ``A sin(2 pi tau) sin^2(pi tau)`` (toe-off up, heel strike down) and, in
+  turns, a minimum-jerk heading change; all have zero rate at both ends of the swing.
+- specific force in the body frame ``f_b = C_n^b (a_n - g_n)`` with ``g_n = (0, 0, g)`` NED, so at rest the
+  body z axis (pointing down out of the sole) reads ``-g``; body angular rate from the ZYX Euler rates;
+  magnetic field ``m_b = C_n^b (m_n + d_n(t))`` with an Earth field ``m_n`` and disturbances ``d_n`` near steel.
+- sensor errors from 002 Table 3 (LSM9DS1, Allan variance): white noise densities, bias instability as a
+  first-order Gauss-Markov process, plus a constant turn-on bias; deterministic from the seed.
+
+Body frame of the foot sensor: x forward along the foot, y right, z down (through the sole), like the
+University of Toronto recordings. Attitude ``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from clients.recording import Recording, RecordingMeta, Truth
+from models.batch import SensorBatch
+
+__all__ = [
+    "GaitParams",
+    "GAITS",
+    "Segment",
+    "Scenario",
+    "SensorErrors",
+    "LSM9DS1",
+    "scenario_names",
+    "get_scenario",
+    "synthesize",
+]
+
+G = 9.80665  # m/s^2
+DEG = np.pi / 180.0
+
+
+@dataclass(frozen=True)
+class GaitParams:
+    """One gait of the instrumented foot.
+
+    Parameters
+    ----------
+    stride_period_s : float
+        Duration of one stride of the instrumented foot [s].
+    duty_factor : float
+        Fraction of the stride the foot rests flat on the ground (zero velocity). Heel-off and toe-off belong
+        to the gait's stance but the foot already moves then, so this is below the gait duty factor
+        (walking about 0.45-0.6, running 0.2-0.3, matching the |a| ~ g fraction of the real recordings).
+    stride_length_m : float
+        Horizontal foot travel per stride [m].
+    lift_m : float
+        Peak foot lift during swing [m].
+    peak_pitch_rate : float
+        Peak foot pitch rate during swing [rad/s].
+    """
+
+    stride_period_s: float
+    duty_factor: float
+    stride_length_m: float
+    lift_m: float
+    peak_pitch_rate: float
+
+
+# Typical adult values (foot-mounted IMU literature and the development recordings: walking strides 1.0-1.6 s,
+# running 0.7-0.8 s; peak foot pitch rates walking 4-9 rad/s, running 9-12 rad/s).
+GAITS: dict[str, GaitParams] = {
+    "walk_slow": GaitParams(1.35, 0.58, 1.05, 0.08, 4.5),
+    "walk": GaitParams(1.15, 0.50, 1.35, 0.10, 6.5),
+    "walk_fast": GaitParams(1.02, 0.46, 1.60, 0.12, 8.0),
+    "run": GaitParams(0.74, 0.25, 2.30, 0.18, 10.5),
+}
+
+BEHAVIOUR_OF: dict[str, str] = {"walk_slow": "walk", "walk": "walk", "walk_fast": "walk", "run": "run", "stand": "stand"}
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of one behaviour.
+
+    Parameters
+    ----------
+    kind : str
+        ``"stand"`` or a key of :data:`GAITS`.
+    duration_s : float
+        Duration [s] (a gait segment holds as many whole strides as fit, then rests).
+    turn_deg : float
+        Heading change over the segment [deg], clockwise positive, spread over up to 4 strides mid-segment.
+    steel : bool
+        Whether the segment passes near steel (a magnetic disturbance of ``steel_ut`` uT in the field).
+    """
+
+    kind: str
+    duration_s: float
+    turn_deg: float = 0.0
+    steel: bool = False
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named sequence of segments starting at ``heading_deg`` [deg, clockwise from north]."""
+
+    name: str
+    segments: tuple[Segment, ...]
+    heading_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class SensorErrors:
+    """Sensor error model (per axis, 1 sigma).
+
+    Parameters
+    ----------
+    acc_noise_density : float
+        Accelerometer white noise [m/s^2/sqrt(Hz)].
+    gyr_noise_density : float
+        Gyroscope white noise [rad/s/sqrt(Hz)].
+    mag_noise_rms : float
+        Magnetometer white noise per sample [uT].
+    acc_bias_instability, gyr_bias_instability : float
+        Bias instability [m/s^2], [rad/s], modelled as a Gauss-Markov process with ``bias_tau_s``.
+    acc_turn_on_bias, gyr_turn_on_bias : float
+        Constant bias drawn once per recording [m/s^2], [rad/s].
+    bias_tau_s : float
+        Correlation time of the bias process [s].
+    """
+
+    acc_noise_density: float
+    gyr_noise_density: float
+    mag_noise_rms: float
+    acc_bias_instability: float
+    gyr_bias_instability: float
+    acc_turn_on_bias: float
+    gyr_turn_on_bias: float
+    bias_tau_s: float = 100.0
+
+
+# 002 Table 3 (LSM9DS1, Allan variance): acc noise 226 ug/sqrt(Hz), gyro 0.017 deg/s/sqrt(Hz), bias instability
+# acc 182 ug, gyro 8.63 deg/h. 002's magnetometer figure (7.9 uT/sqrt(Hz)) is implausibly large for the part
+# (it would bury the Earth field at 80 Hz); we use 0.3 uT rms per sample (LSM9DS1 resolution 0.014 uT at
+# +-4 gauss; typical RMS noise of such magnetometers is a few tenths of a uT). Turn-on biases: small residuals
+# after a factory/static calibration (assumption, 10 mg and 0.5 deg/s).
+LSM9DS1 = SensorErrors(
+    acc_noise_density=226e-6 * G,
+    gyr_noise_density=0.017 * DEG,
+    mag_noise_rms=0.3,
+    acc_bias_instability=182e-6 * G,
+    gyr_bias_instability=8.63 * DEG / 3600.0,
+    acc_turn_on_bias=0.01 * G,
+    gyr_turn_on_bias=0.5 * DEG,
+)
+
+EARTH_FIELD_UT = np.array([22.0, 1.5, 42.0])  # NED [uT]: ~47 uT, inclination ~62 deg (mid-latitude Europe)
+STEEL_UT = 25.0  # uT, peak disturbance magnitude near steel structures
+
+
+def _s(S: list[Segment]) -> tuple[Segment, ...]:
+    return tuple(S)
+
+
+_SCENARIOS: dict[str, Scenario] = {
+    "stand": Scenario("stand", _s([Segment("stand", 30.0)])),
+    "walk": Scenario(
+        "walk",
+        _s([Segment("stand", 5.0), Segment("walk", 30.0, 90.0), Segment("walk", 30.0, -90.0), Segment("stand", 5.0)]),
+    ),
+    "run": Scenario("run", _s([Segment("stand", 5.0), Segment("run", 40.0, 90.0), Segment("stand", 5.0)])),
+    "demo": Scenario(
+        "demo",
+        _s(
+            [
+                Segment("stand", 10.0),
+                Segment("walk", 25.0, 90.0),
+                Segment("walk", 15.0),
+                Segment("run", 25.0, 90.0),
+                Segment("walk_fast", 15.0, 90.0),
+                Segment("walk_slow", 15.0),
+                Segment("stand", 10.0),
+            ]
+        ),
+    ),
+    "mixed-day": Scenario(
+        "mixed-day",
+        _s(
+            [
+                Segment("stand", 40.0),
+                Segment("walk_slow", 30.0, 90.0),
+                Segment("stand", 20.0),
+                Segment("walk", 45.0, 90.0),
+                Segment("walk", 20.0, 0.0, steel=True),
+                Segment("walk_fast", 30.0, -90.0),
+                Segment("stand", 30.0),
+                Segment("run", 30.0, 90.0),
+                Segment("walk", 30.0, 180.0),
+                Segment("stand", 60.0),
+                Segment("walk", 40.0, -90.0, steel=True),
+                Segment("walk_slow", 20.0),
+                Segment("stand", 30.0),
+            ]
+        ),
+    ),
+}
+
+
+def scenario_names() -> list[str]:
+    """Names accepted by :func:`synthesize`."""
+    return list(_SCENARIOS)
+
+
+def get_scenario(name: str) -> Scenario:
+    """The named scenario (``KeyError`` listing the names when unknown)."""
+    try:
+        return _SCENARIOS[name]
+    except KeyError:
+        raise KeyError(f"unknown scenario {name!r}; known: {', '.join(_SCENARIOS)}") from None
+
+
+# ---------------------------------------------------------------------------------------------- profiles
+def _minjerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum-jerk 0 -> 1 and its first two derivatives with respect to ``tau``."""
+    s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+    ds = 30 * tau**2 - 60 * tau**3 + 30 * tau**4
+    dds = 60 * tau - 180 * tau**2 + 120 * tau**3
+    return s, ds, dds
+
+
+def _lift(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit bump ``64 tau^3 (1 - tau)^3`` (peak 1 at 0.5; zero rate and acceleration at both ends), derivatives."""
+    u = 1 - tau
+    z = 64 * tau**3 * u**3
+    dz = 192 * tau**2 * u**2 * (1 - 2 * tau)
+    ddz = 384 * tau * u * ((1 - 2 * tau) ** 2 - tau * u)
+    return z, dz, ddz
+
+
+def _pitch_shape(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pitch shape ``sin(2 pi tau) sin^2(pi tau)`` and its derivative (zero value and rate at both ends)."""
+    a, b = np.sin(2 * np.pi * tau), np.sin(np.pi * tau)
+    val = a * b**2
+    der = 2 * np.pi * np.cos(2 * np.pi * tau) * b**2 + a * 2 * np.pi * b * np.cos(np.pi * tau)
+    return val, der
+
+
+_TAU = np.linspace(0.0, 1.0, 2001)
+_PITCH_SHAPE_MAX_RATE = float(np.max(np.abs(_pitch_shape(_TAU)[1])))
+
+
+def _dcm_nb(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Body-to-NED DCMs ``Rz(yaw) Ry(pitch) Rx(roll)``, shape (N, 3, 3)."""
+    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    c = np.empty(roll.shape + (3, 3))
+    c[..., 0, 0] = cy * cp
+    c[..., 0, 1] = cy * sp * sr - sy * cr
+    c[..., 0, 2] = cy * sp * cr + sy * sr
+    c[..., 1, 0] = sy * cp
+    c[..., 1, 1] = sy * sp * sr + cy * cr
+    c[..., 1, 2] = sy * sp * cr - cy * sr
+    c[..., 2, 0] = -sp
+    c[..., 2, 1] = cp * sr
+    c[..., 2, 2] = cp * cr
+    return c
+
+
+# ---------------------------------------------------------------------------------------------- synthesis
+@dataclass
+class _Strides:
+    t0: list[float] = field(default_factory=list)  # swing start [s]
+    dur: list[float] = field(default_factory=list)  # swing duration [s]
+    p0: list[np.ndarray] = field(default_factory=list)  # foot position at swing start (NED) [m]
+    length: list[float] = field(default_factory=list)
+    direction: list[float] = field(default_factory=list)  # travel direction [rad]
+    yaw0: list[float] = field(default_factory=list)
+    dyaw: list[float] = field(default_factory=list)
+    pitch_amp: list[float] = field(default_factory=list)
+    lift: list[float] = field(default_factory=list)
+
+
+def _plan(scn: Scenario, rng: np.random.Generator) -> tuple[_Strides, list[tuple[float, float, str]], list[tuple[float, float]], float]:
+    """Lay out strides; return them, behaviour intervals ``(t0, t1, label)``, steel intervals, total duration."""
+    st = _Strides()
+    labels: list[tuple[float, float, str]] = []
+    steel: list[tuple[float, float]] = []
+    t = 0.0
+    pos = np.zeros(3)
+    yaw = scn.heading_deg * DEG
+    for seg in scn.segments:
+        t_end = t + seg.duration_s
+        if seg.steel:
+            steel.append((t, t_end))
+        if seg.kind == "stand":
+            labels.append((t, t_end, "stand"))
+            t = t_end
+            continue
+        gp = GAITS[seg.kind]
+        n = int(seg.duration_s // gp.stride_period_s)
+        n_turn = min(4, n)
+        first_turn = max(0, (n - n_turn) // 2)
+        seg_start = t
+        for i in range(n):
+            period = gp.stride_period_s * (1 + 0.03 * rng.standard_normal())
+            length = gp.stride_length_m * (1 + 0.03 * rng.standard_normal())
+            t_stance = period * gp.duty_factor
+            t_swing = period - t_stance
+            dyaw = seg.turn_deg * DEG / n_turn if first_turn <= i < first_turn + n_turn else 0.0
+            st.t0.append(t + t_stance)
+            st.dur.append(t_swing)
+            st.p0.append(pos.copy())
+            st.length.append(length)
+            st.direction.append(yaw + dyaw / 2)
+            st.yaw0.append(yaw)
+            st.dyaw.append(dyaw)
+            st.pitch_amp.append(gp.peak_pitch_rate * t_swing / _PITCH_SHAPE_MAX_RATE)
+            st.lift.append(gp.lift_m)
+            pos = pos + length * np.array([np.cos(yaw + dyaw / 2), np.sin(yaw + dyaw / 2), 0.0])
+            yaw += dyaw
+            t += period
+        # The gait lasts until the last heel strike; the remaining time is a rest (the person stops).
+        labels.append((seg_start, t, BEHAVIOUR_OF[seg.kind]))
+        if t_end > t:
+            labels.append((t, t_end, "stand"))
+        t = t_end
+    return st, labels, steel, t
+
+
+def synthesize(
+    scenario: str | Scenario,
+    seed: int = 0,
+    rate_hz: float = 200.0,
+    errors: SensorErrors = LSM9DS1,
+    mag_rate_hz: float | None = None,
+) -> Recording:
+    """Synthesise a foot-mounted MARG recording with ground truth.
+
+    Parameters
+    ----------
+    scenario : str or Scenario
+        A name from :func:`scenario_names` or a custom :class:`Scenario`.
+    seed : int
+        Seed of every random choice (stride variability, noise, biases): same seed, same recording.
+    rate_hz : float
+        Accelerometer and gyroscope rate [Hz].
+    errors : SensorErrors
+        Sensor error model (default: 002 Table 3, LSM9DS1).
+    mag_rate_hz : float, optional
+        Magnetometer rate [Hz]; default ``rate_hz``.
+
+    Returns
+    -------
+    Recording
+        ``batch`` in SI (m/s^2, rad/s, uT; body frame x forward, y right, z down through the sole);
+        ``truth.positions`` NED foot position [m] per accelerometer sample; ``truth.extra`` holds per-sample
+        ``behaviour`` (array of str), ``heading_rad``, ``stance`` (bool), ``velocity`` (N, 3) [m/s],
+        ``attitude_euler`` (N, 3) [rad], and per stride ``step_t_s`` (heel strikes), ``step_lengths_m``,
+        plus ``segments`` (t0, t1, label) and ``steel_intervals``.
+    """
+    scn = get_scenario(scenario) if isinstance(scenario, str) else scenario
+    rng = np.random.default_rng(seed)
+    st, labels, steel, duration = _plan(scn, rng)
+    n = int(np.floor(duration * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+
+    pos = np.zeros((n, 3))
+    vel = np.zeros((n, 3))
+    acc_n = np.zeros((n, 3))
+    pitch = np.zeros(n)
+    dpitch = np.zeros(n)
+    yaw = np.full(n, scn.heading_deg * DEG)
+    dyaw = np.zeros(n)
+    stance = np.ones(n, dtype=bool)
+    # Rest positions/attitude between swings: fill forward from each stride's end.
+    for k in range(len(st.t0)):
+        t0, T = st.t0[k], st.dur[k]
+        i0 = int(np.ceil(t0 * rate_hz - 1e-9))
+        i1 = int(np.ceil((t0 + T) * rate_hz - 1e-9))
+        u = np.array([np.cos(st.direction[k]), np.sin(st.direction[k]), 0.0])
+        p_end = st.p0[k] + st.length[k] * u
+        yaw_end = st.yaw0[k] + st.dyaw[k]
+        pos[i0:] = p_end
+        yaw[i0:] = yaw_end
+        if i1 <= i0:
+            continue
+        tau = (t[i0:i1] - t0) / T
+        s, ds, dds = _minjerk(tau)
+        z, dz, ddz = _lift(tau)
+        pos[i0:i1] = st.p0[k] + np.outer(st.length[k] * s, u)
+        pos[i0:i1, 2] -= st.lift[k] * z
+        vel[i0:i1] = np.outer(st.length[k] * ds / T, u)
+        vel[i0:i1, 2] = -st.lift[k] * dz / T
+        acc_n[i0:i1] = np.outer(st.length[k] * dds / T**2, u)
+        acc_n[i0:i1, 2] = -st.lift[k] * ddz / T**2
+        pv, pd = _pitch_shape(tau)
+        pitch[i0:i1] = st.pitch_amp[k] * pv
+        dpitch[i0:i1] = st.pitch_amp[k] * pd / T
+        y, dy, _ = _minjerk(tau)
+        yaw[i0:i1] = st.yaw0[k] + st.dyaw[k] * y
+        dyaw[i0:i1] = st.dyaw[k] * dy / T
+        stance[i0:i1] = False
+    roll = np.zeros(n)
+    droll = np.zeros(n)
+
+    c_nb = _dcm_nb(roll, pitch, yaw)
+    g_n = np.array([0.0, 0.0, G])
+    f_b = np.einsum("nji,nj->ni", c_nb, acc_n - g_n)  # f_b = C_n^b (a_n - g_n)
+    # Body rates from ZYX Euler rates.
+    w_b = np.stack(
+        [
+            droll - dyaw * np.sin(pitch),
+            dpitch * np.cos(roll) + dyaw * np.cos(pitch) * np.sin(roll),
+            -dpitch * np.sin(roll) + dyaw * np.cos(pitch) * np.cos(roll),
+        ],
+        axis=1,
+    )
+    # Magnetic field: Earth field plus smooth disturbances near steel (direction fixed per interval).
+    d_n = np.zeros((n, 3))
+    for a, b in steel:
+        m = (t >= a) & (t < b)
+        bump = np.sin(np.pi * (t[m] - a) / (b - a)) ** 2
+        direction = rng.standard_normal(3)
+        direction /= np.linalg.norm(direction)
+        d_n[m] = STEEL_UT * np.outer(bump, direction)
+    m_b = np.einsum("nji,nj->ni", c_nb, EARTH_FIELD_UT + d_n)
+
+    # Sensor errors (per-sample white noise sigma = density * sqrt(rate)).
+    def bias_process(sigma: float, turn_on: float) -> np.ndarray:
+        phi = np.exp(-1.0 / (rate_hz * errors.bias_tau_s))
+        e = rng.standard_normal((n, 3)) * sigma * np.sqrt(1 - phi**2)
+        e[0] = rng.standard_normal(3) * sigma
+        b = lfilter([1.0], [1.0, -phi], e, axis=0)  # first-order Gauss-Markov: b_i = phi b_(i-1) + e_i
+        return b + rng.standard_normal(3) * turn_on
+
+    f_meas = f_b + bias_process(errors.acc_bias_instability, errors.acc_turn_on_bias)
+    f_meas += rng.standard_normal((n, 3)) * errors.acc_noise_density * np.sqrt(rate_hz)
+    w_meas = w_b + bias_process(errors.gyr_bias_instability, errors.gyr_turn_on_bias)
+    w_meas += rng.standard_normal((n, 3)) * errors.gyr_noise_density * np.sqrt(rate_hz)
+    m_meas = m_b + rng.standard_normal((n, 3)) * errors.mag_noise_rms
+
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    mag_step = max(1, int(round(rate_hz / mag_rate_hz))) if mag_rate_hz else 1
+    batch = SensorBatch(
+        acc_t_ns=t_ns, acc=f_meas, gyr_t_ns=t_ns.copy(), gyr=w_meas, mag_t_ns=t_ns[::mag_step].copy(), mag=m_meas[::mag_step]
+    )
+    behaviour = np.empty(n, dtype=object)
+    for a, b, lab in labels:
+        behaviour[(t >= a - 1e-12) & (t < b)] = lab
+    behaviour[behaviour == None] = "stand"  # noqa: E711  (last sample)
+    step_t = np.array([a + d for a, d in zip(st.t0, st.dur)])
+    truth = Truth(
+        t_ns=t_ns.copy(),
+        positions=pos,
+        extra={
+            "behaviour": behaviour.astype(str),
+            "heading_rad": yaw,
+            "stance": stance,
+            "velocity": vel,
+            "attitude_euler": np.stack([roll, pitch, yaw], axis=1),
+            "specific_force_true": f_b,
+            "angular_rate_true": w_b,
+            "step_t_s": step_t,
+            "step_lengths_m": np.array(st.length),
+            "segments": labels,
+            "steel_intervals": steel,
+            "seed": seed,
+        },
+    )
+    meta = RecordingMeta(
+        source_format="synthetic",
+        rate_hz=float(rate_hz),
+        units_converted={},
+        mount="foot (x forward, y right, z down through the sole)",
+        notes=(f"scenario {scn.name}, seed {seed}",),
+    )
+    return Recording(name=f"synthetic:{scn.name}:{seed}", batch=batch, meta=meta, truth=truth)
