@@ -1,0 +1,88 @@
+"""The FastAPI application factory (OpenAPI page at /docs)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from models.batch import BatchError
+from server.db import make_engine, make_sessionmaker, migrate
+from server.formats import PayloadTooLarge
+from server.ingest import EngineHost, IngestConflict
+from server.settings import Settings
+
+__all__ = ["create_app"]
+
+
+def create_app(settings: Settings | None = None, engine_cls: Any | None = None) -> FastAPI:
+    """Build the app: database engine, migrations (when enabled), routers under ``/v1``.
+
+    Parameters
+    ----------
+    settings : Settings, optional
+        Defaults to ``Settings()`` (``PEDNAV_*`` environment variables).
+    engine_cls : type, optional
+        Navigation engine class (default :class:`energy.engine.Engine`); lets an operator run a newer engine.
+    """
+    from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, trajectories, users
+
+    settings = settings or Settings()
+    app = FastAPI(
+        title="pednav",
+        version="1",
+        description="Energy-aware pedestrian navigation service: sessions, sensor batches, calibration profiles, trajectories.",
+    )
+    db_engine = make_engine(settings)
+    if settings.migrate_on_startup:
+        migrate(db_engine)
+    app.state.settings = settings
+    app.state.db_engine = db_engine
+    app.state.sessionmaker = make_sessionmaker(db_engine)
+    app.state.host = EngineHost(settings.engine_cache_size, engine_cls)
+
+    @app.middleware("http")
+    async def _limit_body(request: Request, call_next):  # type: ignore[no-untyped-def]
+        length = request.headers.get("content-length")
+        if length is not None and length.isdigit() and int(length) > settings.max_body_bytes:
+            return JSONResponse(
+                status_code=413,
+                content={"detail": f"body of {length} bytes exceeds the limit of {settings.max_body_bytes} bytes"},
+            )
+        return await call_next(request)
+
+    @app.exception_handler(BatchError)
+    async def _batch_error(_request: Request, exc: BatchError) -> JSONResponse:
+        return JSONResponse(status_code=422, content={"detail": f"{exc.field}: {exc.problem}", "field": exc.field, "problem": exc.problem})
+
+    @app.exception_handler(PayloadTooLarge)
+    async def _too_large(_request: Request, exc: PayloadTooLarge) -> JSONResponse:
+        return JSONResponse(status_code=413, content={"detail": str(exc)})
+
+    @app.exception_handler(IngestConflict)
+    async def _conflict(_request: Request, exc: IngestConflict) -> JSONResponse:
+        return JSONResponse(status_code=409, content={"detail": exc.message, "expected_seq": exc.expected_seq})
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        errs = exc.errors()
+        fields = [".".join(str(p) for p in e.get("loc", ()) if p != "body") for e in errs]
+        msg = "; ".join(f"{f}: {e.get('msg')}" for f, e in zip(fields, errs))
+        return JSONResponse(status_code=422, content={"detail": msg, "field": fields[0] if fields else None, "errors": [
+            {"field": f, "problem": e.get("msg")} for f, e in zip(fields, errs)]})
+
+    for r in (auth, users, devices, sessions, batches, profiles, trajectories, sensorlogger):
+        app.include_router(r.router, prefix="/v1")
+
+    @app.get("/healthz", tags=["meta"])
+    def healthz() -> dict[str, str]:
+        return {"status": "ok"}
+
+    return app
+
+
+def app_from_env() -> FastAPI:
+    """Factory for ``uvicorn --factory server.app:app_from_env`` (settings from ``PEDNAV_*``)."""
+    return create_app(Settings())

@@ -1,0 +1,153 @@
+"""Thin data-access layer: every query is scoped by the owning user."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from server.models import (
+    BatchRecord,
+    Device,
+    EventRecord,
+    PositionRecord,
+    ProfileVersion,
+    Token,
+    TrackSession,
+    User,
+)
+from server.security import hash_token, new_token
+
+__all__ = [
+    "create_user",
+    "issue_token",
+    "user_by_token",
+    "create_device",
+    "list_devices",
+    "get_device",
+    "create_session",
+    "get_session",
+    "list_sessions",
+    "get_batch",
+    "positions_of",
+    "events_of",
+    "current_profiles",
+    "profile_history",
+    "add_profile_version",
+]
+
+
+def create_user(db: Session, name: str, is_admin: bool = False) -> tuple[User, str]:
+    """Create a user and its first token; returns ``(user, token)`` (the token is shown only once)."""
+    user = User(name=name, is_admin=is_admin)
+    db.add(user)
+    db.flush()
+    token = issue_token(db, user, "initial")
+    return user, token
+
+
+def issue_token(db: Session, user: User, label: str = "") -> str:
+    token = new_token()
+    db.add(Token(user_id=user.id, token_hash=hash_token(token), label=label))
+    db.flush()
+    return token
+
+
+def user_by_token(db: Session, token: str) -> User | None:
+    row = db.execute(
+        select(User).join(Token, Token.user_id == User.id).where(Token.token_hash == hash_token(token), Token.revoked.is_(False))
+    ).scalar_one_or_none()
+    return row
+
+
+def user_by_name(db: Session, name: str) -> User | None:
+    return db.execute(select(User).where(User.name == name)).scalar_one_or_none()
+
+
+def create_device(db: Session, user: User, kind: str, name: str) -> Device:
+    dev = Device(user_id=user.id, kind=kind, name=name)
+    db.add(dev)
+    db.flush()
+    return dev
+
+
+def list_devices(db: Session, user: User) -> list[Device]:
+    return list(db.execute(select(Device).where(Device.user_id == user.id).order_by(Device.id)).scalars())
+
+
+def get_device(db: Session, user: User, device_id: int) -> Device | None:
+    return db.execute(select(Device).where(Device.id == device_id, Device.user_id == user.id)).scalar_one_or_none()
+
+
+def create_session(db: Session, user: User, **fields: Any) -> TrackSession:
+    sess = TrackSession(user_id=user.id, **fields)
+    db.add(sess)
+    db.flush()
+    return sess
+
+
+def get_session(db: Session, user: User, session_id: int, for_update: bool = False) -> TrackSession | None:
+    q = select(TrackSession).where(TrackSession.id == session_id, TrackSession.user_id == user.id)
+    if for_update:
+        q = q.with_for_update()
+    return db.execute(q).scalar_one_or_none()
+
+
+def list_sessions(db: Session, user: User, status: str | None = None, limit: int = 100, offset: int = 0) -> list[TrackSession]:
+    q = select(TrackSession).where(TrackSession.user_id == user.id)
+    if status:
+        q = q.where(TrackSession.status == status)
+    return list(db.execute(q.order_by(TrackSession.id).limit(limit).offset(offset)).scalars())
+
+
+def get_batch(db: Session, session_id: int, seq: int) -> BatchRecord | None:
+    return db.execute(select(BatchRecord).where(BatchRecord.session_id == session_id, BatchRecord.seq == seq)).scalar_one_or_none()
+
+
+def batches_of(db: Session, session_id: int) -> list[BatchRecord]:
+    return list(db.execute(select(BatchRecord).where(BatchRecord.session_id == session_id).order_by(BatchRecord.seq)).scalars())
+
+
+def positions_of(db: Session, session_id: int) -> list[PositionRecord]:
+    return list(db.execute(select(PositionRecord).where(PositionRecord.session_id == session_id).order_by(PositionRecord.id)).scalars())
+
+
+def events_of(db: Session, session_id: int) -> list[EventRecord]:
+    return list(db.execute(select(EventRecord).where(EventRecord.session_id == session_id).order_by(EventRecord.id)).scalars())
+
+
+def _latest_versions(db: Session, user_id: int) -> list[ProfileVersion]:
+    sub = (
+        select(ProfileVersion.behaviour, func.max(ProfileVersion.version).label("v"))
+        .where(ProfileVersion.user_id == user_id)
+        .group_by(ProfileVersion.behaviour)
+        .subquery()
+    )
+    q = select(ProfileVersion).join(sub, (ProfileVersion.behaviour == sub.c.behaviour) & (ProfileVersion.version == sub.c.v))
+    return list(db.execute(q.where(ProfileVersion.user_id == user_id)).scalars())
+
+
+def current_profiles(db: Session, user: User) -> dict[str, ProfileVersion]:
+    """Latest version per behaviour (including resets, whose ``data`` is None)."""
+    return {p.behaviour: p for p in _latest_versions(db, user.id)}
+
+
+def profile_history(db: Session, user: User, behaviour: str) -> list[ProfileVersion]:
+    q = select(ProfileVersion).where(ProfileVersion.user_id == user.id, ProfileVersion.behaviour == behaviour)
+    return list(db.execute(q.order_by(ProfileVersion.version)).scalars())
+
+
+def add_profile_version(db: Session, user: User, behaviour: str, data: dict[str, Any] | None, source: str) -> ProfileVersion:
+    last = db.execute(
+        select(func.max(ProfileVersion.version)).where(ProfileVersion.user_id == user.id, ProfileVersion.behaviour == behaviour)
+    ).scalar_one()
+    row = ProfileVersion(user_id=user.id, behaviour=behaviour, version=(last or 0) + 1, data=data, source=source)
+    db.add(row)
+    db.flush()
+    return row
+
+
+def utcnow() -> datetime:
+    return datetime.now(timezone.utc)

@@ -1,0 +1,73 @@
+"""Database engine and sessions; migrations run programmatically (works from an installed package)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.orm import Session, sessionmaker
+
+from server.settings import Settings
+
+__all__ = ["make_engine", "make_sessionmaker", "migrate", "session_scope"]
+
+_HERE = Path(__file__).resolve().parent
+
+
+def make_engine(settings: Settings) -> Engine:
+    """SQLAlchemy engine for ``settings.database_url`` (SQLite: WAL + busy timeout; PostgreSQL: schema)."""
+    url = settings.database_url
+    if url.startswith("sqlite"):
+        eng = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+
+        @event.listens_for(eng, "connect")
+        def _sqlite_pragmas(dbapi_conn, _rec) -> None:  # type: ignore[no-untyped-def]
+            cur = dbapi_conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute("PRAGMA synchronous=NORMAL")
+            cur.execute("PRAGMA foreign_keys=ON")
+            cur.close()
+
+        return eng
+    eng = create_engine(url, pool_size=10, max_overflow=20, pool_pre_ping=True)
+    if settings.db_schema:
+        schema = settings.db_schema
+
+        @event.listens_for(eng, "connect")
+        def _pg_schema(dbapi_conn, _rec) -> None:  # type: ignore[no-untyped-def]
+            cur = dbapi_conn.cursor()
+            cur.execute(f'CREATE SCHEMA IF NOT EXISTS "{schema}"')
+            cur.execute(f'SET search_path TO "{schema}"')
+            cur.close()
+            dbapi_conn.commit()
+
+    return eng
+
+
+def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
+    return sessionmaker(engine, expire_on_commit=False)
+
+
+def migrate(engine: Engine, revision: str = "head") -> None:
+    """Upgrade the database behind ``engine`` to ``revision`` with Alembic."""
+    from alembic import command
+    from alembic.config import Config
+
+    cfg = Config(str(_HERE / "alembic.ini"))
+    cfg.set_main_option("script_location", str(_HERE / "migrations"))
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.upgrade(cfg, revision)
+
+
+def session_scope(factory: sessionmaker[Session]) -> Iterator[Session]:
+    """Yield a session and close it (used by the FastAPI dependency)."""
+    with factory() as s:
+        yield s
+
+
+def drop_schema(engine: Engine, schema: str) -> None:
+    """Drop a PostgreSQL schema and everything in it (tests)."""
+    with engine.begin() as conn:
+        conn.execute(text(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE'))

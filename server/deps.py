@@ -1,0 +1,57 @@
+"""FastAPI dependencies as ``Annotated`` aliases: the database session and the authenticated user."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Request, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+
+from server import crud
+from server.ingest import EngineHost
+from server.models import User
+from server.settings import Settings
+
+__all__ = ["SessionDep", "CurrentUser", "SettingsDep", "HostDep", "get_db", "current_user"]
+
+_bearer = HTTPBearer(auto_error=False)
+
+
+def get_db(request: Request) -> Iterator[Session]:
+    with request.app.state.sessionmaker() as db:
+        yield db
+
+
+SessionDep = Annotated[Session, Depends(get_db)]
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_host(request: Request) -> EngineHost:
+    return request.app.state.host
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+HostDep = Annotated[EngineHost, Depends(get_host)]
+
+
+def current_user(
+    db: SessionDep,
+    request: Request,
+    cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> User:
+    """The user owning the bearer token (``Authorization: Bearer ...``; ``?token=`` for Sensor Logger)."""
+    token = cred.credentials if cred is not None else request.query_params.get("token")
+    if not token:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers={"WWW-Authenticate": "Bearer"})
+    user = crud.user_by_token(db, token)
+    if user is None:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers={"WWW-Authenticate": "Bearer"})
+    return user
+
+
+CurrentUser = Annotated[User, Depends(current_user)]

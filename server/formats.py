@@ -1,0 +1,191 @@
+"""Wire formats of a sensor batch: JSON and a compact msgpack body.
+
+JSON (``application/json``)::
+
+    {"acc": {"t_ns": [int, ...], "xyz": [[x, y, z], ...]}, "gyr": {...}, "mag": {...}}
+
+Binary (``application/msgpack``)::
+
+    {"v": 1, "acc": {"n": N, "t0": int, "dt": <N-1 little-endian int32 deltas [ns]>,
+                     "dtype": "<f4" | "<f8", "xyz": <N*3 little-endian floats, row-major>}, ...}
+
+``dt`` may be replaced by ``"t": <N little-endian int64>`` when a delta does not fit int32 (gaps > 2.1 s).
+Android delivers ``SensorEvent.values`` as float32, so ``<f4`` is lossless for phone data; ``<f8`` is lossless
+for anything (used by replays that must match local processing bit for bit). Streams a device did not sample
+are omitted. Units are those of :class:`models.batch.SensorBatch` (m/s^2, rad/s, uT, int64 ns).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from models.batch import STREAMS, BatchError, SensorBatch
+
+__all__ = [
+    "JSON_TYPE",
+    "MSGPACK_TYPE",
+    "PayloadTooLarge",
+    "decode_batch",
+    "encode_json",
+    "encode_msgpack",
+    "canonical_bytes",
+    "digest",
+]
+
+JSON_TYPE = "application/json"
+MSGPACK_TYPE = "application/msgpack"
+_I32 = np.iinfo(np.int32)
+
+
+class PayloadTooLarge(ValueError):
+    """A stream holds more samples than the server accepts in one batch."""
+
+
+def encode_json(batch: SensorBatch) -> bytes:
+    """JSON body of ``batch`` (floats printed with full float64 precision)."""
+    doc: dict[str, Any] = {}
+    for name in STREAMS:
+        t, v = batch.stream(name)
+        if t.size:
+            doc[name] = {"t_ns": t.tolist(), "xyz": v.tolist()}
+    return json.dumps(doc, separators=(",", ":")).encode()
+
+
+def encode_msgpack(batch: SensorBatch, dtype: str = "<f8") -> bytes:
+    """Compact msgpack body of ``batch``; ``dtype`` ``"<f4"`` (phones) or ``"<f8"`` (lossless)."""
+    if dtype not in ("<f4", "<f8"):
+        raise ValueError("dtype must be '<f4' or '<f8'")
+    doc: dict[str, Any] = {"v": 1}
+    for name in STREAMS:
+        t, v = batch.stream(name)
+        if not t.size:
+            continue
+        s: dict[str, Any] = {"n": int(t.size), "dtype": dtype, "xyz": np.ascontiguousarray(v, dtype=dtype).tobytes()}
+        d = np.diff(t)
+        if d.size == 0 or (d.min() >= _I32.min and d.max() <= _I32.max):
+            s["t0"] = int(t[0])
+            s["dt"] = d.astype("<i4").tobytes()
+        else:
+            s["t"] = t.astype("<i8").tobytes()
+        doc[name] = s
+    return msgpack.packb(doc, use_bin_type=True)
+
+
+def _check_n(field: str, n: int, limit: int) -> None:
+    if n > limit:
+        raise PayloadTooLarge(f"{field}: {n} samples exceed the limit of {limit} per stream and batch")
+
+
+def _from_json(doc: Any, limit: int) -> SensorBatch:
+    if not isinstance(doc, dict):
+        raise BatchError("body", "must be a JSON object with streams acc/gyr/mag")
+    unknown = set(doc) - set(STREAMS)
+    if unknown:
+        raise BatchError(sorted(unknown)[0], f"unknown stream (expected one of {', '.join(STREAMS)})")
+    kw: dict[str, np.ndarray] = {}
+    for name in STREAMS:
+        s = doc.get(name)
+        if s is None:
+            continue
+        if not isinstance(s, dict) or "t_ns" not in s or "xyz" not in s:
+            raise BatchError(name, "must be an object with 't_ns' and 'xyz'")
+        ts, xyz = s["t_ns"], s["xyz"]
+        if not isinstance(ts, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in ts):
+            raise BatchError(f"{name}.t_ns", "must be a list of integer nanoseconds")
+        _check_n(name, len(ts), limit)
+        try:
+            v = np.asarray(xyz, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise BatchError(f"{name}.xyz", "must be a list of [x, y, z] numbers") from None
+        if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] != len(ts):
+            raise BatchError(f"{name}.xyz", f"must be {len(ts)} rows of [x, y, z], got shape {list(v.shape)}")
+        try:
+            t = np.asarray(ts, dtype=np.int64)
+        except OverflowError:
+            raise BatchError(f"{name}.t_ns", "timestamp outside int64") from None
+        kw[f"{name}_t_ns"], kw[name] = t, v
+    return SensorBatch(**kw)
+
+
+def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
+    if not isinstance(doc, dict):
+        raise BatchError("body", "must be a msgpack map with streams acc/gyr/mag")
+    if doc.get("v") != 1:
+        raise BatchError("v", "unsupported binary format version (expected 1)")
+    unknown = set(doc) - set(STREAMS) - {"v"}
+    if unknown:
+        raise BatchError(str(sorted(map(str, unknown))[0]), "unknown stream")
+    kw: dict[str, np.ndarray] = {}
+    for name in STREAMS:
+        s = doc.get(name)
+        if s is None:
+            continue
+        if not isinstance(s, dict):
+            raise BatchError(name, "must be a map")
+        n = s.get("n")
+        if not isinstance(n, int) or n < 0:
+            raise BatchError(f"{name}.n", "must be a non-negative integer")
+        _check_n(name, n, limit)
+        dtype = s.get("dtype")
+        if dtype not in ("<f4", "<f8"):
+            raise BatchError(f"{name}.dtype", "must be '<f4' or '<f8'")
+        xyz = s.get("xyz")
+        if not isinstance(xyz, bytes) or len(xyz) != n * 3 * np.dtype(dtype).itemsize:
+            raise BatchError(f"{name}.xyz", f"must be {n * 3} packed {dtype} values")
+        v = np.frombuffer(xyz, dtype=dtype).reshape(n, 3).astype(np.float64)
+        if "t" in s:
+            tb = s["t"]
+            if not isinstance(tb, bytes) or len(tb) != 8 * n:
+                raise BatchError(f"{name}.t", f"must be {n} packed <i8 values")
+            t = np.frombuffer(tb, dtype="<i8").astype(np.int64)
+        else:
+            t0, dt = s.get("t0"), s.get("dt")
+            if n and (not isinstance(t0, int) or not isinstance(dt, bytes) or len(dt) != 4 * (n - 1)):
+                raise BatchError(f"{name}.dt", f"needs integer t0 and {max(n - 1, 0)} packed <i4 deltas")
+            if n == 0:
+                t = np.zeros(0, dtype=np.int64)
+            else:
+                deltas = np.frombuffer(dt, dtype="<i4").astype(np.int64)
+                t = int(t0) + np.concatenate([np.zeros(1, dtype=np.int64), np.cumsum(deltas)])
+        kw[f"{name}_t_ns"], kw[name] = t, v
+    return SensorBatch(**kw)
+
+
+def decode_batch(body: bytes, content_type: str | None, max_samples: int) -> SensorBatch:
+    """Parse a request body into a :class:`SensorBatch` (not yet validated for plausibility).
+
+    Raises
+    ------
+    BatchError
+        Malformed body; ``field`` names the offending part.
+    PayloadTooLarge
+        More than ``max_samples`` samples in one stream.
+    """
+    ctype = (content_type or JSON_TYPE).split(";")[0].strip().lower()
+    if ctype in (MSGPACK_TYPE, "application/x-msgpack"):
+        try:
+            doc = msgpack.unpackb(body, raw=False, strict_map_key=True, max_bin_len=len(body), max_array_len=16, max_map_len=16)
+        except Exception as exc:  # noqa: BLE001 - any unpack failure is a client error
+            raise BatchError("body", f"not valid msgpack: {exc}") from None
+        return _from_msgpack(doc, max_samples)
+    if ctype == JSON_TYPE:
+        try:
+            doc = json.loads(body)
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise BatchError("body", f"not valid JSON: {exc}") from None
+        return _from_json(doc, max_samples)
+    raise BatchError("content-type", f"unsupported {ctype!r}; use {JSON_TYPE} or {MSGPACK_TYPE}")
+
+
+def canonical_bytes(batch: SensorBatch) -> bytes:
+    """Lossless canonical encoding used to store raw batches and to compare retries."""
+    return encode_msgpack(batch, dtype="<f8")
+
+
+def digest(raw: bytes) -> str:
+    return hashlib.sha256(raw).hexdigest()

@@ -1,0 +1,261 @@
+"""Drive one engine per session: idempotent, sequenced batch application with durable storage.
+
+The server holds no navigation math; it restores the session's engine (from an in-process cache when the
+cached copy is at the stored version, else from the persisted bytes), feeds it the batch, and commits the raw
+batch, the new positions/events and the new engine state in one transaction. The session row carries an
+optimistic-concurrency version, so two workers can never both apply the same batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, Protocol
+
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+from sqlalchemy.orm.exc import StaleDataError
+
+from models.batch import SensorBatch
+from server import crud
+from server.formats import canonical_bytes, digest
+from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
+
+__all__ = [
+    "EngineHost",
+    "IngestConflict",
+    "apply_batch",
+    "close_session",
+    "engine_profile_in",
+    "json_safe",
+    "validate_calibration",
+]
+
+class EngineLike(Protocol):  # the contract of energy.engine.Engine that the server relies on
+    def feed(self, batch: SensorBatch) -> Any: ...
+    def flush(self) -> Any: ...
+    def to_bytes(self) -> bytes: ...
+    def profile_dict(self) -> dict[str, Any]: ...
+
+
+class IngestConflict(Exception):
+    """HTTP 409: wrong sequence number, closed session, or a reused sequence with other content."""
+
+    def __init__(self, message: str, expected_seq: int) -> None:
+        super().__init__(message)
+        self.message = message
+        self.expected_seq = expected_seq
+
+
+def _default_factory() -> Any:
+    from energy.engine import Engine  # imported lazily: the API process starts fast
+
+    return Engine
+
+
+class EngineHost:
+    """Creates, restores and caches engines (LRU, keyed by session id and row version).
+
+    Parameters
+    ----------
+    cache_size : int
+        Engines kept in memory; 0 disables the cache (every batch restores from bytes).
+    engine_cls : type, optional
+        The engine class (default :class:`energy.engine.Engine`).
+    """
+
+    def __init__(self, cache_size: int = 512, engine_cls: Any | None = None) -> None:
+        self.cache_size = cache_size
+        self._engine_cls = engine_cls
+        self._cache: OrderedDict[int, tuple[int, EngineLike]] = OrderedDict()
+        self._locks: dict[int, threading.Lock] = {}
+        self._guard = threading.Lock()
+
+    @property
+    def engine_cls(self) -> Any:
+        if self._engine_cls is None:
+            self._engine_cls = _default_factory()
+        return self._engine_cls
+
+    def new(self, mode: str, profile: dict[str, Any] | None) -> EngineLike:
+        return self.engine_cls(mode=mode, profile=profile)
+
+    def restore(self, sess: TrackSession) -> EngineLike:
+        """The session's engine at its stored version."""
+        hit = self._cache.get(sess.id)
+        if hit is not None and hit[0] == sess.version:
+            self._cache.move_to_end(sess.id)
+            return hit[1]
+        if sess.engine_state is None:
+            return self.new(sess.engine_mode, sess.profile_in)
+        return self.engine_cls.from_bytes(sess.engine_state)
+
+    def remember(self, session_id: int, version: int, engine: EngineLike) -> None:
+        if self.cache_size <= 0:
+            return
+        self._cache[session_id] = (version, engine)
+        self._cache.move_to_end(session_id)
+        while len(self._cache) > self.cache_size:
+            self._cache.popitem(last=False)
+
+    def forget(self, session_id: int) -> None:
+        self._cache.pop(session_id, None)
+
+    @contextmanager
+    def lock(self, session_id: int) -> Iterator[None]:
+        """Serialise requests of one session inside this process (threads share cached engines)."""
+        with self._guard:
+            lk = self._locks.setdefault(session_id, threading.Lock())
+        with lk:
+            yield
+
+
+def json_safe(obj: Any) -> Any:
+    """Replace non-finite floats by None (JSON and PostgreSQL's json type have no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
+def _calibration_in(data: dict[str, Any]) -> dict[str, Any]:
+    """Stored calibration -> engine form: float fields stored as None (NaN) become NaN again."""
+    from energy.profile import BehaviourCalibration
+
+    floats = {f.name for f in dataclasses.fields(BehaviourCalibration) if f.type in ("float", float)}
+    return {k: (float("nan") if k in floats and v is None else v) for k, v in data.items()}
+
+
+def validate_calibration(behaviour: str, data: dict[str, Any]) -> None:
+    """Raise ``ValueError`` naming the problem when ``data`` is not a valid calibration of ``behaviour``."""
+    from energy.profile import Profile
+
+    Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
+
+
+def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:
+    """The user's current calibration profiles in the engine's form, or None when there are none."""
+    cur = {b: _calibration_in(p.data) for b, p in crud.current_profiles(db, user).items() if p.data is not None}
+    return {"version": 1, "behaviours": cur} if cur else None
+
+
+def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:
+    d = json_safe(upd.to_dict())
+    return {"session_id": session_id, "seq": seq, "next_seq": next_seq, **d}
+
+
+def _store_outputs(db: Session, sess: TrackSession, seq: int, upd: Any) -> None:
+    for p in upd.positions:
+        db.add(PositionRecord(session_id=sess.id, seq=seq, **p.to_dict()))
+    for e in upd.events:
+        db.add(EventRecord(session_id=sess.id, seq=seq, t_ns=int(e.t_ns), kind=e.kind, detail=dict(e.detail)))
+    sess.n_positions += len(upd.positions)
+    sess.behaviour = upd.behaviour
+    sess.mode = upd.mode
+    sess.sensor_config = upd.sensor_config.to_dict()
+
+
+def _replayed(db: Session, sess: TrackSession, seq: int, h: str) -> dict[str, Any]:
+    old = crud.get_batch(db, sess.id, seq)
+    if old is None:  # cannot happen unless batches were deleted
+        raise IngestConflict(f"sequence {seq} is in the past; expected {sess.next_seq}", sess.next_seq)
+    if old.body_sha256 != h:
+        raise IngestConflict(
+            f"sequence {seq} was already used by a different batch; expected sequence {sess.next_seq}", sess.next_seq
+        )
+    return dict(old.response)
+
+
+def apply_batch(
+    db: Session,
+    host: EngineHost,
+    user: User,
+    session_id: int,
+    seq: int,
+    batch: SensorBatch,
+    reload: Callable[[], TrackSession | None] | None = None,
+) -> tuple[dict[str, Any], bool] | None:
+    """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session).
+
+    A retry of an applied sequence number with the same content returns the stored response
+    (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
+    content and closed sessions.
+    """
+    raw = canonical_bytes(batch)
+    h = digest(raw)
+    with host.lock(session_id):
+        sess = crud.get_session(db, user, session_id, for_update=True)
+        if sess is None:
+            return None
+        if seq < sess.next_seq:
+            resp = _replayed(db, sess, seq, h)
+            db.rollback()
+            return resp, True
+        if sess.status != "open":
+            db.rollback()
+            raise IngestConflict(f"session {session_id} is closed; no more batches accepted", sess.next_seq)
+        if seq > sess.next_seq:
+            expected = sess.next_seq
+            db.rollback()
+            raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {expected}", expected)
+        engine = host.restore(sess)
+        host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
+        upd = engine.feed(batch)
+        next_seq = seq + 1
+        resp = _update_dict(sess.id, seq, next_seq, upd)
+        db.add(
+            BatchRecord(
+                session_id=sess.id, seq=seq, body_sha256=h, raw=raw, n_acc=len(batch.acc_t_ns),
+                n_gyr=len(batch.gyr_t_ns), n_mag=len(batch.mag_t_ns), response=resp,
+            )
+        )
+        _store_outputs(db, sess, seq, upd)
+        sess.engine_state = engine.to_bytes()
+        sess.next_seq = next_seq
+        try:
+            db.commit()
+        except (StaleDataError, IntegrityError):
+            # another worker applied this sequence number first: answer as for a retry
+            db.rollback()
+            sess = crud.get_session(db, user, session_id)
+            assert sess is not None
+            resp = _replayed(db, sess, seq, h)
+            return resp, True
+        host.remember(sess.id, sess.version, engine)
+        return resp, False
+
+
+def close_session(db: Session, host: EngineHost, user: User, session_id: int) -> TrackSession | None:
+    """Flush the engine, store the last positions and the updated calibration profiles, mark closed.
+
+    Closing an already closed session changes nothing.
+    """
+    with host.lock(session_id):
+        sess = crud.get_session(db, user, session_id, for_update=True)
+        if sess is None or sess.status != "open":
+            return sess
+        engine = host.restore(sess)
+        host.forget(session_id)
+        upd = engine.flush()
+        _store_outputs(db, sess, sess.next_seq, upd)
+        for behaviour, data in _profiles_out(engine).items():
+            cur = crud.current_profiles(db, user).get(behaviour)
+            if cur is None or cur.data != data:
+                crud.add_profile_version(db, user, behaviour, data, source=f"session:{sess.id}")
+        sess.engine_state = engine.to_bytes()
+        sess.status = "closed"
+        sess.closed_at = utcnow()
+        db.commit()
+        return sess
+
+
+def _profiles_out(engine: EngineLike) -> dict[str, dict[str, Any]]:
+    prof = (engine.profile_dict() or {}).get("behaviours", {})
+    return {b: json_safe(v) for b, v in prof.items() if isinstance(v, dict) and v}

@@ -1,0 +1,70 @@
+"""Calibration profiles per user and behaviour: read, replace, reset, history (versioned)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, HTTPException, status
+
+from server import crud
+from energy.profile import PROFILE_BEHAVIOURS
+from server.deps import CurrentUser, SessionDep
+from server.ingest import json_safe, validate_calibration
+from server.schemas import ProfileIn, ProfileOut
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/profiles", tags=["profiles"])
+
+
+
+def _check(behaviour: str) -> None:
+    if behaviour not in PROFILE_BEHAVIOURS:
+        raise HTTPException(422, f"behaviour: {behaviour!r} has no calibration (expected one of {', '.join(PROFILE_BEHAVIOURS)})")
+
+
+def _out(p: Any) -> ProfileOut:
+    return ProfileOut(behaviour=p.behaviour, version=p.version, data=p.data, source=p.source, created_at=p.created_at)
+
+
+@router.get("", response_model=list[ProfileOut])
+def list_profiles(db: SessionDep, user: CurrentUser) -> Any:
+    """Current profile of every behaviour that has one (resets show ``data: null``)."""
+    return [_out(p) for _, p in sorted(crud.current_profiles(db, user).items())]
+
+
+@router.get("/{behaviour}", response_model=ProfileOut)
+def get_profile(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
+    _check(behaviour)
+    cur = crud.current_profiles(db, user).get(behaviour)
+    if cur is None or cur.data is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no calibration profile for behaviour {behaviour!r}")
+    return _out(cur)
+
+
+@router.put("/{behaviour}", response_model=ProfileOut)
+def replace_profile(behaviour: str, body: ProfileIn, db: SessionDep, user: CurrentUser) -> Any:
+    """Replace the profile (a new version; the old ones stay in the history). Used by new sessions."""
+    _check(behaviour)
+    try:
+        validate_calibration(behaviour, body.data)
+    except ValueError as exc:
+        raise HTTPException(422, f"data: {exc}") from None
+    row = crud.add_profile_version(db, user, behaviour, json_safe(body.data), source="api")
+    db.commit()
+    return _out(row)
+
+
+@router.delete("/{behaviour}", response_model=ProfileOut)
+def reset_profile(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
+    """Reset: new sessions start uncalibrated for this behaviour (recorded as a version with ``data: null``)."""
+    _check(behaviour)
+    row = crud.add_profile_version(db, user, behaviour, None, source="reset")
+    db.commit()
+    return _out(row)
+
+
+@router.get("/{behaviour}/history", response_model=list[ProfileOut])
+def history(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
+    _check(behaviour)
+    return [_out(p) for p in crud.profile_history(db, user, behaviour)]

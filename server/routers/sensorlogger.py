@@ -1,0 +1,153 @@
+"""Sensor Logger (Android/iOS app) HTTP push ingest.
+
+The app POSTs ``{messageId, sessionId, deviceId, payload: [{name, time, values: {x, y, z}}]}`` with UTC epoch
+ns times; messages may arrive out of order and more than once. Each message is stored (deduplicated by
+``messageId``); samples are held back ``sensorlogger_hold_s`` behind the newest time seen and then fed to the
+session's engine in time order as ordinary sequenced batches (stored raw like any other batch). Samples that
+arrive behind what was already fed are counted as late and dropped.
+
+Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, HTTPException, status
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+
+from models.batch import BatchError, SensorBatch
+from server import crud
+from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.ingest import apply_batch, engine_profile_in
+from server.models import SensorLoggerLink, SensorLoggerMessage, User
+from server.schemas import SensorLoggerPush
+
+__all__ = ["router", "samples_to_batch"]
+
+router = APIRouter(prefix="/sensorlogger", tags=["sensorlogger"])
+
+_NAMES = {"accelerometer", "totalacceleration", "gravity", "gyroscope", "magnetometer"}
+
+
+def _stream(items: list[dict[str, Any]], name: str) -> tuple[np.ndarray, np.ndarray]:
+    rows = [(int(it["time"]), float(it["values"]["x"]), float(it["values"]["y"]), float(it["values"]["z"]))
+            for it in items if it["name"] == name]
+    if not rows:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    a = np.array(rows, dtype=object)
+    t = a[:, 0].astype(np.int64)
+    v = a[:, 1:].astype(np.float64)
+    t, idx = np.unique(t, return_index=True)  # sorted, duplicates dropped
+    return t, v[idx]
+
+
+def samples_to_batch(items: list[dict[str, Any]]) -> SensorBatch:
+    """Sensor Logger samples -> SensorBatch (specific force with gravity, rad/s, uT).
+
+    ``totalacceleration`` is the specific force; ``accelerometer`` in Sensor Logger excludes gravity, so
+    without ``totalacceleration`` it is used only together with ``gravity`` (summed, nearest gravity sample).
+    """
+    t_tot, v_tot = _stream(items, "totalacceleration")
+    t_acc, v_acc = _stream(items, "accelerometer")
+    t_grav, v_grav = _stream(items, "gravity")
+    if t_tot.size:
+        acc_t, acc = t_tot, v_tot
+    elif t_acc.size and t_grav.size:
+        j = np.clip(np.searchsorted(t_grav, t_acc), 0, t_grav.size - 1)
+        jm = np.clip(j - 1, 0, t_grav.size - 1)
+        j = np.where(np.abs(t_grav[jm] - t_acc) < np.abs(t_grav[j] - t_acc), jm, j)
+        acc_t, acc = t_acc, v_acc + v_grav[j]
+    elif t_acc.size:
+        raise BatchError(
+            "payload.accelerometer",
+            "Sensor Logger's 'accelerometer' excludes gravity; enable TotalAcceleration (or Gravity) in the app",
+        )
+    else:
+        acc_t, acc = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    g_t, g = _stream(items, "gyroscope")
+    m_t, m = _stream(items, "magnetometer")
+    return SensorBatch(acc_t_ns=acc_t, acc=acc, gyr_t_ns=g_t, gyr=g, mag_t_ns=m_t, mag=m)
+
+
+def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, host: Any) -> SensorLoggerLink:
+    link = db.execute(
+        select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)
+    ).scalar_one_or_none()
+    if link is not None:
+        return link
+    profile = engine_profile_in(db, user)
+    engine = host.new(settings.engine_mode, profile)
+    sess = crud.create_session(
+        db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=profile,
+        engine_state=engine.to_bytes(), sensor_config=engine.sensor_config.to_dict(),
+    )
+    link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id)
+    db.add(link)
+    db.commit()
+    return link
+
+
+def _feed_ready(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, horizon_ns: int) -> dict[str, Any] | None:
+    msgs = db.execute(
+        select(SensorLoggerMessage).where(
+            SensorLoggerMessage.session_id == link.session_id, SensorLoggerMessage.t_max_ns > link.watermark_ns
+        )
+    ).scalars()
+    items = [it for msg in msgs for it in msg.payload if link.watermark_ns < int(it["time"]) <= horizon_ns]
+    if not items:
+        return None
+    batch = samples_to_batch(items)
+    if batch.is_empty:
+        return None
+    batch.validate()
+    link.watermark_ns = horizon_ns
+    sess = crud.get_session(db, user, link.session_id)
+    assert sess is not None
+    out = apply_batch(db, host, user, link.session_id, sess.next_seq, batch)
+    return out[0] if out else None
+
+
+@router.post("")
+def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
+    """Receive one Sensor Logger push message; returns the session and any new positions."""
+    link = _link(db, user, body, settings, host)
+    items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
+    for it in items:
+        it["name"] = it["name"].lower()
+        for k in ("x", "y", "z"):
+            if not isinstance(it["values"].get(k), (int, float)):
+                raise BatchError(f"payload.{it['name']}.values.{k}", "missing or not a number")
+    t_max = max((int(it["time"]) for it in items), default=0)
+    late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
+    db.add(SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items))
+    try:
+        db.commit()
+    except IntegrityError:
+        db.rollback()
+        return {"session_id": link.session_id, "duplicate": True, "positions": []}
+    if late:
+        link.late_samples += late
+        db.commit()
+    newest = db.execute(
+        select(SensorLoggerMessage.t_max_ns).where(SensorLoggerMessage.session_id == link.session_id)
+        .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
+    ).scalar_one()
+    horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
+    resp = _feed_ready(db, user, link, host, horizon) if horizon > link.watermark_ns else None
+    return {"session_id": link.session_id, "duplicate": False, "late_samples": link.late_samples,
+            "positions": resp["positions"] if resp else [], "behaviour": resp["behaviour"] if resp else None}
+
+
+@router.post("/{sl_session_id}/flush")
+def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep) -> dict[str, Any]:
+    """Feed every held-back sample of a Sensor Logger session now (call before closing the session)."""
+    link = db.execute(
+        select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == sl_session_id)
+    ).scalar_one_or_none()
+    if link is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"Sensor Logger session {sl_session_id!r} not found")
+    resp = _feed_ready(db, user, link, host, np.iinfo(np.int64).max)
+    return {"session_id": link.session_id, "positions": resp["positions"] if resp else []}

@@ -1,0 +1,60 @@
+"""Sessions: start (with optional geodetic start), list, read, close."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException, Query, status
+
+from server import crud
+from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.ingest import close_session, engine_profile_in
+from server.schemas import SessionCreate, SessionOut
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/sessions", tags=["sessions"])
+
+
+@router.post("", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
+def start_session(body: SessionCreate, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> Any:
+    """Start a session; the user's current calibration profiles are handed to its engine."""
+    if body.device_id is not None:
+        dev = crud.get_device(db, user, body.device_id)
+        if dev is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"device_id: device {body.device_id} not found")
+    if (body.latitude_deg is None) != (body.longitude_deg is None):
+        raise HTTPException(422, "latitude_deg: latitude and longitude must be given together")
+    profile = engine_profile_in(db, user)
+    engine = host.new(settings.engine_mode, profile)
+    sess = crud.create_session(
+        db, user, device_kind=body.device_kind, device_id=body.device_id, latitude_deg=body.latitude_deg,
+        longitude_deg=body.longitude_deg, altitude_m=body.altitude_m, engine_mode=settings.engine_mode,
+        profile_in=profile, engine_state=engine.to_bytes(), sensor_config=engine.sensor_config.to_dict(),
+    )
+    db.commit()
+    return sess
+
+
+@router.get("", response_model=list[SessionOut])
+def list_sessions(
+    db: SessionDep, user: CurrentUser, status_: Annotated[Literal["open", "closed"] | None, Query(alias="status")] = None, limit: int = 100, offset: int = 0
+) -> Any:
+    return crud.list_sessions(db, user, status_, min(max(limit, 1), 1000), max(offset, 0))
+
+
+@router.get("/{session_id}", response_model=SessionOut)
+def get_session(session_id: int, db: SessionDep, user: CurrentUser) -> Any:
+    sess = crud.get_session(db, user, session_id)
+    if sess is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    return sess
+
+
+@router.post("/{session_id}/close", response_model=SessionOut)
+def close(session_id: int, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
+    """Close: drain the engine's held-back positions, store the updated calibration profiles."""
+    sess = close_session(db, host, user, session_id)
+    if sess is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    return sess

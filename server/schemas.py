@@ -1,0 +1,159 @@
+"""Request (input) and response (output) schemas of the REST API."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = [
+    "DeviceKind",
+    "UserCreate",
+    "UserOut",
+    "TokenOut",
+    "DeviceCreate",
+    "DeviceOut",
+    "SessionCreate",
+    "SessionOut",
+    "SensorConfigOut",
+    "PositionOut",
+    "EventOut",
+    "BatchResponse",
+    "ProfileIn",
+    "ProfileOut",
+    "GaitSummaryOut",
+    "SensorLoggerItem",
+    "SensorLoggerPush",
+]
+
+DeviceKind = Literal["foot", "phone", "watch"]
+BehaviourName = Literal["stand", "walk", "run", "other"]
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+
+class UserCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.@-]+$")
+
+
+class UserOut(_Out):
+    id: int
+    name: str
+    is_admin: bool
+    created_at: datetime
+
+
+class TokenOut(BaseModel):
+    user_id: int
+    token: str
+
+
+class DeviceCreate(BaseModel):
+    kind: DeviceKind
+    name: str = Field(default="", max_length=100)
+
+
+class DeviceOut(_Out):
+    id: int
+    kind: str
+    name: str
+    created_at: datetime
+
+
+class SessionCreate(BaseModel):
+    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres."""
+
+    device_kind: DeviceKind
+    device_id: int | None = None
+    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
+    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0)
+    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0)
+
+
+class SensorConfigOut(BaseModel):
+    gyro_on: bool
+    acc_rate_hz: float
+    gyr_rate_hz: float
+    mag_rate_hz: float
+
+
+class SessionOut(_Out):
+    id: int
+    device_kind: str
+    device_id: int | None
+    latitude_deg: float | None
+    longitude_deg: float | None
+    altitude_m: float | None
+    status: str
+    created_at: datetime
+    closed_at: datetime | None
+    next_seq: int
+    behaviour: str
+    mode: str
+    sensor_config: SensorConfigOut | None
+    n_positions: int
+
+
+class PositionOut(BaseModel):
+    t_ns: int
+    north: float
+    east: float
+    down: float
+    heading_rad: float
+    behaviour: str
+    mode: str
+    step_length_m: float
+    gyro_on: bool
+
+
+class EventOut(BaseModel):
+    t_ns: int
+    kind: str
+    detail: dict[str, Any]
+
+
+class BatchResponse(BaseModel):
+    """Answer to an accepted batch; a retried batch gets exactly the same answer."""
+
+    session_id: int
+    seq: int
+    next_seq: int
+    positions: list[PositionOut]
+    events: list[EventOut]
+    behaviour: str
+    mode: str
+    sensor_config: SensorConfigOut
+
+
+class ProfileIn(BaseModel):
+    data: dict[str, Any]
+
+
+class ProfileOut(BaseModel):
+    behaviour: str
+    version: int
+    data: dict[str, Any] | None
+    source: str
+    created_at: datetime
+
+
+class GaitSummaryOut(BaseModel):
+    """Per session gait figures of one user, oldest first (heading deviation: 004 Section 4.2)."""
+
+    sessions: list[dict[str, Any]]
+
+
+class SensorLoggerItem(BaseModel):
+    name: str
+    time: int
+    values: dict[str, Any]
+
+
+class SensorLoggerPush(BaseModel):
+    messageId: int  # noqa: N815 - Sensor Logger's own field names
+    sessionId: str  # noqa: N815
+    deviceId: str = ""  # noqa: N815
+    payload: list[SensorLoggerItem]

@@ -1,0 +1,65 @@
+"""Service settings: ``PEDNAV_*`` environment variables, validated when the app starts (fail fast)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+from sqlalchemy.engine import make_url
+
+__all__ = ["Settings"]
+
+
+class Settings(BaseSettings):
+    """Configuration of one server process.
+
+    Parameters
+    ----------
+    database_url : str
+        Any SQLAlchemy URL; default a SQLite file ``pednav.db`` in the current directory.
+    db_schema : str or None
+        PostgreSQL schema holding the tables (tests use a unique one per run); ``None`` = default.
+    max_body_bytes : int
+        Largest accepted request body [bytes]; larger bodies get HTTP 413.
+    max_samples_per_stream : int
+        Largest number of samples of one stream in one batch; more gets HTTP 413.
+    engine_mode : str
+        Mode handed to each session's engine (``auto``, ``zupt``, ``pdr``).
+    migrate_on_startup : bool
+        Run Alembic migrations to ``head`` when the app is created.
+    engine_cache_size : int
+        Engines kept in memory between batches (their state is still persisted after every batch).
+    sensorlogger_hold_s : float
+        Sensor Logger pushes may arrive out of order: samples are held back this long [s] before being
+        fed to the engine in time order.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="PEDNAV_", extra="ignore")
+
+    database_url: str = "sqlite:///pednav.db"
+    db_schema: str | None = None
+    max_body_bytes: int = Field(default=4_000_000, gt=0)
+    max_samples_per_stream: int = Field(default=60_000, gt=0)
+    engine_mode: Literal["auto", "zupt", "pdr"] = "auto"
+    migrate_on_startup: bool = True
+    engine_cache_size: int = Field(default=512, ge=0)
+    sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
+
+    @field_validator("database_url")
+    @classmethod
+    def _check_url(cls, v: str) -> str:
+        try:
+            url = make_url(v)
+        except Exception as exc:  # noqa: BLE001 - any parse failure is a configuration error
+            raise ValueError(f"PEDNAV_DATABASE_URL is not a SQLAlchemy URL: {exc}") from exc
+        if url.get_backend_name() not in ("sqlite", "postgresql"):
+            raise ValueError(f"unsupported database backend {url.get_backend_name()!r} (sqlite or postgresql)")
+        return v
+
+    @field_validator("db_schema")
+    @classmethod
+    def _check_schema(cls, v: str | None) -> str | None:
+        if v is not None and not v.replace("_", "").isalnum():
+            raise ValueError("db_schema must be alphanumeric/underscore")
+        return v
