@@ -83,8 +83,10 @@ def align_like_authors(
     if n1 == 0.0 or n2 == 0.0:
         angle = 0.0
     else:
-        cross = v1[0] * v2[1] - v1[1] * v2[0]
-        angle = float(np.sign(cross) * np.arccos(min(1.0, float(v1 @ v2) / (n1 * n2))))
+        # authors: sign(cross) * arccos(cos); atan2 is the same angle without arccos' loss near 0
+        # (and, like sign(0) = 0 in their code, no rotation when the vectors are exactly (anti)parallel)
+        cross = float(v1[0] * v2[1] - v1[1] * v2[0])
+        angle = float(np.arctan2(cross, float(v1 @ v2))) if cross != 0.0 else 0.0
     c, s = np.cos(angle), np.sin(angle)
     rot = np.array([[c, -s], [s, c]])
     out = e.copy()

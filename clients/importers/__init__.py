@@ -1,0 +1,92 @@
+"""Importers of recorded sensor formats; each returns a :class:`clients.recording.Recording` in SI units.
+
+Every importer module exposes ``sniff(path) -> bool`` (does this file look like my format, by content) and
+``load(path) -> Recording``. :func:`load` asks them in turn; :func:`list_recordings` lists the importable
+sensor files of a folder (truth-only files such as gdin ``GCP`` .mat files and ``stride_gcp`` tables are not
+recordings and are skipped).
+
+Modules: ``vicon`` (University of Toronto .mat), ``sensorconnect`` (MicroStrain CSV, gdin formats A/B),
+``gdin`` (format C .mat, truth pairing), ``gaitmap`` (gaitmap CSV), and, when present, ``sensor_logger`` and
+``phyphox`` (phone apps).
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from types import ModuleType
+
+from clients.importers._common import ImporterError
+from clients.recording import Recording
+
+__all__ = ["ImporterError", "load", "list_recordings", "importer_for"]
+
+# Order matters only where two formats could both claim a file; gdin (format C) before vicon because a
+# format C file may also carry stray VICON variables (exp 23).
+_MODULES: tuple[str, ...] = (
+    "clients.importers.gdin",
+    "clients.importers.vicon",
+    "clients.importers.sensorconnect",
+    "clients.importers.gaitmap",
+    "clients.importers.sensor_logger",
+    "clients.importers.phyphox",
+)
+
+
+def _modules() -> list[ModuleType]:
+    out = []
+    for name in _MODULES:
+        try:
+            m = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # optional importer not written / not installed
+                continue
+            raise
+        if hasattr(m, "sniff") and hasattr(m, "load"):
+            out.append(m)
+    return out
+
+
+def importer_for(path: str | Path) -> ModuleType | None:
+    """The importer module whose ``sniff`` accepts ``path``, or ``None``."""
+    p = Path(path)
+    for m in _modules():
+        try:
+            if m.sniff(p):
+                return m
+        except Exception:  # noqa: BLE001 - a sniffer must never break the search
+            continue
+    return None
+
+
+def load(path: str | Path) -> Recording:
+    """Import a recording, choosing the importer by the file's content.
+
+    gdin sensor files inside the gdin layout come back with their ground truth attached.
+
+    Raises
+    ------
+    ImporterError
+        File missing, not a recording, or malformed (the message names file, field and problem).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise ImporterError(p, "file", "does not exist")
+    if p.is_dir():
+        raise ImporterError(p, "file", "is a folder; use list_recordings() for folders")
+    m = importer_for(p)
+    if m is None:
+        raise ImporterError(p, "file", "no importer recognises this file (supported: " + ", ".join(_MODULES) + ")")
+    if m.__name__ == "clients.importers.sensorconnect":
+        m = importlib.import_module("clients.importers.gdin")  # attaches truth when in the gdin layout
+    return m.load(p)
+
+
+def list_recordings(directory: str | Path, recursive: bool = True) -> list[Path]:
+    """Sorted importable sensor files under ``directory`` (truth-only files excluded)."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise ImporterError(d, "directory", "does not exist or is not a folder")
+    pattern = "**/*" if recursive else "*"
+    files = [f for f in sorted(d.glob(pattern)) if f.is_file() and f.suffix.lower() in (".mat", ".csv", ".json", ".zip")]
+    return [f for f in files if importer_for(f) is not None]

@@ -1,0 +1,172 @@
+"""``pednav eval vicon|gdin``: run the engine over public recordings and print DESIGN.md's metrics.
+
+Forms (DESIGN.md "Evaluation contracts")::
+
+    pednav eval vicon DIR --json
+    pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] --json
+
+Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
+keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
+goes to stderr. Exit status 0 when every selected recording was evaluated, 1 when any failed (the failure is
+listed in its row as ``"error"``; the JSON document is still printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register"]
+
+log = logging.getLogger(__name__)
+
+
+def _default_dir(name: str) -> Path | None:
+    from clients.datasets import dataset_dir
+
+    return dataset_dir(name)
+
+
+def _progress(items: list[Any], desc: str) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, unit="rec", file=sys.stderr, disable=None, leave=False)
+
+
+def _runner(batch_seconds: float) -> Any:
+    from clients.evaluation.harness import run_engine
+
+    def run(batch: Any, mode: str, l0_m: float | None) -> Any:
+        return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds)
+
+    return run
+
+
+def _fmt(v: Any, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def _run_vicon(args: argparse.Namespace) -> int:
+    from clients.evaluation import harness
+
+    directory = Path(args.dir) if args.dir else _default_dir("vicon")
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval vicon: data folder not found ({args.dir or 'PEDNAV_DATA/vicon'})", file=sys.stderr)
+        return 2
+    files = harness.select(harness.vicon_files(directory), lambda f: f.stem, args.match, args.limit)
+    runner = _runner(args.batch_seconds)
+    rows: list[dict[str, Any]] = []
+    failed = 0
+    for f in _progress(files, "vicon"):
+        try:
+            ev = harness.evaluate_vicon_recording(harness.load_vicon_trial(f), runner)
+        except Exception as exc:  # noqa: BLE001 - one broken trial must not hide the others
+            log.exception("%s failed", f)
+            rows.append({"name": f.stem, "error": f"{type(exc).__name__}: {exc}"})
+            failed += 1
+            continue
+        rows.append(ev.row)
+        if args.plot:
+            from clients.evaluation.plots import plot_vicon
+
+            plot_vicon(args.plot, ev.row, ev.plot)
+    doc = {"dataset": "vicon", "mode": "zupt", "trials": rows, "summary": harness.vicon_summary(rows)}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(f"{'trial':<22} {'ARMSE2D m':>9} {'ARMSE3D m':>9} {'samples':>7} {'stand':>6} {'walk':>6} {'run':>6} {'other':>6}")
+        for r in rows:
+            if "error" in r:
+                print(f"{r['name']:<22} ERROR {r['error']}")
+                continue
+            b = r["behaviour"]
+            print(
+                f"{r['name']:<22} {r['armse_2d_m']:>9.3f} {r['armse_3d_m']:>9.3f} {r['samples']:>7d} "
+                f"{b['stand']:>6.2f} {b['walk']:>6.2f} {b['run']:>6.2f} {b['other']:>6.2f}"
+            )
+        s = doc["summary"]
+        print(f"\n{s['trials']} trials: mean 2-D ARMSE {_fmt(s['mean_armse_2d_m'], '.3f')} m, "
+              f"median {_fmt(s['median_armse_2d_m'], '.3f')} m")
+    return 1 if failed else 0
+
+
+def _run_gdin(args: argparse.Namespace) -> int:
+    from clients.evaluation import harness
+
+    if args.l0 is not None and args.mode == "zupt":
+        print("pednav eval gdin: --l0 applies to --mode pdr/auto only", file=sys.stderr)
+        return 2
+    directory = Path(args.dir) if args.dir else _default_dir("gdin")
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
+        return 2
+    entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
+    runner = _runner(args.batch_seconds)
+    rows: list[dict[str, Any]] = []
+    failed = 0
+    for e in _progress(entries, f"gdin {args.mode}"):
+        try:
+            ev = harness.evaluate_gdin_recording(harness.load_gdin_entry(e), runner, args.mode, args.l0)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            log.exception("%s failed", e.sensor_path)
+            rows.append({"name": e.name, "error": f"{type(exc).__name__}: {exc}"})
+            failed += 1
+            continue
+        rows.append(ev.row)
+        if args.plot:
+            from clients.evaluation.plots import plot_gdin
+
+            plot_gdin(args.plot, ev.row, ev.plot)
+    excluded = [r["name"] for r in rows if not r.get("gt_usable", False)]
+    doc = {
+        "dataset": "gdin",
+        "mode": args.mode,
+        "l0_m": args.l0,
+        "recordings": rows,
+        "excluded_from_summary": excluded,
+        "summary": harness.gdin_summary(rows),
+    }
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(f"{'rec':<6} {'fmt':<16} {'loop%':>6} {'strMean':>7} {'strRMS':>7} {'dist%':>6} {'strides':>9} {'gyro':>5} {'Hz':>6}  note")
+        for r in rows:
+            if "error" in r:
+                print(f"{r['name']:<6} ERROR {r['error']}")
+                continue
+            print(
+                f"{r['name']:<6} {r['format']:<16} {_fmt(r.get('loop_closure_pct'), '6.2f')} "
+                f"{_fmt(r.get('stride_mean_err_m'), '7.2f')} {_fmt(r.get('stride_rmse_m'), '7.2f')} "
+                f"{r['distance_err_pct']:>6.2f} {r['strides_detected']:>4d}/{r['strides_truth']:<4d} "
+                f"{r['gyro_on_fraction']:>5.2f} {r['mean_rate_hz']:>6.1f}  {'' if r['gt_usable'] else 'GT flagged unusable: not in summary'}"
+            )
+        print("\nsummary (usable ground truth only):")
+        for k, s in doc["summary"].items():
+            print(f"  {k:<18} mean {_fmt(s['mean'], '8.3f')}  median {_fmt(s['median'], '8.3f')}  n={s['n']}")
+    return 1 if failed else 0
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--plot", metavar="OUT_DIR", default=None, help="write a trajectory-vs-truth PNG per recording")
+    p.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
+    p.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
+    p.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="evaluate the engine on public datasets (VICON ARMSE, gdin loop/stride errors)")
+    esub = p.add_subparsers(dest="dataset", metavar="DATASET", required=True)
+    pv = esub.add_parser("vicon", help="University of Toronto VICON trials: authors' ARMSE, behaviour fractions")
+    _common(pv)
+    pv.set_defaults(func=_run_vicon)
+    pg = esub.add_parser("gdin", help="gdin walks: loop closure, stride errors, distance error, energy figures")
+    _common(pg)
+    pg.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
+    pg.add_argument("--l0", type=float, default=None, metavar="METERS", help="ZUPT-KF initialisation distance before Gait-PDR (pdr/auto)")
+    pg.set_defaults(func=_run_gdin)

@@ -1,0 +1,187 @@
+"""gaitmap example CSVs (datasets/gaitmap-mocap, datasets/gaitmap-mag).
+
+gaitmap's own convention: accelerometer [m/s^2], gyroscope [deg/s] (converted here to rad/s), foot frame
+with gravity on +z at rest. Two layouts:
+
+- two header rows (``sensor``/first row: ``left_sensor``/``right_sensor``; second row: ``acc_x`` .. ``gyr_z``),
+  one foot selected with ``foot=`` (imu_sample.csv, imu_sample_healthy_stair_*.csv);
+- one header row ``,acc_x,...,gyr_z[,mag_x,mag_y,mag_z]`` (aligned_data_with_mag_l_walks.csv).
+
+The first column is either a time [s] (then the rate is read from it) or a sample index (then the rate must be
+known: ``rate_hz=`` or one of the documented example files in ``KNOWN_RATES_HZ``; otherwise the import fails
+rather than guessing). Xsens normalised magnetometer values (1.0 = field at the calibration site) are
+converted to uT only when ``mag_scale_ut`` is given; otherwise the magnetometer is NOT imported and the
+metadata says so. For imu_sample.csv the synchronised heel-marker trajectory (mocap_sample.csv, 100 Hz, mm)
+is attached as truth (converted to m).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch
+from clients.recording import Recording, RecordingMeta, Truth
+
+__all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "load", "load_gaitmap"]
+
+log = logging.getLogger(__name__)
+
+# Documented in datasets/gaitmap-*/ABOUT.md; used only for files whose first column is a sample index.
+KNOWN_RATES_HZ: dict[str, float] = {
+    "imu_sample.csv": 204.8,
+    "imu_sample_healthy_stair_up.csv": 204.8,
+    "imu_sample_healthy_stair_down.csv": 204.8,
+    "aligned_data_with_mag_l_walks.csv": 400.0,
+}
+MOCAP_RATE_HZ = 100.0
+_AXES = ("acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z")
+_MAG = ("mag_x", "mag_y", "mag_z")
+
+
+def _headers(p: Path) -> tuple[list[str], list[str] | None]:
+    try:
+        with open(p, encoding="utf-8", newline="") as fh:
+            r = csv.reader(fh)
+            h1 = next(r, [])
+            h2 = next(r, [])
+    except OSError as exc:
+        raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
+    if not h1:
+        raise ImporterError(p, "header", "empty file")
+    if any(c in ("left_sensor", "right_sensor") for c in h1):
+        return h2, h1
+    return h1, None
+
+
+def sniff(path: str | Path) -> bool:
+    """True for a ``.csv`` with gaitmap acc_x..gyr_z columns."""
+    p = Path(path)
+    if p.suffix.lower() != ".csv":
+        return False
+    try:
+        axes, _ = _headers(p)
+    except ImporterError:
+        return False
+    return all(a in axes for a in _AXES)
+
+
+def load(path: str | Path) -> Recording:
+    """Alias of :func:`load_gaitmap` with defaults (left foot)."""
+    return load_gaitmap(path)
+
+
+def load_gaitmap(
+    path: str | Path,
+    foot: str = "left",
+    rate_hz: float | None = None,
+    mag_scale_ut: float | None = None,
+) -> Recording:
+    """Read a gaitmap example CSV into SI units.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    foot : {"left", "right"}
+        Sensor to read from two-sensor files (ignored for single-sensor files).
+    rate_hz : float, optional
+        Sample rate [Hz] for files indexed by sample number (default: ``KNOWN_RATES_HZ`` by file name).
+    mag_scale_ut : float, optional
+        Field magnitude [uT] that the normalised magnetometer unit 1.0 stands for (the calibration site's
+        field); without it the magnetometer is not imported.
+
+    Returns
+    -------
+    Recording
+        acc [m/s^2], gyr [rad/s] (from deg/s), optionally mag [uT]; time from the first sample (t = 0).
+    """
+    p = Path(path)
+    axes, sensors = _headers(p)
+    if foot not in ("left", "right"):
+        raise ValueError(f"foot must be 'left' or 'right', got {foot!r}")
+    try:
+        data = np.genfromtxt(p, delimiter=",", skip_header=2 if sensors else 1, dtype=np.float64)
+    except ValueError as exc:
+        raise ImporterError(p, "rows", f"malformed CSV ({exc})") from exc
+    if data.size == 0:
+        raise ImporterError(p, "rows", "no samples (empty file)")
+    data = np.atleast_2d(data)
+    if data.shape[1] != len(axes):
+        raise ImporterError(p, "rows", f"{data.shape[1]} values per row but {len(axes)} header columns")
+
+    def col(name: str) -> int:
+        for i, a in enumerate(axes):
+            if a == name and (sensors is None or sensors[i] == f"{foot}_sensor"):
+                return i
+        raise ImporterError(p, name, f"column missing{'' if sensors is None else f' for {foot}_sensor'}")
+
+    idx = [col(a) for a in _AXES]
+    has_mag = sensors is None and all(m in axes for m in _MAG)
+    midx = [col(m) for m in _MAG] if has_mag else []
+    check_finite(p, [axes[0] or "index/time"] + [axes[i] for i in idx + midx], data[:, [0] + idx + midx])
+    first = data[:, 0]
+    is_index = bool(np.allclose(first, np.round(first)) and first.size > 1 and np.all(np.diff(first) == 1))
+    if is_index:
+        rate = rate_hz if rate_hz is not None else KNOWN_RATES_HZ.get(p.name)
+        if rate is None:
+            raise ImporterError(p, axes[0] or "column 0", "first column is a sample index and the rate is unknown: pass rate_hz")
+        t_s = (first - first[0]) / float(rate)
+    else:
+        t_s = first - first[0]
+    t_ns = np.round(t_s * 1e9).astype(np.int64)
+    t_ns, vals, notes = clean_timestamps(p, axes[0] or "time", t_ns, data[:, idx + midx])
+    acc = vals[:, 0:3]
+    gyr = np.deg2rad(vals[:, 3:6])
+    units = {"gyr": "deg/s -> rad/s (x pi/180)"}
+    mag = None
+    if has_mag:
+        if mag_scale_ut is None:
+            units["mag"] = "Xsens normalised (scale unknown) -> NOT imported; pass mag_scale_ut to convert"
+            notes.append("magnetometer in Xsens normalised units with unknown scale: left out of the batch")
+        else:
+            mag = vals[:, 6:9] * float(mag_scale_ut)
+            units["mag"] = f"Xsens normalised -> uT (x {mag_scale_ut:g}, user-supplied scale)"
+    batch = make_batch(p, t_ns, acc, t_ns.copy(), gyr, t_ns.copy() if mag is not None else None, mag)
+    truth = _mocap_truth(p, foot) if sensors is not None else None
+    meta = RecordingMeta(
+        source_format="gaitmap-csv",
+        rate_hz=float(batch.rate_hz("acc")),
+        units_converted=units,
+        mount=f"foot ({foot if sensors is not None else 'single'} sensor, gaitmap foot frame: gravity on +z at rest)",
+        notes=tuple(notes),
+    )
+    name = f"{p.stem}-{foot}" if sensors is not None else p.stem
+    return Recording(name=name, batch=batch, meta=meta, truth=truth)
+
+
+def _mocap_truth(p: Path, foot: str) -> Truth | None:
+    """Heel marker (``L_FCC``/``R_FCC``) of mocap_sample.csv beside imu_sample.csv, [mm] -> [m], 100 Hz."""
+    if p.name != "imu_sample.csv":
+        return None
+    mp = p.with_name("mocap_sample.csv")
+    if not mp.exists():
+        return None
+    with open(mp, encoding="utf-8", newline="") as fh:
+        r = csv.reader(fh)
+        markers, coords = next(r), next(r)
+    marker = ("L" if foot == "left" else "R") + "_FCC"
+    try:
+        cols = [i for i, (m, c) in enumerate(zip(markers, coords)) if m == marker and c in ("x", "y", "z")]
+    except ValueError:
+        cols = []
+    if len(cols) != 3:
+        log.warning("%s: heel marker %s not found, no truth attached", mp, marker)
+        return None
+    a = np.atleast_2d(np.genfromtxt(mp, delimiter=",", skip_header=2, dtype=np.float64))
+    pos = a[:, cols] / 1000.0
+    ok = np.all(np.isfinite(pos), axis=1)
+    k = np.arange(a.shape[0])[ok]
+    return Truth(
+        t_ns=np.round(k / MOCAP_RATE_HZ * 1e9).astype(np.int64),
+        positions=pos[ok],
+        extra={"marker": marker, "frame": "mocap lab frame [m] (from mm)", "rate_hz": MOCAP_RATE_HZ},
+    )
