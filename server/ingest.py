@@ -11,12 +11,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import threading
+import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any, Protocol
 
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
@@ -180,7 +181,30 @@ def apply_batch(
     session_id: int,
     seq: int,
     batch: SensorBatch,
-    reload: Callable[[], TrackSession | None] | None = None,
+    attempts: int = 5,
+) -> tuple[dict[str, Any], bool] | None:
+    """Apply ``batch`` as number ``seq``; see :func:`_apply_once`. Retries when the database is busy
+    (SQLite: another worker wrote since this transaction began), after which the retry sees that worker's
+    result and answers as for a retried batch."""
+    for i in range(attempts):
+        try:
+            return _apply_once(db, host, user, session_id, seq, batch)
+        except OperationalError:
+            db.rollback()
+            host.forget(session_id)
+            if i == attempts - 1:
+                raise
+            time.sleep(0.01 * (i + 1))
+    return None
+
+
+def _apply_once(
+    db: Session,
+    host: EngineHost,
+    user: User,
+    session_id: int,
+    seq: int,
+    batch: SensorBatch,
 ) -> tuple[dict[str, Any], bool] | None:
     """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session).
 

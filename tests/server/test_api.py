@@ -1,0 +1,324 @@
+"""Routes of the REST API: happy paths and refusals, on SQLite and PostgreSQL (see conftest)."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+import pytest
+
+from models.batch import SensorBatch
+from server.formats import MSGPACK_TYPE, encode_json, encode_msgpack
+from tests.server.conftest import auth, still_batch
+
+T0 = 1_700_000_000_000_000_000  # UTC epoch ns
+
+
+def _start(client, token: str, **kw) -> int:  # type: ignore[no-untyped-def]
+    r = client.post("/v1/sessions", json={"device_kind": "foot", **kw}, headers=auth(token))
+    assert r.status_code == 201, r.text
+    return r.json()["id"]
+
+
+def _put(client, token: str, sid: int, seq: int, batch: SensorBatch, binary: bool = True):  # type: ignore[no-untyped-def]
+    if binary:
+        return client.put(f"/v1/sessions/{sid}/batches/{seq}", content=encode_msgpack(batch),
+                          headers={**auth(token), "content-type": MSGPACK_TYPE})
+    return client.put(f"/v1/sessions/{sid}/batches/{seq}", content=encode_json(batch),
+                      headers={**auth(token), "content-type": "application/json"})
+
+
+# ---------------------------------------------------------------- auth and users
+@pytest.mark.parametrize("headers", [{}, {"Authorization": "Bearer nope"}, {"Authorization": "Basic abc"}])
+def test_unauthenticated_requests_are_refused(client, headers) -> None:  # type: ignore[no-untyped-def]
+    for method, path in (("get", "/v1/users/me"), ("get", "/v1/sessions"), ("get", "/v1/profiles"), ("get", "/v1/devices")):
+        r = getattr(client, method)(path, headers=headers)
+        assert r.status_code == 401, (path, r.text)
+
+
+def test_admin_creates_users_and_others_cannot(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, admin = make_user(admin=True)
+    _, plain = make_user()
+    name = f"bob{np.random.default_rng().integers(1e9)}"
+    r = client.post("/v1/users", json={"name": name}, headers=auth(admin))
+    assert r.status_code == 201
+    new_token = r.json()["token"]
+    assert client.get("/v1/users/me", headers=auth(new_token)).json()["name"] == name
+    assert client.post("/v1/users", json={"name": name}, headers=auth(admin)).status_code == 409
+    assert client.post("/v1/users", json={"name": name + "x"}, headers=auth(plain)).status_code == 403
+    r = client.post("/v1/users", json={"name": "bad name!"}, headers=auth(admin))
+    assert r.status_code == 422 and r.json()["field"] == "name"
+
+
+def test_tokens_minted_and_revoked(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    r = client.post("/v1/tokens", headers=auth(tok))
+    second = r.json()["token"]
+    assert r.status_code == 201 and second != tok
+    assert client.delete("/v1/tokens/current", headers=auth(second)).status_code == 204
+    assert client.get("/v1/users/me", headers=auth(second)).status_code == 401
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200
+
+
+def test_tokens_are_stored_hashed(app, make_user) -> None:  # type: ignore[no-untyped-def]
+    from sqlalchemy import select
+
+    from server.models import Token
+
+    uid, tok = make_user()
+    with app.state.sessionmaker() as db:
+        hashes = list(db.execute(select(Token.token_hash).where(Token.user_id == uid)).scalars())
+    assert hashes and tok not in hashes and all(len(h) == 64 for h in hashes)
+
+
+# ---------------------------------------------------------------- devices
+def test_devices_crud_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    _, b = make_user()
+    r = client.post("/v1/devices", json={"kind": "watch", "name": "left wrist"}, headers=auth(a))
+    assert r.status_code == 201
+    did = r.json()["id"]
+    assert [d["id"] for d in client.get("/v1/devices", headers=auth(a)).json()] == [did]
+    assert client.get(f"/v1/devices/{did}", headers=auth(a)).status_code == 200
+    assert client.get(f"/v1/devices/{did}", headers=auth(b)).status_code == 404
+    assert client.get("/v1/devices", headers=auth(b)).json() == []
+    r = client.post("/v1/devices", json={"kind": "toaster"}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == "kind"
+    # b cannot start a session on a's device
+    r = client.post("/v1/sessions", json={"device_kind": "watch", "device_id": did}, headers=auth(b))
+    assert r.status_code == 404 and "device_id" in r.json()["detail"]
+
+
+# ---------------------------------------------------------------- sessions
+def test_session_lifecycle(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a, latitude_deg=43.66, longitude_deg=-79.39, altitude_m=80.0)
+    s = client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()
+    assert s["status"] == "open" and s["next_seq"] == 0 and s["sensor_config"] is not None
+    assert [x["id"] for x in client.get("/v1/sessions?status=open", headers=auth(a)).json()] == [sid]
+    r = client.post(f"/v1/sessions/{sid}/close", headers=auth(a))
+    assert r.status_code == 200 and r.json()["status"] == "closed"
+    assert client.post(f"/v1/sessions/{sid}/close", headers=auth(a)).json()["closed_at"] == r.json()["closed_at"]
+    assert client.get("/v1/sessions?status=open", headers=auth(a)).json() == []
+
+
+@pytest.mark.parametrize(
+    "body, field",
+    [
+        ({"device_kind": "fridge"}, "device_kind"),
+        ({"device_kind": "phone", "latitude_deg": 91.0, "longitude_deg": 0.0}, "latitude_deg"),
+        ({"device_kind": "phone", "latitude_deg": 10.0}, "latitude_deg"),
+        ({}, "device_kind"),
+    ],
+)
+def test_session_start_validation_names_the_field(client, make_user, body, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.post("/v1/sessions", json=body, headers=auth(a))
+    assert r.status_code == 422
+    assert field in r.json()["detail"]
+
+
+def test_sessions_isolated_between_users(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    _, b = make_user()
+    sid = _start(client, a)
+    assert _put(client, a, sid, 0, still_batch(T0)).status_code == 200
+    for method, path in (
+        ("get", f"/v1/sessions/{sid}"),
+        ("post", f"/v1/sessions/{sid}/close"),
+        ("get", f"/v1/sessions/{sid}/trajectory"),
+        ("get", f"/v1/sessions/{sid}/events"),
+        ("get", f"/v1/sessions/{sid}/batches"),
+        ("get", f"/v1/sessions/{sid}/batches/0/raw"),
+    ):
+        assert getattr(client, method)(path, headers=auth(b)).status_code == 404, path
+    assert _put(client, b, sid, 1, still_batch(T0 + 10**9)).status_code == 404
+    assert client.get("/v1/sessions", headers=auth(b)).json() == []
+    # nothing b did changed a's session
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 1
+
+
+# ---------------------------------------------------------------- batches
+@pytest.mark.parametrize("binary", [True, False], ids=["msgpack", "json"])
+def test_batch_retry_is_idempotent(client, make_user, binary) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a)
+    r0 = _put(client, a, sid, 0, still_batch(T0), binary)
+    assert r0.status_code == 200 and r0.headers["x-pednav-replayed"] == "false"
+    assert r0.json()["next_seq"] == 1
+    again = _put(client, a, sid, 0, still_batch(T0), not binary)  # same content, other encoding
+    assert again.status_code == 200 and again.headers["x-pednav-replayed"] == "true"
+    assert again.json() == r0.json()
+    batches = client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()
+    assert [b["seq"] for b in batches] == [0]
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 1
+
+
+def test_batch_sequence_conflicts_say_what_is_expected(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a)
+    r = _put(client, a, sid, 3, still_batch(T0))
+    assert r.status_code == 409 and r.json()["expected_seq"] == 0 and "expected sequence 0" in r.json()["detail"]
+    assert _put(client, a, sid, 0, still_batch(T0)).status_code == 200
+    r = _put(client, a, sid, 0, still_batch(T0, seed=5))  # reused number, other content
+    assert r.status_code == 409 and r.json()["expected_seq"] == 1
+    client.post(f"/v1/sessions/{sid}/close", headers=auth(a))
+    r = _put(client, a, sid, 1, still_batch(T0 + 10**9))
+    assert r.status_code == 409 and "closed" in r.json()["detail"]
+    assert _put(client, a, sid, 0, still_batch(T0)).status_code == 200  # a late retry still gets its answer
+
+
+@pytest.mark.parametrize(
+    "mutate, field",
+    [
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc / 9.81), "acc"),  # g instead of m/s^2
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, gyr_t_ns=b.gyr_t_ns, gyr=b.gyr * 0 + 90.0), "gyr"),
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns[::-1].copy(), acc=b.acc), "acc_t_ns"),
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=np.where(np.arange(len(b.acc))[:, None] == 3, np.nan, b.acc)), "acc"),
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, mag_t_ns=b.mag_t_ns, mag=b.mag / 100.0), "mag"),
+    ],
+    ids=["acc-in-g", "gyr-in-deg", "time-reversed", "nan", "mag-in-gauss"],
+)
+def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make_user, mutate, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a)
+    bad = mutate(still_batch(T0))
+    r = _put(client, a, sid, 0, bad, binary=False)
+    assert r.status_code == 422, r.text
+    assert r.json()["field"] == field and field in r.json()["detail"]
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json() == []
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 0
+    assert _put(client, a, sid, 0, still_batch(T0)).status_code == 200
+
+
+@pytest.mark.parametrize(
+    "body, ctype, field",
+    [
+        (b"{not json", "application/json", "body"),
+        (b'{"acc": {"t_ns": [1, 2], "xyz": [[1, 2, 3]]}}', "application/json", "acc.xyz"),
+        (b'{"acc": {"t_ns": [1.5], "xyz": [[1, 2, 3]]}}', "application/json", "acc.t_ns"),
+        (b'{"baro": {}}', "application/json", "baro"),
+        (b"\xc1", MSGPACK_TYPE, "body"),
+        (b"abc", "text/plain", "content-type"),
+    ],
+)
+def test_malformed_bodies_are_422(client, make_user, body, ctype, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a)
+    r = client.put(f"/v1/sessions/{sid}/batches/0", content=body, headers={**auth(a), "content-type": ctype})
+    assert r.status_code == 422 and r.json()["field"] == field, r.text
+
+
+def test_payload_limits_are_413(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    sid = _start(client, a)
+    r = client.put(f"/v1/sessions/{sid}/batches/0", content=b"x" * (settings.max_body_bytes + 1),
+                   headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["detail"]
+    many = still_batch(T0, seconds=(settings.max_samples_per_stream + 100) / 100.0)
+    r = _put(client, a, sid, 0, many)
+    assert r.status_code == 413 and "acc" in r.json()["detail"]
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json() == []
+
+
+def test_raw_batch_is_kept_losslessly(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    from server.formats import decode_batch
+
+    _, a = make_user()
+    sid = _start(client, a)
+    b = still_batch(T0, seed=3)
+    _put(client, a, sid, 0, b, binary=False)
+    raw = client.get(f"/v1/sessions/{sid}/batches/0/raw", headers=auth(a))
+    back = decode_batch(raw.content, raw.headers["content-type"], 10**6)
+    for name in ("acc", "gyr", "mag"):
+        assert np.array_equal(back.stream(name)[0], b.stream(name)[0])
+        assert np.array_equal(back.stream(name)[1], b.stream(name)[1])
+
+
+# ---------------------------------------------------------------- profiles
+def _calibration(step: float = 0.7) -> dict:  # type: ignore[type-arg]
+    return {"step_model": {"kind": "test", "a": step}, "sigma_d_m": 0.05, "heading_deviation_rad": 0.1,
+            "heading_deviation_var": 0.01, "n_steps": 40, "calibrated": True}
+
+
+def test_profiles_replace_read_reset_history_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    _, b = make_user()
+    assert client.get("/v1/profiles/walk", headers=auth(a)).status_code == 404
+    r1 = client.put("/v1/profiles/walk", json={"data": _calibration(0.7)}, headers=auth(a))
+    r2 = client.put("/v1/profiles/walk", json={"data": _calibration(0.8)}, headers=auth(a))
+    assert (r1.status_code, r2.status_code) == (200, 200) and r2.json()["version"] == r1.json()["version"] + 1
+    assert client.get("/v1/profiles/walk", headers=auth(a)).json()["data"]["step_model"]["a"] == 0.8
+    sid = _start(client, a)  # new sessions get the current profile
+    from server.models import TrackSession
+
+    with client.app.state.sessionmaker() as db:
+        prof = db.get(TrackSession, sid).profile_in
+    assert prof["behaviours"]["walk"]["step_model"]["a"] == 0.8
+    # user b sees none of it and cannot change it
+    assert client.get("/v1/profiles/walk", headers=auth(b)).status_code == 404
+    assert client.get("/v1/profiles", headers=auth(b)).json() == []
+    assert client.get("/v1/profiles/walk/history", headers=auth(b)).json() == []
+    client.delete("/v1/profiles/walk", headers=auth(b))
+    assert client.get("/v1/profiles/walk", headers=auth(a)).status_code == 200
+    # reset
+    assert client.delete("/v1/profiles/walk", headers=auth(a)).json()["data"] is None
+    assert client.get("/v1/profiles/walk", headers=auth(a)).status_code == 404
+    hist = client.get("/v1/profiles/walk/history", headers=auth(a)).json()
+    assert [h["version"] for h in hist] == [1, 2, 3] and hist[-1]["source"] == "reset"
+    sid2 = _start(client, a)
+    with client.app.state.sessionmaker() as db:
+        assert db.get(TrackSession, sid2).profile_in is None
+
+
+@pytest.mark.parametrize(
+    "behaviour, data, field",
+    [
+        ("walk", {"n_steps": -1}, "data"),
+        ("walk", {"bogus": 1}, "data"),
+        ("swim", {}, "behaviour"),
+    ],
+)
+def test_profile_validation(client, make_user, behaviour, data, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.put(f"/v1/profiles/{behaviour}", json={"data": data}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["detail"].startswith(field)
+
+
+# ---------------------------------------------------------------- trajectories
+def test_trajectory_formats(client, make_user, app) -> None:  # type: ignore[no-untyped-def]
+    from server.models import PositionRecord
+
+    _, a = make_user()
+    geo = _start(client, a, latitude_deg=43.66, longitude_deg=-79.39, altitude_m=80.0)
+    flat = _start(client, a)
+    with app.state.sessionmaker() as db:  # positions as the engine would have stored them
+        for sid in (geo, flat):
+            for i, (n, e) in enumerate([(0.0, 0.0), (100.0, 0.0), (100.0, 50.0)]):
+                db.add(PositionRecord(session_id=sid, seq=i, t_ns=T0 + i * 10**9, north=n, east=e, down=0.0,
+                                      heading_rad=0.0, behaviour="walk", mode="zupt", step_length_m=1.0, gyro_on=True))
+        db.commit()
+    js = client.get(f"/v1/sessions/{geo}/trajectory", headers=auth(a)).json()
+    assert [p["north"] for p in js["positions"]] == [0.0, 100.0, 100.0]
+    rows = list(csv.DictReader(io.StringIO(client.get(f"/v1/sessions/{geo}/trajectory?format=csv", headers=auth(a)).text)))
+    assert [float(r["east"]) for r in rows] == [0.0, 0.0, 50.0] and rows[0]["mode"] == "zupt"
+    gj = client.get(f"/v1/sessions/{geo}/trajectory?format=geojson", headers=auth(a)).json()
+    coords = np.array(gj["features"][0]["geometry"]["coordinates"])
+    assert coords.shape == (3, 3)
+    # 100 m north is ~0.0009 deg of latitude; 50 m east at 43.66 deg is ~0.00062 deg of longitude
+    assert coords[1, 1] - coords[0, 1] == pytest.approx(100.0 / 111_090, rel=2e-3)
+    assert coords[2, 0] - coords[1, 0] == pytest.approx(50.0 / (111_320 * np.cos(np.radians(43.66))), rel=3e-3)
+    assert coords[0, 2] == pytest.approx(80.0, abs=1e-6)
+    r = client.get(f"/v1/sessions/{flat}/trajectory?format=geojson", headers=auth(a))
+    assert r.status_code == 409 and "latitude" in r.json()["detail"]
+    assert client.get(f"/v1/sessions/{geo}/trajectory?format=kml", headers=auth(a)).status_code == 422
+    summary = client.get("/v1/users/me/gait-summary", headers=auth(a)).json()["sessions"]
+    assert summary[0]["steps"] == 3 and summary[0]["distance_m"] == pytest.approx(3.0)
+    assert summary[0]["cadence_steps_per_min"] == pytest.approx(60.0)
+
+
+def test_openapi_page(client) -> None:  # type: ignore[no-untyped-def]
+    assert client.get("/docs").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    assert "/v1/sessions/{session_id}/batches/{seq}" in paths and "/v1/sensorlogger" in paths
