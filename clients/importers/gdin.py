@@ -237,7 +237,7 @@ def load_gdin(entry: GdinEntry) -> Recording:
 
     ``truth.extra`` keys: ``exp``, the keys of :func:`load_truth_mat` (when a truth .mat exists), and with a
     stride table ``stride_t_ns`` (S,) int64 [ns on the batch clock], ``stride_gcp_xy`` (S, 2) [m, authors'
-    frame], ``stride_index`` (S,), ``stride_mapping`` (``"strideIndex"`` or ``"timestamp"``).
+    frame], ``stride_index`` (S,), ``stride_table_t_s`` (S,) [s], ``stride_mapping`` (``"strideIndex"`` or ``"timestamp"``).
     """
     if entry.sensor_path.suffix.lower() == ".mat":
         rec = load_llio_mat(entry.sensor_path, name=entry.name)
@@ -255,6 +255,7 @@ def load_gdin(entry: GdinEntry) -> Recording:
             stride_t_ns=t_ns,
             stride_gcp_xy=table["gcp_xy"],
             stride_index=table["stride_index"],
+            stride_table_t_s=table["t_s"],
             stride_mapping=how,
         )
     truth = Truth(extra=extra) if len(extra) > 1 else None

@@ -15,6 +15,7 @@ Orientation columns (roll/pitch/yaw, est*) are the sensor's own estimates, not t
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -113,7 +114,9 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
     else:
         raise ImporterError(p, "header", "neither scaledAccel* (format A) nor estCompensatedAccel* (format B) columns")
     try:
-        data = np.genfromtxt(p, delimiter=",", skip_header=1, dtype=np.float64, invalid_raise=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "empty input file": reported below as an ImporterError
+            data = np.genfromtxt(p, delimiter=",", skip_header=1, dtype=np.float64, invalid_raise=True)
     except ValueError as exc:
         raise ImporterError(p, "rows", f"malformed CSV ({exc})") from exc
     if data.size == 0:
