@@ -1,0 +1,169 @@
+"""Evaluation harness with a scripted engine (known answers) and CLI smoke runs on a few real recordings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clients.cli import main
+from clients.evaluation import harness
+from clients.evaluation.harness import EngineRun
+from clients.recording import Recording, RecordingMeta, Truth
+from models.batch import SensorBatch
+
+RATE = 100.0
+
+
+def _rot(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def _batch(n: int) -> SensorBatch:
+    t = np.arange(n) / RATE
+    return SensorBatch.from_arrays(t, np.tile([0.0, 0.0, -9.81], (n, 1)), np.zeros((n, 3)))
+
+
+def _gdin_recording(closed: bool) -> tuple[Recording, np.ndarray]:
+    """A square walk of 8 strides (closed) or an L (open), one stride per second; returns (rec, gcp)."""
+    side = [[1.0, 0.0]] * 2 + [[0.0, 1.0]] * 2 + ([[-1.0, 0.0]] * 2 + [[0.0, -1.0]] * 2 if closed else [[1.0, 0.0]] * 4)
+    gcp = np.vstack([[0.0, 0.0], np.cumsum(np.array(side) * 1.5, axis=0)])
+    n = int((len(gcp) + 1) * RATE)
+    batch = _batch(n)
+    stride_t = batch.acc_t_ns[(np.arange(len(gcp)) + 0.5).astype(int) * int(RATE)]
+    extra = {
+        "exp": 99,
+        "gcp_m": gcp,
+        "gcp_stride_numbers": np.arange(len(gcp)),
+        "gcp_exist_and_correct": True,
+        "number_of_strides": len(gcp) - 1,
+        "closed_loop": closed,
+        "truth_path_length_m": float(np.sum(np.linalg.norm(np.diff(gcp, axis=0), axis=1))),
+        "stride_t_ns": stride_t,
+    }
+    rec = Recording("exp99", batch, RecordingMeta("synthetic", RATE), Truth(extra=extra))
+    return rec, gcp
+
+
+def _perfect_gdin_runner(rec: Recording, gcp: np.ndarray, theta: float, scale: float = 1.0):
+    """An engine that reports the mirrored, rotated, shifted footprints: at stance k = footprint k."""
+    ned = (gcp * np.array([1.0, -1.0]) * scale) @ _rot(theta).T + np.array([5.0, -3.0])
+    t = rec.batch.acc_t_ns
+    k = np.clip(np.searchsorted(rec.truth.extra["stride_t_ns"], t, side="right") - 1, 0, len(gcp) - 1)
+    pos = np.column_stack([ned[k], np.zeros(t.size)])
+    stances = np.column_stack([rec.truth.extra["stride_t_ns"], ned, np.zeros(len(gcp))])
+
+    def run(batch: SensorBatch, mode: str, l0_m: float | None) -> EngineRun:
+        assert mode == "zupt" and l0_m is None
+        return EngineRun(t, pos, np.full(t.size, "walk"), stances, 1.0, RATE)
+
+    return run
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.8, -2.5])
+def test_gdin_metrics_zero_for_a_perfect_engine(theta: float) -> None:
+    rec, gcp = _gdin_recording(closed=True)
+    ev = harness.evaluate_gdin_recording(rec, _perfect_gdin_runner(rec, gcp, theta), "zupt")
+    r = ev.row
+    assert r["loop_closure_pct"] == pytest.approx(0.0, abs=1e-9)
+    assert r["stride_mean_err_m"] == pytest.approx(0.0, abs=1e-9)
+    assert r["stride_rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert r["distance_err_pct"] == pytest.approx(0.0, abs=1e-9)
+    assert r["strides_detected"] == r["strides_truth"] == len(gcp) - 1
+    assert r["gyro_on_fraction"] == 1.0 and r["mean_rate_hz"] == RATE
+
+
+def test_gdin_metrics_scale_error_and_open_loop() -> None:
+    rec, gcp = _gdin_recording(closed=False)
+    ev = harness.evaluate_gdin_recording(rec, _perfect_gdin_runner(rec, gcp, 0.3, scale=1.1), "zupt")
+    assert "loop_closure_pct" not in ev.row  # open path: no loop-closure truth
+    assert ev.row["distance_err_pct"] == pytest.approx(10.0)
+    assert ev.row["stride_mean_err_m"] > 0.0
+
+
+def test_gdin_summary_leaves_out_flagged_ground_truth() -> None:
+    rows = [
+        {"name": "a", "distance_err_pct": 1.0, "gt_usable": True},
+        {"name": "b", "distance_err_pct": 3.0, "gt_usable": True},
+        {"name": "c", "distance_err_pct": 99.0, "gt_usable": False},
+    ]
+    s = harness.gdin_summary(rows)
+    assert s["distance_err_pct"] == {"mean": 2.0, "median": 2.0, "n": 2}
+    assert s["loop_closure_pct"]["n"] == 0
+
+
+def test_vicon_armse_zero_for_a_perfect_engine() -> None:
+    n = 800
+    batch = _batch(n)
+    s = np.linspace(0.0, 6.0, n)
+    truth = np.column_stack([s, np.sin(s), 0.1 + 0.05 * np.abs(np.sin(9 * s))])  # z up
+    rec = Recording("trial", batch, RecordingMeta("synthetic", RATE), Truth(t_ns=batch.acc_t_ns, positions=truth))
+    ned = truth.copy()
+    ned[:, :2] = truth[:, :2] @ _rot(1.2).T
+    ned[:, 2] = -truth[:, 2]  # NED: down
+    labels = np.array(["stand"] * 200 + ["walk"] * 500 + ["run"] * 50 + ["limp"] * 50)
+
+    def run(b: SensorBatch, mode: str, l0_m: float | None) -> EngineRun:
+        return EngineRun(b.acc_t_ns, ned, labels, np.zeros((0, 4)), 1.0, RATE)
+
+    r = harness.evaluate_vicon_recording(rec, run).row
+    assert r["armse_2d_m"] == 0.0 and r["armse_3d_m"] == 0.0 and r["samples"] == n
+    assert r["behaviour"] == pytest.approx({"stand": 0.25, "walk": 0.625, "run": 0.0625, "other": 0.0625})
+
+
+def test_positions_at_is_sample_and_hold() -> None:
+    t = np.array([10, 20, 30], dtype=np.int64)
+    p = np.arange(9, dtype=float).reshape(3, 3)
+    got = harness.positions_at(t, p, np.array([5, 10, 25, 31]))
+    np.testing.assert_array_equal(got, p[[0, 0, 1, 2]])
+
+
+# ---------------------------------------------------------------------------------------------- CLI, real data
+def _run_json(capsys: pytest.CaptureFixture[str], argv: list[str]) -> dict:
+    code = main(argv)
+    out = capsys.readouterr().out
+    assert code == 0, out
+    return json.loads(out)
+
+
+def test_cli_eval_vicon_smoke(vicon_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    doc = _run_json(capsys, ["eval", "vicon", str(vicon_dir), "--limit", "2", "--json", "--plot", str(tmp_path)])
+    assert len(doc["trials"]) == 2
+    for t in doc["trials"]:
+        assert {"name", "armse_2d_m", "armse_3d_m", "samples", "behaviour"} <= set(t)
+        assert set(t["behaviour"]) == {"stand", "walk", "run", "other"}
+        assert sum(t["behaviour"].values()) == pytest.approx(1.0)
+        assert (tmp_path / f"{t['name']}.png").stat().st_size > 1000
+    assert {"mean_armse_2d_m", "median_armse_2d_m", "trials"} <= set(doc["summary"])
+    assert doc["summary"]["trials"] == 2
+
+
+def test_cli_eval_gdin_smoke(gdin_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--json", "--plot", str(tmp_path)]
+    for name in ("exp17", "exp31", "exp42", "exp13"):  # closed loop, per-stride, 250 Hz format B, flagged GT
+        argv += ["--match", name]
+    doc = _run_json(capsys, argv)
+    rows = {r["name"]: r for r in doc["recordings"]}
+    assert set(rows) == {"exp13", "exp17", "exp31", "exp42"}
+    base = {"name", "distance_err_pct", "strides_detected", "strides_truth", "gyro_on_fraction", "mean_rate_hz"}
+    for r in rows.values():
+        assert base <= set(r)
+        assert (tmp_path / f"{r['name']}.png").exists()
+    assert "loop_closure_pct" in rows["exp17"] and "stride_mean_err_m" not in rows["exp17"]
+    assert {"stride_mean_err_m", "stride_rmse_m"} <= set(rows["exp31"]) and "loop_closure_pct" not in rows["exp31"]
+    assert rows["exp42"]["mean_rate_hz"] == pytest.approx(250.0, rel=0.02)
+    assert doc["excluded_from_summary"] == ["exp13"]
+    for key in ("loop_closure_pct", "stride_mean_err_m", "stride_rmse_m", "distance_err_pct"):
+        assert set(doc["summary"][key]) == {"mean", "median", "n"}
+    assert doc["summary"]["distance_err_pct"]["n"] == 3
+    assert doc["summary"]["loop_closure_pct"]["n"] == 1
+
+
+def test_cli_eval_gdin_table_and_l0_rule(gdin_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--match", "exp34"]) == 0
+    out = capsys.readouterr().out
+    assert "exp34" in out and "summary" in out
+    assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--l0", "10"]) == 2
