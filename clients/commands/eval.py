@@ -47,7 +47,11 @@ def _runner(batch_seconds: float) -> Any:
 
 
 def _fmt(v: Any, spec: str) -> str:
-    return "-" if v is None else format(v, spec)
+    """Format ``v`` with ``spec`` (e.g. ``"7.2f"``); ``None`` becomes a right-aligned ``-`` of the same width."""
+    if v is None:
+        width = "".join(ch for ch in spec.split(".")[0] if ch.isdigit())
+        return "-".rjust(int(width) if width else 1)
+    return format(v, spec)
 
 
 def _run_vicon(args: argparse.Namespace) -> int:
