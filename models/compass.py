@@ -1,0 +1,192 @@
+"""Gyro-free heading at each stance: tilt-compensated compass with online magnetometer calibration.
+
+While the gyroscope is off the accelerometer at stance gives roll and pitch (the foot is still, so the
+specific force is gravity alone) and the calibrated magnetometer gives the heading. The magnetometer is
+calibrated online while the ZUPT-KF knows the attitude: at each stance the navigator's heading and the
+accelerometer tilt give the body-to-NED rotation C_i, and the model ``C_i W (m_i - b) = m_n`` (hard iron
+b [uT], optional soft iron W = I + E, constant field m_n [uT] in the navigator's own NED frame) is linear in
+(m_n, W b, E) and fitted by Huber-weighted least squares. Because m_n is expressed in the navigator's
+frame, the compass heading comes out in that frame directly (no declination, no offset between the two).
+
+A stance is magnetically disturbed when the calibrated field's magnitude or dip differs from m_n by more
+than a tolerance (the magnitude/inclination test of 002 eq. 4-5 applied to the calibrated field).
+Angles [rad], heading clockwise from north (NED); field [uT]; specific force [m/s^2], body frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from models.rotations import euler_to_dcm
+
+__all__ = ["tilt_from_acc", "level_heading", "MagCalibrator"]
+
+
+def tilt_from_acc(acc: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch [rad] from the specific force at rest (body frame, m/s^2; reads +g upwards)."""
+    f = np.asarray(acc, dtype=np.float64).reshape(3)
+    roll = math.atan2(-f[1], -f[2])
+    pitch = math.atan2(f[0], math.hypot(f[1], f[2]))
+    return roll, pitch
+
+
+def level_heading(acc: np.ndarray, mag: np.ndarray) -> float:
+    """Angle [rad] of the levelled field's horizontal part seen from the body with zero yaw: atan2(E, N)."""
+    roll, pitch = tilt_from_acc(acc)
+    h = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(0.0)) @ np.asarray(mag, dtype=np.float64)
+    return math.atan2(float(h[1]), float(h[0]))
+
+
+class MagCalibrator:
+    """Online hard/soft-iron calibration against the ZUPT-KF attitude, and the compass it enables.
+
+    Parameters
+    ----------
+    soft_iron : bool
+        Also fit the soft-iron matrix W = I + E (9 more unknowns, ridge prior ``soft_iron_std``).
+    min_stances : int
+        Stances needed before the calibration is used.
+    min_heading_spread : float
+        The stances must span headings with at least this circular spread [rad] (hard iron and field are
+        only separable when the foot has pointed in different directions).
+    mag_tol : float
+        Disturbance gate: relative magnitude tolerance of the calibrated field against |m_n|.
+    dip_tol : float
+        Disturbance gate: dip-angle tolerance [rad].
+    """
+
+    def __init__(self, soft_iron: bool = False, min_stances: int = 15, min_heading_spread: float = math.radians(60.0),
+                 mag_tol: float = 0.12, dip_tol: float = math.radians(8.0), soft_iron_std: float = 0.1) -> None:
+        self.soft_iron = bool(soft_iron)
+        self.min_stances = int(min_stances)
+        self.min_heading_spread = float(min_heading_spread)
+        self.mag_tol = float(mag_tol)
+        self.dip_tol = float(dip_tol)
+        self.soft_iron_std = float(soft_iron_std)
+        self._rows: list[list[float]] = []  # [ax, ay, az, mx, my, mz, heading]
+        self.m_n = np.full(3, np.nan)
+        self.b = np.zeros(3)
+        self.w = np.eye(3)
+        self.residual_std = float("nan")
+        self.ready = False
+
+    def add(self, acc_stance: np.ndarray, mag_stance: np.ndarray, heading_kf: float) -> None:
+        """Record one stance: mean specific force [m/s^2], mean field [uT] (body), ZUPT-KF heading [rad]."""
+        a = np.asarray(acc_stance, dtype=np.float64).reshape(3)
+        m = np.asarray(mag_stance, dtype=np.float64).reshape(3)
+        if np.all(np.isfinite(a)) and np.all(np.isfinite(m)) and math.isfinite(heading_kf):
+            self._rows.append([*a.tolist(), *m.tolist(), float(heading_kf)])
+
+    @property
+    def n_stances(self) -> int:
+        """Stances recorded so far."""
+        return len(self._rows)
+
+    def _design(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = rows.shape[0]
+        p = 15 if self.soft_iron else 6
+        a = np.zeros((3 * n, p))
+        y = np.zeros(3 * n)
+        for i, r in enumerate(rows):
+            roll, pitch = tilt_from_acc(r[:3])
+            c = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(r[6]))
+            m = r[3:6]
+            s = slice(3 * i, 3 * i + 3)
+            if self.soft_iron:
+                # C (m + E m - c) = m_n  ->  -m_n + C (m^T kron I) vec(E) - C c = -C m
+                a[s, 0:3] = -np.eye(3)
+                a[s, 3:12] = c @ np.kron(m.reshape(1, 3), np.eye(3))
+                a[s, 12:15] = -c
+                y[s] = -c @ m
+            else:
+                # C (m - b) = m_n  ->  m_n + C b = C m
+                a[s, 0:3] = np.eye(3)
+                a[s, 3:6] = c
+                y[s] = c @ m
+        return a, y
+
+    def fit(self) -> bool:
+        """Fit the calibration from the recorded stances; returns :attr:`ready`."""
+        rows = np.asarray(self._rows, dtype=np.float64).reshape(-1, 7)
+        if rows.shape[0] < self.min_stances:
+            return self.ready
+        h = rows[:, 6]
+        spread = 1.0 - math.hypot(float(np.mean(np.cos(h))), float(np.mean(np.sin(h))))  # circular variance
+        if spread < 1.0 - math.cos(self.min_heading_spread / 2.0):
+            return self.ready
+        a, y = self._design(rows)
+        p = a.shape[1]
+        lam = np.zeros(p)
+        if self.soft_iron:
+            lam[3:12] = 1.0 / self.soft_iron_std**2
+        wts = np.ones(rows.shape[0])
+        s = 5.0  # uT
+        x = np.zeros(p)
+        for _ in range(10):
+            wr = np.repeat(wts, 3) / s**2
+            x = np.linalg.solve((a * wr[:, None]).T @ a + np.diag(lam), (a * wr[:, None]).T @ y)
+            r = (y - a @ x).reshape(-1, 3)
+            rn = np.linalg.norm(r, axis=1)
+            s = max(1.4826 * float(np.median(rn)) / math.sqrt(3.0) * 1.2, 0.5)
+            u = rn / (s * math.sqrt(3.0))
+            wts = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+        if self.soft_iron:
+            e = x[3:12].reshape(3, 3, order="F")
+            self.w = np.eye(3) + e
+            self.b = np.linalg.solve(self.w, x[12:15])
+            self.m_n = x[0:3]
+        else:
+            self.m_n = x[0:3]
+            self.b = x[3:6]
+            self.w = np.eye(3)
+        self.residual_std = s
+        self.ready = bool(np.all(np.isfinite(self.m_n)) and np.linalg.norm(self.m_n[:2]) > 1.0)
+        return self.ready
+
+    def calibrate(self, mag: np.ndarray) -> np.ndarray:
+        """Calibrated field W (m - b) [uT], body frame."""
+        return self.w @ (np.asarray(mag, dtype=np.float64).reshape(3) - self.b)
+
+    def disturbed(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> bool:
+        """Magnitude/dip gate of the calibrated field against m_n (True = do not trust the compass)."""
+        if not self.ready:
+            return True
+        m = self.calibrate(mag_stance)
+        ref = float(np.linalg.norm(self.m_n))
+        if abs(float(np.linalg.norm(m)) - ref) > self.mag_tol * ref:
+            return True
+        f = np.asarray(acc_stance, dtype=np.float64).reshape(3)
+        down = -f / max(float(np.linalg.norm(f)), 1e-9)
+        dip = math.asin(max(-1.0, min(1.0, float(m @ down) / max(float(np.linalg.norm(m)), 1e-9))))
+        dip_ref = math.atan2(float(self.m_n[2]), float(np.linalg.norm(self.m_n[:2])))
+        return abs(dip - dip_ref) > self.dip_tol
+
+    def heading(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> float:
+        """Compass heading [rad] of the body in the navigator's NED frame (NaN before calibration)."""
+        if not self.ready:
+            return float("nan")
+        alpha = level_heading(acc_stance, self.calibrate(mag_stance))
+        psi = math.atan2(float(self.m_n[1]), float(self.m_n[0])) - alpha
+        return math.atan2(math.sin(psi), math.cos(psi))
+
+    def get_state(self) -> dict:
+        """Plain-data state for ``energy.codec``."""
+        return {"params": [self.soft_iron, self.min_stances, self.min_heading_spread, self.mag_tol, self.dip_tol,
+                           self.soft_iron_std],
+                "rows": np.asarray(self._rows, dtype=np.float64).reshape(-1, 7), "m_n": self.m_n.copy(),
+                "b": self.b.copy(), "w": self.w.copy(), "residual_std": self.residual_std, "ready": self.ready}
+
+    @classmethod
+    def from_state(cls, d: dict) -> MagCalibrator:
+        """Rebuild from :meth:`get_state` output."""
+        p = d["params"]
+        obj = cls(bool(p[0]), int(p[1]), float(p[2]), float(p[3]), float(p[4]), float(p[5]))
+        obj._rows = np.asarray(d["rows"], dtype=np.float64).reshape(-1, 7).tolist()
+        obj.m_n = np.asarray(d["m_n"], dtype=np.float64).copy()
+        obj.b = np.asarray(d["b"], dtype=np.float64).copy()
+        obj.w = np.asarray(d["w"], dtype=np.float64).reshape(3, 3).copy()
+        obj.residual_std = float(d["residual_std"])
+        obj.ready = bool(d["ready"])
+        return obj

@@ -1,0 +1,269 @@
+"""Step-length models and their online calibration against ZUPT-KF step distances.
+
+Models (``d`` in metres, one step = one stance-to-stance interval of the instrumented foot):
+
+* ``"eq15"`` — 004 eq. (15) walking: ``d = K0 + K1 f^-1/2 + K2 f^-1 + K3 max(a~)``;
+* ``"eq15_run"`` — 004 eq. (15) running: ``d = K4 cbrt(mean(a~))``;
+* ``"weinberg"`` — 000 eq. (35): ``d = K (a_max - a_min)^(1/4)``;
+* ``"height_freq"`` — 003 eq. (28): ``d = h (j f + l) + q``; for one user ``h`` is fixed, so ``h l`` and
+  ``q`` are not separately identifiable: the prior keeps them apart.
+
+``a~`` is the Hamming-window FIR filtered specific-force magnitude [m/s^2] (004 Section 2.2), ``f`` the
+step frequency [Hz] (see :mod:`models.steps`).
+
+Calibration (004 Section 2.3 and 5): pairs (features, d_KF) collected while the ZUPT-KF runs are fitted by
+Huber-weighted iteratively re-weighted least squares with a Gaussian prior on the coefficients (so a
+calibration walk at one pace, where the regressors of eq. 15 are nearly collinear, stays well-posed).
+Separate models per behaviour and per walking pattern: step-frequency bands of width ``2 * band_hz``
+(004: +-0.2 Hz). The prior precision ``sigma_d`` (004 Table 3) and the 3-sigma examination go with each
+fitted model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MODELS", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
+           "StepLengthCalibrator"]
+
+MODELS: tuple[str, ...] = ("eq15", "eq15_run", "weinberg", "height_freq")
+
+
+@dataclass(frozen=True)
+class StepFeatures:
+    """Inputs of the step-length models.
+
+    Attributes
+    ----------
+    f_s : float
+        Step frequency [Hz].
+    acc_mean, acc_max, acc_min : float
+        Mean, maximum, minimum of the FIR-filtered specific-force magnitude over the step [m/s^2].
+    """
+
+    f_s: float
+    acc_mean: float
+    acc_max: float
+    acc_min: float
+
+
+def regressors(model: str, x: StepFeatures, height_m: float = 1.75) -> np.ndarray:
+    """Regressor row of a linear-in-coefficients step-length model.
+
+    Parameters
+    ----------
+    model : str
+        One of :data:`MODELS`.
+    x : StepFeatures
+        Step features.
+    height_m : float
+        User height [m] (``"height_freq"`` only).
+
+    Returns
+    -------
+    ndarray, shape (p,)
+    """
+    f = max(x.f_s, 1e-3)
+    if model == "eq15":
+        return np.array([1.0, f ** -0.5, 1.0 / f, x.acc_max])  # 004 eq. (15), walking
+    if model == "eq15_run":
+        return np.array([np.cbrt(x.acc_mean)])  # 004 eq. (15), running
+    if model == "weinberg":
+        return np.array([max(x.acc_max - x.acc_min, 0.0) ** 0.25])  # 000 eq. (35)
+    if model == "height_freq":
+        return np.array([height_m * f, height_m, 1.0])  # 003 eq. (28): h (j f + l) + q
+    raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
+
+
+def default_prior(model: str) -> tuple[np.ndarray, np.ndarray]:
+    """Generic (population) coefficients and their prior standard deviations.
+
+    Physically motivated, not fitted to any evaluation recording: a foot-mounted stride of ~1.4 m at
+    ~0.9 Hz (walking speed ~1.3 m/s), i.e. ``d ~ 1.3 m/s / f``.
+
+    Returns
+    -------
+    mean, std : ndarray, shape (p,)
+    """
+    if model == "eq15":
+        return np.array([0.0, 0.0, 1.3, 0.0]), np.array([1.0, 1.0, 1.0, 0.05])
+    if model == "eq15_run":
+        return np.array([0.7]), np.array([1.0])
+    if model == "weinberg":
+        return np.array([0.6]), np.array([1.0])
+    if model == "height_freq":
+        return np.array([0.3, 0.55, 0.0]), np.array([0.5, 0.2, 0.3])
+    raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
+
+
+def robust_fit(x: np.ndarray, y: np.ndarray, prior_mean: np.ndarray, prior_std: np.ndarray,
+               huber_k: float = 1.345, iterations: int = 20) -> np.ndarray:
+    """Huber IRLS with a Gaussian prior on the coefficients.
+
+    Minimises ``sum_i rho((y_i - x_i c) / s) + sum_j ((c_j - m_j) / sd_j)^2 / 2`` with ``s`` the robust
+    (MAD) residual scale.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n, p)
+        Regressors.
+    y : ndarray, shape (n,)
+        Reference step lengths d_KF [m].
+    prior_mean, prior_std : ndarray, shape (p,)
+        Prior on the coefficients.
+    huber_k : float
+        Huber threshold in units of the residual scale.
+
+    Returns
+    -------
+    ndarray, shape (p,)
+        Coefficients.
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(len(y), -1)
+    y = np.asarray(y, dtype=np.float64)
+    m = np.asarray(prior_mean, dtype=np.float64)
+    lam = 1.0 / np.asarray(prior_std, dtype=np.float64) ** 2
+    w = np.ones_like(y)
+    c = m.copy()
+    s = 0.05  # m, initial residual scale
+    for _ in range(iterations):
+        a = (x * (w / s**2)[:, None]).T @ x + np.diag(lam)
+        b = (x * (w / s**2)[:, None]).T @ y + lam * m
+        c_new = np.linalg.solve(a, b)
+        r = y - x @ c_new
+        s = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 0.005)
+        u = np.abs(r) / s
+        w = np.where(u <= huber_k, 1.0, huber_k / np.maximum(u, 1e-12))
+        if np.allclose(c_new, c, rtol=0, atol=1e-10):
+            c = c_new
+            break
+        c = c_new
+    return c
+
+
+def sigma_d(d_kf: np.ndarray, d_sl: np.ndarray) -> float:
+    """Prior precision of a calibrated step-length model, 004 Table 3: ``sqrt(sum (d_KF - d_SL)^2 / (n-1))``."""
+    d_kf = np.asarray(d_kf, dtype=np.float64)
+    d_sl = np.asarray(d_sl, dtype=np.float64)
+    n = d_kf.size
+    if n < 2:
+        return float("nan")
+    return float(np.sqrt(np.sum((d_kf - d_sl) ** 2) / (n - 1)))
+
+
+class StepLengthCalibrator:
+    """Online step-length calibration per behaviour and walking pattern (004 eq. 15, Table 3).
+
+    Parameters
+    ----------
+    model : str
+        Walking model, one of :data:`MODELS` (``"eq15_run"`` is used for behaviour ``"run"`` when
+        ``model == "eq15"``).
+    band_hz : float
+        Half-width of a walking-pattern step-frequency band [Hz] (004: 0.2).
+    min_pairs : int
+        Pairs a band needs before it gets its own model (otherwise the behaviour's pooled model).
+    height_m : float
+        User height [m] (``"height_freq"``).
+    sigma_floor : float
+        Lower bound on sigma_d [m] so a tiny calibration set cannot make the examination hair-trigger.
+    """
+
+    def __init__(self, model: str = "eq15", band_hz: float = 0.2, min_pairs: int = 8, height_m: float = 1.75,
+                 sigma_floor: float = 0.03) -> None:
+        if model not in MODELS:
+            raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
+        self.model = model
+        self.band_hz = float(band_hz)
+        self.min_pairs = int(min_pairs)
+        self.height_m = float(height_m)
+        self.sigma_floor = float(sigma_floor)
+        self._pairs: dict[str, list[list[float]]] = {}  # behaviour -> [[f, mean, max, min, d_kf], ...]
+        self._fits: dict[str, dict] = {}  # key -> {"coef": [...], "sigma_d": s, "n": n}
+
+    def model_for(self, behaviour: str) -> str:
+        """Model used for a behaviour (running uses 004 eq. 15 running form)."""
+        return "eq15_run" if (behaviour == "run" and self.model == "eq15") else self.model
+
+    def band(self, f_s: float) -> int:
+        """Walking-pattern band index of a step frequency [Hz] (bands of width ``2 band_hz``)."""
+        return int(math.floor(f_s / (2.0 * self.band_hz)))
+
+    def add(self, behaviour: str, x: StepFeatures, d_kf: float) -> None:
+        """Record one calibration pair: features of a step and the ZUPT-KF distance of that step [m]."""
+        if not (np.isfinite(d_kf) and np.isfinite(x.f_s)):
+            return
+        self._pairs.setdefault(behaviour, []).append([x.f_s, x.acc_mean, x.acc_max, x.acc_min, float(d_kf)])
+
+    def n_pairs(self, behaviour: str) -> int:
+        """Calibration pairs gathered for a behaviour."""
+        return len(self._pairs.get(behaviour, []))
+
+    def fit(self, behaviour: str) -> dict:
+        """Fit the pooled and the per-band models of a behaviour; returns ``{key: {coef, sigma_d, n}}``."""
+        rows = np.asarray(self._pairs.get(behaviour, []), dtype=np.float64).reshape(-1, 5)
+        model = self.model_for(behaviour)
+        m, sd = default_prior(model)
+        out: dict[str, dict] = {}
+        groups = {f"{behaviour}": np.ones(len(rows), bool)}
+        bands = np.array([self.band(f) for f in rows[:, 0]], dtype=int) if len(rows) else np.zeros(0, int)
+        for b in sorted(set(bands.tolist())):
+            sel = bands == b
+            if sel.sum() >= self.min_pairs:
+                groups[f"{behaviour}/{b}"] = sel
+        for key, sel in groups.items():
+            r = rows[sel]
+            if len(r) == 0:
+                continue
+            x = np.array([regressors(model, StepFeatures(*q[:4]), self.height_m) for q in r])
+            coef = robust_fit(x, r[:, 4], m, sd)
+            sig = sigma_d(r[:, 4], x @ coef)  # 004 Table 3
+            out[key] = {"coef": coef.tolist(), "sigma_d": max(sig, self.sigma_floor) if np.isfinite(sig)
+                        else float("nan"), "n": int(len(r))}
+        for k in [k for k in self._fits if k == behaviour or k.startswith(behaviour + "/")]:
+            del self._fits[k]
+        self._fits.update(out)
+        return out
+
+    def _entry(self, behaviour: str, f_s: float) -> dict | None:
+        return self._fits.get(f"{behaviour}/{self.band(f_s)}") or self._fits.get(behaviour)
+
+    def calibrated(self, behaviour: str) -> bool:
+        """True when a fitted model exists for the behaviour."""
+        return behaviour in self._fits
+
+    def predict(self, behaviour: str, x: StepFeatures) -> tuple[float, float]:
+        """Step length [m] and its sigma_d [m] (NaN sigma when only the generic prior is available)."""
+        model = self.model_for(behaviour)
+        e = self._entry(behaviour, x.f_s)
+        coef = np.asarray(e["coef"]) if e else default_prior(model)[0]
+        d = float(regressors(model, x, self.height_m) @ coef)
+        return d, (float(e["sigma_d"]) if e else float("nan"))
+
+    def examine(self, d_kf: float, d_sl: float, behaviour: str = "walk", f_s: float | None = None) -> bool:
+        """004 Table 3 examination: True (model still valid) when ``|d_KF - d_SL| <= 3 sigma_d``."""
+        e = self._entry(behaviour, f_s) if f_s is not None else self._fits.get(behaviour)
+        if e is None or not np.isfinite(e["sigma_d"]):
+            return False
+        return abs(float(d_kf) - float(d_sl)) <= 3.0 * float(e["sigma_d"])
+
+    def get_state(self) -> dict:
+        """Plain-data state (this is the per-user calibration profile content)."""
+        return {"model": self.model, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
+                "height_m": self.height_m, "sigma_floor": self.sigma_floor,
+                "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
+                "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
+                         for k, v in self._fits.items()}}
+
+    @classmethod
+    def from_state(cls, d: dict) -> StepLengthCalibrator:
+        """Rebuild from :meth:`get_state` output."""
+        obj = cls(d["model"], float(d["band_hz"]), int(d["min_pairs"]), float(d["height_m"]),
+                  float(d["sigma_floor"]))
+        obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
+        obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
+                     for k, v in d["fits"].items()}
+        return obj
