@@ -1,0 +1,210 @@
+"""Device simulators: a foot sensor, a phone and a watch streaming a recording through the SDK.
+
+Each simulator behaves like the real device talking to the server: it sends ``batch_seconds`` of samples
+per request and, after every answer, applies the server's sensor configuration from the next batch on —
+gyroscope off means no gyroscope samples are sent; a lower rate is produced by the anti-aliased decimation of
+:class:`energy.device.DeviceEmulator` (the same de-sampling the local replay uses, so streamed and local
+processing see identical samples).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from clients.recording import Recording
+from clients.sdk import AsyncPednavClient, PednavClient
+from energy.device import DeviceEmulator
+from energy.types import SensorConfig
+from models.batch import STREAMS, SensorBatch
+
+__all__ = [
+    "SimulationResult",
+    "DeviceSimulator",
+    "FootSensorSimulator",
+    "PhoneSimulator",
+    "WatchSimulator",
+    "simulator_for",
+]
+
+
+@dataclass
+class SimulationResult:
+    """What a simulated device sent and got back.
+
+    Attributes
+    ----------
+    session_id : int
+    responses : list of dict
+        Server answers, one per batch (the close adds the flushed positions to ``positions``).
+    positions : list of dict
+        Every position received, in order (``t_ns``, ``north``/``east``/``down`` [m], ``mode`` ...).
+    samples_sent : dict of str to int
+        Samples sent per stream.
+    bytes_sent : int
+        Request body bytes of all uploads.
+    gyro_on_s : float
+        Time during which the gyroscope was on [s].
+    duration_s : float
+        Recording duration [s].
+    configs : list of (int, dict)
+        Batch start time [ns] and the sensor configuration used for it.
+    """
+
+    session_id: int
+    responses: list[dict[str, Any]] = field(default_factory=list)
+    positions: list[dict[str, Any]] = field(default_factory=list)
+    samples_sent: dict[str, int] = field(default_factory=lambda: {s: 0 for s in STREAMS})
+    bytes_sent: int = 0
+    gyro_on_s: float = 0.0
+    duration_s: float = 0.0
+    configs: list[tuple[int, dict[str, Any]]] = field(default_factory=list)
+
+    @property
+    def gyro_on_fraction(self) -> float:
+        return self.gyro_on_s / self.duration_s if self.duration_s > 0 else 0.0
+
+
+class DeviceSimulator:
+    """A device obeying the server's sensor configuration.
+
+    Parameters
+    ----------
+    recording : Recording or SensorBatch
+        Native-rate streams (SI units, int64 ns timestamps).
+    batch_seconds : float
+        Duration of each uploaded batch [s].
+    """
+
+    kind = "foot"
+
+    def __init__(self, recording: Recording | SensorBatch, batch_seconds: float = 1.0) -> None:
+        self.batch = recording.batch if isinstance(recording, Recording) else recording
+        if self.batch.t_start_ns is None:
+            raise ValueError("recording: no samples")
+        if batch_seconds <= 0:
+            raise ValueError("batch_seconds must be positive")
+        self.batch_seconds = batch_seconds
+
+    def _windows(self) -> list[tuple[int, int]]:
+        t0, t_end = self.batch.t_start_ns, self.batch.t_end_ns
+        assert t0 is not None and t_end is not None
+        step = int(round(self.batch_seconds * 1e9))
+        out = []
+        while t0 <= t_end:
+            t1 = min(t0 + step, t_end + 1)
+            out.append((t0, t1))
+            t0 = t1
+        return out
+
+    def _start_kwargs(self, start: dict[str, Any] | None) -> dict[str, Any]:
+        return {"device_kind": self.kind, **(start or {})}
+
+    def run(
+        self,
+        client: PednavClient,
+        session: dict[str, Any] | None = None,
+        start: dict[str, Any] | None = None,
+        close: bool = True,
+        progress: Callable[[float, list[dict[str, Any]]], None] | None = None,
+    ) -> SimulationResult:
+        """Stream the whole recording; returns what was sent and received.
+
+        Parameters
+        ----------
+        client : PednavClient
+        session : dict, optional
+            An existing session document; a new session is started otherwise (``start`` = its extra fields,
+            e.g. ``latitude_deg``).
+        close : bool
+            Close the session at the end (the server flushes the engine's last positions).
+        progress : callable, optional
+            ``progress(fraction_done, new_positions)`` after every batch.
+        """
+        sess = session or client.start_session(**self._start_kwargs(start))
+        res = SimulationResult(session_id=sess["id"])
+        stream = client.stream(sess["id"], sess.get("next_seq", 0))
+        config = SensorConfig(**sess["sensor_config"])
+        device = DeviceEmulator(self.batch)
+        wins = self._windows()
+        span = wins[-1][1] - wins[0][0]
+        res.duration_s = span / 1e9
+        for t0, t1 in wins:
+            res.configs.append((t0, config.to_dict()))
+            out = device.emit(t0, t1, config)
+            if config.gyro_on:
+                res.gyro_on_s += (t1 - t0) / 1e9
+            for name in STREAMS:
+                res.samples_sent[name] += len(out.stream(name)[0])
+            answers = stream.send(out)
+            new: list[dict[str, Any]] = []
+            for a in answers:
+                res.responses.append(a)
+                new += a["positions"]
+            res.positions += new
+            if stream.sensor_config is not None:
+                config = SensorConfig(**stream.sensor_config)
+            if progress is not None:
+                progress((t1 - wins[0][0]) / span, new)
+        res.bytes_sent = stream.bytes_sent
+        if stream.pending:
+            raise ConnectionError(f"{len(stream.pending)} batches could not be delivered")
+        if close:
+            before = len(client.trajectory(sess["id"])["positions"])
+            client.close_session(sess["id"])
+            res.positions += client.trajectory(sess["id"])["positions"][before:]
+        return res
+
+    async def run_async(
+        self,
+        client: AsyncPednavClient,
+        session: dict[str, Any] | None = None,
+        start: dict[str, Any] | None = None,
+        close: bool = True,
+    ) -> SimulationResult:
+        """Asynchronous :meth:`run` (many simulated devices in one event loop: the load benchmark)."""
+        sess = session or await client.start_session(**self._start_kwargs(start))
+        res = SimulationResult(session_id=sess["id"])
+        stream = client.stream(sess["id"], sess.get("next_seq", 0))
+        config = SensorConfig(**sess["sensor_config"])
+        device = DeviceEmulator(self.batch)
+        wins = self._windows()
+        res.duration_s = (wins[-1][1] - wins[0][0]) / 1e9
+        for t0, t1 in wins:
+            out = device.emit(t0, t1, config)
+            for a in await stream.send(out):
+                res.responses.append(a)
+                res.positions += a["positions"]
+            if stream.sensor_config is not None:
+                config = SensorConfig(**stream.sensor_config)
+        if close:
+            await client.close_session(sess["id"])
+        return res
+
+
+class FootSensorSimulator(DeviceSimulator):
+    """A foot-mounted IMU paired with a phone (the phone relays its batches)."""
+
+    kind = "foot"
+
+
+class PhoneSimulator(DeviceSimulator):
+    """A phone's own IMU (Android ``SensorEvent`` streams)."""
+
+    kind = "phone"
+
+
+class WatchSimulator(DeviceSimulator):
+    """A smartwatch IMU."""
+
+    kind = "watch"
+
+
+def simulator_for(kind: str, recording: Recording | SensorBatch, batch_seconds: float = 1.0) -> DeviceSimulator:
+    """The simulator class for a device kind (``foot``, ``phone``, ``watch``)."""
+    classes = {"foot": FootSensorSimulator, "phone": PhoneSimulator, "watch": WatchSimulator}
+    try:
+        return classes[kind](recording, batch_seconds)
+    except KeyError:
+        raise ValueError(f"kind: expected one of {sorted(classes)}, got {kind!r}") from None

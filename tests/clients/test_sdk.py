@@ -1,0 +1,186 @@
+"""SDK: wire encoding agrees with the server, payload sizes, retries with the same sequence number, offline
+buffering, async client, and identical positions API-streamed vs local."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from hypothesis import given, settings as hsettings, strategies as st
+
+from clients.sdk import AsyncPednavClient, Offline, PednavClient, SequenceConflict, encode_batch
+from clients.simulators import FootSensorSimulator
+from models.batch import SensorBatch
+from server.formats import decode_batch, encode_json
+from tests.server.conftest import app, backend, client, make_user, settings, still_batch  # noqa: F401 - fixtures
+
+T0 = 1_700_000_000_000_000_000
+
+
+@st.composite
+def batches(draw: st.DrawFn) -> SensorBatch:
+    kw = {}
+    for name in ("acc", "gyr", "mag"):
+        n = draw(st.integers(0, 40))
+        t0 = draw(st.integers(0, 2**62))
+        steps = draw(st.lists(st.integers(1, 2**33), min_size=max(n - 1, 0), max_size=max(n - 1, 0)))
+        t = np.array([t0] + list(t0 + np.cumsum(steps)), dtype=np.int64)[:n] if n else np.zeros(0, np.int64)
+        v = np.array(draw(st.lists(st.floats(-1e6, 1e6, width=32), min_size=3 * n, max_size=3 * n))).reshape(n, 3)
+        kw[f"{name}_t_ns"], kw[name] = t, v
+    return SensorBatch(**kw)
+
+
+@hsettings(max_examples=60, deadline=None)
+@given(batches(), st.sampled_from([("msgpack", "<f8"), ("msgpack", "<f4"), ("json", "<f8")]))
+def test_sdk_encoding_round_trips_through_the_server_decoder(batch: SensorBatch, enc: tuple[str, str]) -> None:
+    body, ctype = encode_batch(batch, enc[0], enc[1])  # type: ignore[arg-type]
+    back = decode_batch(body, ctype, 10**6)
+    for name in ("acc", "gyr", "mag"):
+        assert np.array_equal(back.stream(name)[0], batch.stream(name)[0])
+        assert np.array_equal(back.stream(name)[1], batch.stream(name)[1])  # float32 values: lossless in <f4
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_binary_body_is_at_least_3x_smaller_than_json(seed: int) -> None:
+    # 1 s of 100 Hz 9-axis phone data; Android reports float32 values, so "<f4" is lossless
+    b = still_batch(T0, 1.0, 100.0, seed=seed)
+    b = SensorBatch(**{k: (v.astype(np.float32).astype(np.float64) if v.dtype.kind == "f" else v) for k, v in b._kwargs().items()})
+    js = encode_json(b)
+    f4, _ = encode_batch(b, "msgpack", "<f4")
+    assert len(js) / len(f4) >= 3.0
+    assert np.array_equal(decode_batch(f4, "application/msgpack", 10**6).acc, b.acc)
+
+
+class Flaky(httpx.BaseTransport):
+    """Wraps a transport; fails the chosen attempts before sending or after the server answered."""
+
+    def __init__(self, inner: httpx.BaseTransport) -> None:
+        self.inner = inner
+        self.fail_before = 0
+        self.lose_response = 0
+        self.down = False
+        self.calls = 0
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        self.calls += 1
+        if self.down or self.fail_before > 0:
+            self.fail_before = max(self.fail_before - 1, 0)
+            raise httpx.ConnectError("simulated: no network", request=request)
+        resp = self.inner.handle_request(request)
+        if self.lose_response > 0:
+            self.lose_response -= 1
+            resp.read()
+            raise httpx.ReadTimeout("simulated: answer lost", request=request)
+        return resp
+
+
+@pytest.fixture()
+def flaky_api(client, make_user):  # type: ignore[no-untyped-def]  # noqa: F811
+    _, tok = make_user()
+    flaky = Flaky(client._transport)
+    http = httpx.Client(transport=flaky, base_url=str(client.base_url))
+    api = PednavClient(token=tok, http=http, retries=4, backoff_s=0.0)
+    yield api, flaky
+    http.close()
+
+
+def test_retry_after_lost_answer_is_applied_once(flaky_api) -> None:  # type: ignore[no-untyped-def]
+    api, flaky = flaky_api
+    sid = api.start_session("foot")["id"]
+    first = api.upload(sid, 0, still_batch(T0))
+    flaky.lose_response = 2  # the server applies batch 1, the answer is lost twice, the SDK retries seq 1
+    second = api.upload(sid, 1, still_batch(T0 + 10**9, seed=1))
+    assert second["seq"] == 1 and second["next_seq"] == 2 and first["next_seq"] == 1
+    assert [b["seq"] for b in api._json("GET", f"/v1/sessions/{sid}/batches")] == [0, 1]
+    flaky.fail_before = 3
+    assert api.upload(sid, 2, still_batch(T0 + 2 * 10**9, seed=2))["next_seq"] == 3
+    with pytest.raises(SequenceConflict) as exc:
+        api.upload(sid, 7, still_batch(T0 + 3 * 10**9))
+    assert exc.value.expected_seq == 3
+
+
+def test_offline_buffering_delivers_in_order(flaky_api) -> None:  # type: ignore[no-untyped-def]
+    api, flaky = flaky_api
+    sid = api.start_session("phone")["id"]
+    stream = api.stream(sid)
+    assert len(stream.send(still_batch(T0))) == 1
+    flaky.down = True
+    for k in range(1, 4):
+        assert stream.send(still_batch(T0 + k * 10**9, seed=k)) == []
+    assert [seq for seq, _, _ in stream.pending] == [1, 2, 3]
+    with pytest.raises(Offline):
+        api.upload(sid, 1, still_batch(T0 + 10**9, seed=1))
+    flaky.down = False
+    got = stream.send(still_batch(T0 + 4 * 10**9, seed=4))
+    assert [r["seq"] for r in got] == [1, 2, 3, 4] and not stream.pending
+    assert stream.sensor_config == got[-1]["sensor_config"]
+    assert api.session(sid)["next_seq"] == 5
+
+
+def test_async_client(app, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    _, tok = make_user()
+
+    async def go() -> list[dict]:  # type: ignore[type-arg]
+        http = httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test")
+        async with AsyncPednavClient(token=tok, http=http) as api:
+            sid = (await api.start_session("watch"))["id"]
+            stream = api.stream(sid)
+            out = []
+            for k in range(3):
+                out += await stream.send(still_batch(T0 + k * 10**9, seed=k))
+            again = await api.upload(sid, 1, still_batch(T0 + 10**9, seed=1))
+            assert again == out[1]
+            await api.close_session(sid)
+            assert (await api.session(sid))["status"] == "closed"
+        await http.aclose()
+        return out
+
+    out = asyncio.run(go())
+    assert [r["seq"] for r in out] == [0, 1, 2]
+
+
+# ---------------------------------------------------------------- identical positions both ways
+def _api_vs_local(client, tok: str, recording, encoding: str) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    from energy.device import replay
+    from energy.engine import Engine
+    from server.formats import decode_batch as dec
+
+    api = PednavClient(token=tok, http=client, encoding=encoding)  # type: ignore[arg-type]
+    res = FootSensorSimulator(recording, batch_seconds=1.0).run(api)
+    got = np.array([[p["t_ns"], p["north"], p["east"], p["down"]] for p in res.positions])
+    # 1) the local device replay (same 1-s batches, same sensor commands)
+    loc = replay(Engine(mode="auto"), recording.batch, 1.0)
+    ref = np.array([[p.t_ns, p.north, p.east, p.down] for p in loc.positions])
+    # 2) what the server stored, fed locally in ONE piece
+    raws = [dec(api.request("GET", f"/v1/sessions/{res.session_id}/batches/{b['seq']}/raw").content, "application/msgpack", 10**7)
+            for b in api._json("GET", f"/v1/sessions/{res.session_id}/batches")]
+    eng = Engine(mode="auto")
+    one = eng.feed(SensorBatch.concat(raws)).positions + eng.flush().positions
+    whole = np.array([[p.t_ns, p.north, p.east, p.down] for p in one])
+    assert len(got) > 5
+    for other in (ref, whole):
+        assert other.shape == got.shape
+        assert np.array_equal(other[:, 0], got[:, 0])
+        assert np.max(np.abs(other[:, 1:] - got[:, 1:])) <= 1e-9
+    assert res.gyro_on_fraction == pytest.approx(loc.gyro_on_fraction)
+
+
+@pytest.mark.parametrize("encoding", ["msgpack", "json"])
+def test_api_streamed_equals_local_synthetic(client, make_user, encoding) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    from clients.synth import synthesize
+
+    _, tok = make_user()
+    _api_vs_local(client, tok, synthesize("walk", seed=3), encoding)
+
+
+def test_api_streamed_equals_local_real_recording(client, make_user, vicon_dir: Path) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    from clients.importers import list_recordings, load
+
+    files = list_recordings(vicon_dir)
+    if not files:
+        pytest.skip(f"no recordings in {vicon_dir}")
+    _, tok = make_user()
+    _api_vs_local(client, tok, load(files[0]), "msgpack")
