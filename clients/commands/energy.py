@@ -1,0 +1,100 @@
+"""``pednav energy simulate``: duty-cycle simulation of a mixed day, scheduler vs always-on baseline."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["register"]
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from clients.synth import synthesize
+    from energy.power import load_profile
+    from energy.simulate import measure_compute_costs, simulate
+
+    if args.measure_costs:
+        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch, synthesize("walk", seed=0).batch)
+        out = Path(__file__).resolve().parent.parent.parent / "energy" / "profiles" / "compute_costs.json"
+        out.write_text(json.dumps(costs, indent=2) + "\n")
+        print(f"wrote {out}", file=sys.stderr)
+    profile = load_profile(args.profile)
+    rec = synthesize(args.scenario, seed=args.seed)
+    truth = rec.truth
+    assert truth is not None and truth.t_ns is not None and truth.positions is not None
+    doc = {"scenario": args.scenario, "seed": args.seed}
+    doc.update(simulate(profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds))
+    if args.plot:
+        _plot(args.plot, rec, profile, args.batch_seconds)
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    rows = [("", "scheduler", "baseline")]
+    for k in ("acc", "gyr", "mag", "sensors", "compute", "radio", "total"):
+        rows.append((f"{k} [mJ]", f"{doc['scheduler']['energy_mj'][k]:.1f}", f"{doc['baseline']['energy_mj'][k]:.1f}"))
+    rows.append(("gyro on fraction", f"{doc['scheduler']['gyro_on_fraction']:.3f}", f"{doc['baseline']['gyro_on_fraction']:.3f}"))
+    rows.append(("mean acc rate [Hz]", f"{doc['scheduler']['mean_rate_hz']:.1f}", f"{doc['baseline']['mean_rate_hz']:.1f}"))
+    rows.append(
+        ("mean position error [m]", f"{doc['position_error_m']['scheduler']:.2f}", f"{doc['position_error_m']['baseline']:.2f}")
+    )
+    print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), profile {profile.name}")
+    for r in rows:
+        print(f"{r[0]:<26}{r[1]:>12}{r[2]:>12}")
+    print(f"energy ratio {doc['energy_ratio']:.3f}   compute reduction {doc['compute_reduction_pct']:.1f} %   "
+          f"error ratio {doc['position_error_m']['ratio']:.2f}")
+    return 0
+
+
+def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None:
+    """Mode / behaviour / gyroscope timelines of the scheduler on the scenario (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from energy.device import replay
+    from energy.engine import Engine
+
+    res = replay(Engine(mode="auto", trace=True), rec.batch, batch_seconds=batch_seconds)  # type: ignore[attr-defined]
+    tr = res.trace
+    t = (tr.t_ns - tr.t_ns[0]) / 1e9
+    truth_b = rec.truth.extra["behaviour"]  # type: ignore[attr-defined]
+    tt = (rec.truth.t_ns - rec.truth.t_ns[0]) / 1e9  # type: ignore[attr-defined]
+    cats = ["stand", "walk", "run", "other"]
+    fig, ax = plt.subplots(4, 1, figsize=(11, 7), sharex=True)
+    ax[0].plot(tt, [cats.index(b) for b in truth_b], "k-", lw=1, label="truth")
+    ax[0].plot(t, [cats.index(str(b)) if str(b) in cats else -1 for b in tr.behaviour], "r.", ms=1, label="recognised")
+    ax[0].set_yticks(range(4), cats)
+    ax[0].legend(loc="upper right")
+    modes = ["idle", "pdr", "zupt"]
+    ax[1].plot(t, [modes.index(str(m)) if str(m) in modes else -1 for m in tr.mode], "b.", ms=1)
+    ax[1].set_yticks(range(3), modes)
+    ax[2].plot(t, np.asarray(tr.gyro_on, dtype=float), "g-")
+    ax[2].set_ylabel("gyro on")
+    ax[3].plot(t[1:], 1.0 / np.maximum(np.diff(t), 1e-6), "m.", ms=1)
+    ax[3].set_ylabel("acc rate [Hz]")
+    ax[3].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("energy", help="energy: duty-cycle simulation of a mixed day (scheduler vs always-on)")
+    esub = p.add_subparsers(dest="energy_command", metavar="ACTION", required=True)
+    s = esub.add_parser("simulate", help="scheduler vs always-on ZUPT-KF baseline on a synthetic scenario")
+    s.add_argument("--json", action="store_true", help="print one JSON document")
+    s.add_argument("--scenario", default="mixed-day", help="synthetic scenario (clients.synth.scenario_names())")
+    s.add_argument("--seed", type=int, default=0, help="synthesiser seed")
+    s.add_argument("--profile", default="foot-004", help="device power profile (energy/profiles/NAME.json) or a path")
+    s.add_argument("--batch-seconds", type=float, default=1.0, help="upload batch duration [s]")
+    s.add_argument("--plot", metavar="PNG", help="write mode/behaviour/gyroscope timelines of the scheduler")
+    s.add_argument(
+        "--measure-costs",
+        action="store_true",
+        help="re-measure the per-mode compute costs on this machine and store them in energy/profiles/compute_costs.json",
+    )
+    s.set_defaults(func=_simulate)
