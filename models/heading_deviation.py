@@ -54,8 +54,8 @@ class HeadingDeviationKF:
         (turns, where eq. 20 mixes two directions); 0 disables the gate.
     """
 
-    def __init__(self, q_rate: float = 1e-7, q_dev: float = 1e-6, r_obs: float = math.radians(4.0),
-                 p0_dev: float = math.radians(30.0), p0_rate: float = math.radians(0.5),
+    def __init__(self, q_rate: float = 1e-10, q_dev: float = 1e-6, r_obs: float = math.radians(4.0),
+                 p0_dev: float = math.radians(30.0), p0_rate: float = math.radians(0.05),
                  converge_std: float = math.radians(1.0), min_updates: int = 10, gate_sigma: float = 4.0) -> None:
         self.q_rate = float(q_rate)
         self.q_dev = float(q_dev)

@@ -1,0 +1,81 @@
+"""Online magnetometer calibration against the navigator's attitude, compass heading, disturbance gate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from energy.codec import dumps, loads
+from models.compass import MagCalibrator, tilt_from_acc
+from models.rotations import euler_to_dcm
+
+G = 9.80665
+M_N = np.array([18.0, -2.0, 42.0])  # uT, field in the navigator's NED frame (its north need not be magnetic)
+
+
+def _stance(rng: np.random.Generator, yaw: float, b: np.ndarray, w: np.ndarray, noise: float = 0.3):
+    roll, pitch = rng.normal(scale=0.15, size=2)
+    c = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(yaw))  # body -> NED
+    acc = c.T @ np.array([0.0, 0.0, -G]) + rng.normal(scale=0.02, size=3)
+    mag = np.linalg.solve(w, c.T @ M_N) + b + rng.normal(scale=noise, size=3)
+    return acc, mag
+
+
+def test_tilt_from_acc_matches_euler() -> None:
+    c = euler_to_dcm(np.float64(0.2), np.float64(-0.3), np.float64(1.0))
+    r, p = tilt_from_acc(c.T @ np.array([0.0, 0.0, -G]))
+    assert (r, p) == pytest.approx((0.2, -0.3), abs=1e-12)
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_calibration_recovers_hard_iron_and_gives_heading(soft: bool) -> None:
+    rng = np.random.default_rng(11 + soft)
+    b = np.array([12.0, -7.0, 20.0])
+    w = np.eye(3) + (np.diag([0.06, -0.04, 0.02]) if soft else 0.0)
+    cal = MagCalibrator(soft_iron=soft)
+    for yaw in rng.uniform(-math.pi, math.pi, 40):  # a calibration walk with turns
+        acc, mag = _stance(rng, yaw, b, w)
+        cal.add(acc, mag, float(yaw))
+    assert cal.fit()
+    errs = []
+    for yaw in rng.uniform(-math.pi, math.pi, 50):
+        acc, mag = _stance(rng, yaw, b, w)
+        assert not cal.disturbed(acc, mag)
+        errs.append(abs(math.remainder(cal.heading(acc, mag) - yaw, 2 * math.pi)))
+    assert max(errs) < math.radians(3.0)
+    if not soft:
+        assert cal.b == pytest.approx(b, abs=1.0)
+
+
+def test_no_calibration_without_turns() -> None:
+    rng = np.random.default_rng(3)
+    cal = MagCalibrator()
+    for _ in range(40):
+        acc, mag = _stance(rng, 0.3, np.zeros(3), np.eye(3))
+        cal.add(acc, mag, 0.3)
+    assert not cal.fit()
+    assert math.isnan(cal.heading(acc, mag))
+
+
+def test_disturbance_gate_trips_on_a_local_field() -> None:
+    rng = np.random.default_rng(5)
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, 30):
+        cal.add(*_stance(rng, yaw, np.zeros(3), np.eye(3)), float(yaw))
+    cal.fit()
+    acc, mag = _stance(rng, 1.0, np.zeros(3), np.eye(3))
+    assert not cal.disturbed(acc, mag)
+    assert cal.disturbed(acc, mag + np.array([15.0, 0.0, 0.0]))  # steel door frame, radiator ...
+
+
+def test_state_round_trip() -> None:
+    rng = np.random.default_rng(8)
+    cal = MagCalibrator(soft_iron=True)
+    for yaw in rng.uniform(-math.pi, math.pi, 25):
+        cal.add(*_stance(rng, yaw, np.ones(3), np.eye(3)), float(yaw))
+    cal.fit()
+    back = MagCalibrator.from_state(loads(dumps(cal.get_state())))
+    acc, mag = _stance(rng, 0.5, np.ones(3), np.eye(3))
+    assert back.heading(acc, mag) == cal.heading(acc, mag)

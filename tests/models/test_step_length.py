@@ -1,0 +1,109 @@
+"""Step-length models and online calibration: coefficient recovery, sigma_d, examination, state."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from energy.codec import dumps, loads
+from models.step_length import MODELS, StepFeatures, StepLengthCalibrator, regressors, robust_fit, sigma_d
+
+
+def _features(rng: np.random.Generator, n: int, f_lo: float = 0.7, f_hi: float = 1.3) -> list[StepFeatures]:
+    f = rng.uniform(f_lo, f_hi, n)
+    amax = rng.uniform(25.0, 60.0, n)
+    amean = rng.uniform(11.0, 16.0, n)
+    return [StepFeatures(float(a), float(b), float(c), float(c) - float(d))
+            for a, b, c, d in zip(f, amean, amax, rng.uniform(15.0, 40.0, n))]
+
+
+@settings(max_examples=30, deadline=None)
+@given(k=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5), st.floats(0.5, 1.8), st.floats(-0.01, 0.01)),
+       seed=st.integers(0, 10_000))
+def test_calibration_recovers_eq15_coefficients(k: tuple[float, float, float, float], seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    xs = _features(rng, 200, 0.6, 1.6)  # a calibration walk spanning paces
+    coef = np.array(k)
+    d = np.array([regressors("eq15", x) @ coef for x in xs]) + rng.normal(scale=0.01, size=len(xs))
+    cal = StepLengthCalibrator("eq15", band_hz=10.0)  # one band: check the pooled fit
+    for x, y in zip(xs, d):
+        cal.add("walk", x, float(y))
+    cal.fit("walk")
+    test = _features(rng, 50, 0.6, 1.6)
+    pred = np.array([cal.predict("walk", x)[0] for x in test])
+    true = np.array([regressors("eq15", x) @ coef for x in test])
+    assert np.max(np.abs(pred - true)) < 0.03  # metres: the model, not the noise, is recovered
+    assert cal.predict("walk", test[0])[1] == pytest.approx(0.03, abs=0.02)  # sigma_d ~ noise, floored
+
+
+@pytest.mark.parametrize("model", ["eq15_run", "weinberg"])
+def test_single_coefficient_models_are_recovered_despite_outliers(model: str) -> None:
+    rng = np.random.default_rng(3)
+    xs = _features(rng, 100)
+    x = np.array([regressors(model, q) for q in xs])
+    d = x @ np.array([0.55]) + rng.normal(scale=0.01, size=100)
+    d[::10] += 1.5  # ten grossly wrong ZUPT distances (a missed stance doubles a step)
+    c = robust_fit(x, d, np.array([0.0]), np.array([10.0]))
+    assert c[0] == pytest.approx(0.55, abs=0.01)
+
+
+def test_sigma_d_is_table3_formula() -> None:
+    d_kf = np.array([1.0, 1.2, 1.4, 1.1])
+    d_sl = np.array([1.1, 1.2, 1.3, 1.1])
+    assert sigma_d(d_kf, d_sl) == pytest.approx(np.sqrt(0.02 / 3))
+
+
+def test_examination_trips_when_the_gait_changes() -> None:
+    rng = np.random.default_rng(5)
+    cal = StepLengthCalibrator("eq15")
+    coef = np.array([0.1, 0.0, 1.2, 0.002])
+    xs = _features(rng, 60, 0.85, 0.95)
+    for x in xs:
+        cal.add("walk", x, float(regressors("eq15", x) @ coef + rng.normal(scale=0.03)))
+    cal.fit("walk")
+    same = _features(rng, 40, 0.85, 0.95)
+    ok_same = [cal.examine(float(regressors("eq15", x) @ coef), cal.predict("walk", x)[0], "walk", x.f_s)
+               for x in same]
+    assert np.mean(ok_same) > 0.95
+    # new gait at the same cadence: 35 % longer strides (e.g. a shuffle to a lunge); the model is stale
+    ok_new = [cal.examine(1.35 * float(regressors("eq15", x) @ coef), cal.predict("walk", x)[0], "walk", x.f_s)
+              for x in same]
+    assert not any(ok_new)
+
+
+def test_bands_give_separate_models_per_walking_pattern() -> None:
+    rng = np.random.default_rng(7)
+    cal = StepLengthCalibrator("eq15", band_hz=0.2, min_pairs=8)
+    slow = _features(rng, 30, 0.62, 0.78)
+    fast = _features(rng, 30, 1.22, 1.38)
+    for x in slow:
+        cal.add("walk", x, 0.9)
+    for x in fast:
+        cal.add("walk", x, 1.7)
+    fits = cal.fit("walk")
+    assert len([k for k in fits if k.startswith("walk/")]) == 2
+    assert cal.predict("walk", slow[0])[0] == pytest.approx(0.9, abs=0.05)
+    assert cal.predict("walk", fast[0])[0] == pytest.approx(1.7, abs=0.05)
+
+
+def test_uncalibrated_examination_fails_safe_and_models_are_checked() -> None:
+    cal = StepLengthCalibrator()
+    assert not cal.examine(1.0, 1.0, "walk", 0.9)
+    with pytest.raises(ValueError):
+        StepLengthCalibrator("nope")
+    for m in MODELS:
+        assert np.all(np.isfinite(regressors(m, StepFeatures(0.9, 12.0, 40.0, 5.0))))
+
+
+def test_state_round_trip() -> None:
+    rng = np.random.default_rng(9)
+    cal = StepLengthCalibrator("height_freq", height_m=1.8)
+    for x in _features(rng, 20):
+        cal.add("walk", x, 1.4)
+    cal.fit("walk")
+    back = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
+    x = StepFeatures(0.9, 12.0, 40.0, 5.0)
+    assert back.predict("walk", x) == cal.predict("walk", x)
+    assert back.get_state() == cal.get_state()
