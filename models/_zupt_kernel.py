@@ -1,0 +1,640 @@
+"""Compiled hot loop of the ZUPT-aided navigator: detector + strapdown + 15-state error-state KF.
+
+One ``@njit(cache=True)`` kernel (:func:`run_kernel`) processes a batch of samples with all state held in
+plain arrays (in and out), so streaming costs no Python per sample. The scalar helpers below are also
+njit-compiled and are reused by the pure-numpy reference modules' tests.
+
+Error state (004 eq. 6): ``dx = [dp(3), dv(3), phi(3), dba(3), dbg(3)]`` in NED, with the attitude error
+defined by ``C_true = (I + [phi x]) C_est`` (phi in the navigation frame), biases ``b_true = b_est + db``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "PAR",
+    "FS",
+    "IS",
+    "N_PAR",
+    "N_FS",
+    "N_IS",
+    "N_ST",
+    "run_kernel",
+    "quat_mul_s",
+    "quat_exp_s",
+    "quat_dcm_s",
+    "triad_s",
+    "cov_predict",
+]
+
+# ---- parameter vector layout (filled by ZuptConfig.to_array) ------------------------------------------
+PAR = {
+    name: i
+    for i, name in enumerate(
+        (
+            "sigma_a",  # SHOE accelerometer noise [m/s^2]                                   002 eq. (1)
+            "sigma_w",  # SHOE gyroscope noise [rad/s]
+            "half_window_s",  # half window of the detector [s]
+            "gamma0",  # SHOE threshold at the reference gait intensity                  002 eq. (3)
+            "gamma_exp",  # exponent of the intensity adaptation (0 = fixed threshold)
+            "intensity_tau_s",  # decay time of the gait-intensity peak tracker [s]
+            "intensity_ref",  # reference intensity (SHOE units)
+            "gamma_min",
+            "gamma_max",
+            "hysteresis",  # exit threshold = hysteresis * entry threshold (>= 1)
+            "gravity",  # [m/s^2]
+            "acc_psd",  # velocity random walk PSD [(m/s^2)^2 s]
+            "gyr_psd",  # angle random walk PSD [(rad/s)^2 s]
+            "ba_psd",  # accelerometer bias random walk PSD
+            "bg_psd",  # gyroscope bias random walk PSD
+            "zupt_sigma",  # ZUPT pseudo-measurement noise [m/s]                         004 eq. (9)
+            "zaru_sigma",  # ZARU noise [rad/s]                                          001 eq. (34-35)
+            "zaru_on",
+            "mag_on",
+            "mag_sigma",  # magnetic heading noise [rad]                                  004 eq. (10)
+            "mag_dmag",  # magnitude tolerance [uT]                                      002 eq. (4-5)
+            "mag_dinc",  # inclination tolerance [rad]
+            "mag_gate",  # innovation gate [sigma]
+            "align_min_s",  # minimum initial rest [s]
+            "align_max_s",  # rest used for alignment at most [s]
+            "max_dt",  # longest interval integrated [s]
+            "p0_tilt",  # initial 1-sigma tilt [rad]
+            "p0_yaw",  # initial 1-sigma heading [rad]
+            "p0_ba",  # [m/s^2]
+            "p0_bg",  # [rad/s]
+            "min_stance_s",  # shortest stance reported as a stance [s]
+            "first_order",  # 1 = first-order attitude update I + [w x] dt (for comparison only)
+        )
+    )
+}
+N_PAR = len(PAR)
+
+# ---- float state layout --------------------------------------------------------------------------------
+FS = {
+    name: i
+    for i, name in enumerate(
+        (
+            "intensity",  # decaying peak of the detector statistic (gait intensity)
+            "t_prev",  # time of the last processed sample [s]
+            "sa0", "sa1", "sa2",  # alignment sums: specific force
+            "sg0", "sg1", "sg2",  # gyro
+            "sm0", "sm1", "sm2",  # mag
+            "n_align",
+            "n_align_mag",
+            "st_t0",  # current stance (or initial rest) start time [s]
+            "st_head",  # heading at heel strike (004 psi_i) [rad]
+            "prev_n", "prev_e", "prev_d",  # position at the previous reported stance [m]
+            "peak_speed",  # peak speed of the current swing [m/s]
+            "smn0", "smn1", "smn2",  # mag (NED) sum over the current stance
+            "n_st_mag",
+            "ref0", "ref1", "ref2",  # reference field NED [uT]
+            "ref_valid",
+            "n_align_used",  # samples used by the initial alignment
+            "st_n",  # samples in the current stance
+            "n_mag_used",  # magnetic heading updates applied
+        )
+    )
+}
+N_FS = len(FS)
+
+IS = {name: i for i, name in enumerate(("initialised", "in_stance", "n_done", "has_prev", "n_stances", "has_prev_stance"))}
+N_IS = len(IS)
+
+# stance record columns
+ST_COLS = ("t_start", "t_end", "n", "e", "d", "heading", "dn", "de", "dd", "peak_speed", "samples", "mag_used")
+N_ST = len(ST_COLS)
+
+_SA, _SW, _HW, _G0, _GE, _ITAU, _IREF, _GMIN, _GMAX, _HYS, _GRAV = range(11)
+_QA, _QG, _QBA, _QBG, _RZ, _RW, _ZARU, _MAGON, _RMAG, _DMAG, _DINC, _MGATE = range(11, 23)
+_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO = range(23, 32)
+
+
+@njit(cache=True)
+def quat_mul_s(p, q):
+    """Hamilton product of two scalar-first quaternions."""
+    out = np.empty(4)
+    out[0] = p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3]
+    out[1] = p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2]
+    out[2] = p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1]
+    out[3] = p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]
+    return out
+
+
+@njit(cache=True)
+def quat_exp_s(wx, wy, wz):
+    """Exponential map of a rotation vector [rad] (exact, 004 Sec. 2: avoids first-order divergence)."""
+    ang = math.sqrt(wx * wx + wy * wy + wz * wz)
+    out = np.empty(4)
+    if ang > 1e-8:
+        k = math.sin(0.5 * ang) / ang
+    else:
+        k = 0.5 - ang * ang / 48.0
+    out[0] = math.cos(0.5 * ang)
+    out[1] = k * wx
+    out[2] = k * wy
+    out[3] = k * wz
+    return out
+
+
+@njit(cache=True)
+def quat_dcm_s(q):
+    """Body-to-NED DCM of a unit quaternion."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c = np.empty((3, 3))
+    c[0, 0] = 1 - 2 * (y * y + z * z)
+    c[0, 1] = 2 * (x * y - w * z)
+    c[0, 2] = 2 * (x * z + w * y)
+    c[1, 0] = 2 * (x * y + w * z)
+    c[1, 1] = 1 - 2 * (x * x + z * z)
+    c[1, 2] = 2 * (y * z - w * x)
+    c[2, 0] = 2 * (x * z - w * y)
+    c[2, 1] = 2 * (y * z + w * x)
+    c[2, 2] = 1 - 2 * (x * x + y * y)
+    return c
+
+
+@njit(cache=True)
+def _dcm_quat_s(m):
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    q = np.empty(4)
+    if tr >= m[0, 0] and tr >= m[1, 1] and tr >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q[0] = 0.25 * s
+        q[1] = (m[2, 1] - m[1, 2]) / s
+        q[2] = (m[0, 2] - m[2, 0]) / s
+        q[3] = (m[1, 0] - m[0, 1]) / s
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * math.sqrt(max(1e-300, 1.0 + m[0, 0] - m[1, 1] - m[2, 2]))
+        q[0] = (m[2, 1] - m[1, 2]) / s
+        q[1] = 0.25 * s
+        q[2] = (m[0, 1] + m[1, 0]) / s
+        q[3] = (m[0, 2] + m[2, 0]) / s
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * math.sqrt(max(1e-300, 1.0 + m[1, 1] - m[0, 0] - m[2, 2]))
+        q[0] = (m[0, 2] - m[2, 0]) / s
+        q[1] = (m[0, 1] + m[1, 0]) / s
+        q[2] = 0.25 * s
+        q[3] = (m[1, 2] + m[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(max(1e-300, 1.0 + m[2, 2] - m[0, 0] - m[1, 1]))
+        q[0] = (m[1, 0] - m[0, 1]) / s
+        q[1] = (m[0, 2] + m[2, 0]) / s
+        q[2] = (m[1, 2] + m[2, 1]) / s
+        q[3] = 0.25 * s
+    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    if q[0] < 0:
+        n = -n
+    for k in range(4):
+        q[k] /= n
+    return q
+
+
+@njit(cache=True)
+def triad_s(r1, r2, s1, s2):
+    """TRIAD (002 Appendix A): rotation C with ``C r1 = s1`` exactly and ``C r2 ~ s2`` (body r, nav s).
+
+    Returns the DCM, or an all-NaN matrix when either pair is (nearly) parallel.
+    """
+    c = np.empty((3, 3))
+    tb = np.empty((3, 3))
+    tn = np.empty((3, 3))
+    for vec_a, vec_b, t in ((r1, r2, tb), (s1, s2, tn)):
+        na = math.sqrt(vec_a[0] ** 2 + vec_a[1] ** 2 + vec_a[2] ** 2)
+        cx = vec_a[1] * vec_b[2] - vec_a[2] * vec_b[1]
+        cy = vec_a[2] * vec_b[0] - vec_a[0] * vec_b[2]
+        cz = vec_a[0] * vec_b[1] - vec_a[1] * vec_b[0]
+        nc = math.sqrt(cx * cx + cy * cy + cz * cz)
+        nb = math.sqrt(vec_b[0] ** 2 + vec_b[1] ** 2 + vec_b[2] ** 2)
+        if na == 0.0 or nb == 0.0 or nc < 1e-6 * na * nb:
+            c[:, :] = np.nan
+            return c
+        t1 = vec_a / na
+        t2 = np.array([cx, cy, cz]) / nc
+        t[:, 0] = t1
+        t[:, 1] = t2
+        t[0, 2] = t1[1] * t2[2] - t1[2] * t2[1]
+        t[1, 2] = t1[2] * t2[0] - t1[0] * t2[2]
+        t[2, 2] = t1[0] * t2[1] - t1[1] * t2[0]
+    for i in range(3):
+        for j in range(3):
+            c[i, j] = tn[i, 0] * tb[j, 0] + tn[i, 1] * tb[j, 1] + tn[i, 2] * tb[j, 2]
+    return c
+
+
+@njit(cache=True)
+def cov_predict(P, C, fn, dt, qa, qg, qba, qbg):
+    """In-place ``P <- F P F^T + Q`` with ``F = I + A dt`` exploiting the sparsity of A (004 eq. 7-8).
+
+    A has non-zero blocks dp/dv = I, dv/dphi = -[fn x], dv/dba = -C, dphi/dbg = -C.
+    """
+    # B = A P (rows 0..8 only; rows 9..14 of A are zero)
+    B = np.empty((9, 15))
+    S = np.empty((3, 3))
+    S[0, 0] = 0.0
+    S[0, 1] = -fn[2]
+    S[0, 2] = fn[1]
+    S[1, 0] = fn[2]
+    S[1, 1] = 0.0
+    S[1, 2] = -fn[0]
+    S[2, 0] = -fn[1]
+    S[2, 1] = fn[0]
+    S[2, 2] = 0.0
+    for j in range(15):
+        for r in range(3):
+            B[r, j] = P[3 + r, j]
+            B[3 + r, j] = -(
+                S[r, 0] * P[6, j] + S[r, 1] * P[7, j] + S[r, 2] * P[8, j]
+                + C[r, 0] * P[9, j] + C[r, 1] * P[10, j] + C[r, 2] * P[11, j]
+            )
+            B[6 + r, j] = -(C[r, 0] * P[12, j] + C[r, 1] * P[13, j] + C[r, 2] * P[14, j])
+    # M = A P A^T = B A^T (9x9)
+    M = np.empty((9, 9))
+    for i in range(9):
+        for r in range(3):
+            M[i, r] = B[i, 3 + r]
+            M[i, 3 + r] = -(
+                S[r, 0] * B[i, 6] + S[r, 1] * B[i, 7] + S[r, 2] * B[i, 8]
+                + C[r, 0] * B[i, 9] + C[r, 1] * B[i, 10] + C[r, 2] * B[i, 11]
+            )
+            M[i, 6 + r] = -(C[r, 0] * B[i, 12] + C[r, 1] * B[i, 13] + C[r, 2] * B[i, 14])
+    dt2 = dt * dt
+    for i in range(9):
+        for j in range(15):
+            v = dt * B[i, j]
+            P[i, j] += v
+            P[j, i] += v
+    for i in range(9):
+        for j in range(9):
+            P[i, j] += dt2 * M[i, j]
+    for k in range(3):
+        P[3 + k, 3 + k] += qa * dt
+        P[6 + k, 6 + k] += qg * dt
+        P[9 + k, 9 + k] += qba * dt
+        P[12 + k, 12 + k] += qbg * dt
+
+
+@njit(cache=True)
+def _update_block3(P, dx, i0, z, r):
+    """Joseph-form update (004 eq. 13) for a measurement ``z = dx[i0:i0+3] + noise(r^2 I)``."""
+    S = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            S[a, b] = P[i0 + a, i0 + b]
+        S[a, a] += r * r
+    Si = np.linalg.inv(S)
+    K = np.empty((15, 3))
+    for i in range(15):
+        for b in range(3):
+            K[i, b] = P[i, i0] * Si[0, b] + P[i, i0 + 1] * Si[1, b] + P[i, i0 + 2] * Si[2, b]
+    innov = np.empty(3)
+    for a in range(3):
+        innov[a] = z[a] - dx[i0 + a]
+    for i in range(15):
+        dx[i] += K[i, 0] * innov[0] + K[i, 1] * innov[1] + K[i, 2] * innov[2]
+    # Joseph: (I-KH) P (I-KH)^T + K R K^T, with H selecting states i0..i0+2
+    P1 = P.copy()
+    for i in range(15):
+        for j in range(15):
+            P1[i, j] = P[i, j] - (K[i, 0] * P[i0, j] + K[i, 1] * P[i0 + 1, j] + K[i, 2] * P[i0 + 2, j])
+    for i in range(15):
+        for j in range(15):
+            P[i, j] = (
+                P1[i, j]
+                - (P1[i, i0] * K[j, 0] + P1[i, i0 + 1] * K[j, 1] + P1[i, i0 + 2] * K[j, 2])
+                + r * r * (K[i, 0] * K[j, 0] + K[i, 1] * K[j, 1] + K[i, 2] * K[j, 2])
+            )
+
+
+@njit(cache=True)
+def _update_scalar(P, dx, h, z, r2, gate):
+    """Joseph-form scalar update with row ``h`` (15,), innovation gate in sigmas; returns True if applied."""
+    ph = P @ h
+    s = h @ ph + r2
+    innov = z - h @ dx
+    if gate > 0 and innov * innov > gate * gate * s:
+        return False
+    k = ph / s
+    dx += k * innov
+    IKH = np.eye(15) - np.outer(k, h)
+    P[:, :] = IKH @ P @ IKH.T + r2 * np.outer(k, k)
+    return True
+
+
+@njit(cache=True)
+def _apply_correction(x, dx):
+    """Inject the error state into the nominal state and reset it (004 eq. 12)."""
+    for k in range(3):
+        x[7 + k] += dx[k]
+        x[4 + k] += dx[3 + k]
+        x[10 + k] += dx[9 + k]
+        x[13 + k] += dx[12 + k]
+    dq = quat_exp_s(dx[6], dx[7], dx[8])
+    q = quat_mul_s(dq, x[0:4])
+    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    for k in range(4):
+        x[k] = q[k] / n
+    dx[:] = 0.0
+
+
+@njit(cache=True)
+def _heading_row(C):
+    """Row of H mapping the error state to the heading error (004 Appendix A eq. 30, the D row)."""
+    h = np.zeros(15)
+    d = C[0, 0] ** 2 + C[1, 0] ** 2
+    if d < 1e-9:
+        d = 1e-9
+    h[6] = -C[0, 0] * C[2, 0] / d
+    h[7] = -C[1, 0] * C[2, 0] / d
+    h[8] = 1.0
+    return h
+
+
+@njit(cache=True)
+def _align(x, P, fs, par, has_mag):
+    """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD)."""
+    n = fs[11]
+    fb = np.array([fs[2] / n, fs[3] / n, fs[4] / n])
+    down_b = -fb  # at rest the accelerometer reads -g_n (up)
+    down_n = np.array([0.0, 0.0, 1.0])
+    C = np.full((3, 3), np.nan)
+    if has_mag and fs[12] > 0:
+        mb = np.array([fs[8] / fs[12], fs[9] / fs[12], fs[10] / fs[12]])
+        if fs[26] > 0:
+            ref = np.array([fs[23], fs[24], fs[25]])
+        else:
+            ref = np.array([1.0, 0.0, 0.0])
+        C = triad_s(down_b, mb, down_n, ref)
+    if np.isnan(C[0, 0]):
+        # no field: heading of the body x axis (else y axis) is set to zero
+        ex = np.array([1.0, 0.0, 0.0])
+        nd = math.sqrt(down_b @ down_b)
+        if abs(down_b[0]) > 0.9 * nd:
+            ex = np.array([0.0, 1.0, 0.0])
+            C = triad_s(down_b, ex, down_n, np.array([0.0, 1.0, 0.0]))
+        else:
+            C = triad_s(down_b, ex, down_n, np.array([1.0, 0.0, 0.0]))
+    q = _dcm_quat_s(C)
+    x[0:4] = q
+    x[4:10] = 0.0
+    x[10:13] = 0.0
+    x[13] = fs[5] / n
+    x[14] = fs[6] / n
+    x[15] = fs[7] / n
+    P[:, :] = 0.0
+    for k in range(3):
+        P[9 + k, 9 + k] = par[_P0BA] ** 2
+        P[12 + k, 12 + k] = par[_P0BG] ** 2
+    P[6, 6] = par[_P0T] ** 2
+    P[7, 7] = par[_P0T] ** 2
+    P[8, 8] = par[_P0Y] ** 2
+    if has_mag and fs[12] > 0 and fs[26] == 0:
+        # expected field from the rest period (in NED, after alignment)
+        mb = np.array([fs[8] / fs[12], fs[9] / fs[12], fs[10] / fs[12]])
+        mn = C @ mb
+        fs[23] = mn[0]
+        fs[24] = mn[1]
+        fs[25] = mn[2]
+        fs[26] = 1.0
+
+
+@njit(cache=True)
+def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_head, o_zupt, o_stat, st_out):
+    """Process samples ``i0..`` of a buffer; returns ``(next_index, n_stances)``.
+
+    Parameters
+    ----------
+    t : (N,) float64 [s], strictly increasing; acc (N,3) [m/s^2]; gyr (N,3) [rad/s]; mag (N,3) [uT] (NaN = none).
+    i0 : first unprocessed index; samples before it are detector history.
+    final : process to the end even without the detector's look-ahead (flush).
+    x : (16,) nominal state q(4) v(3) p(3) ba(3) bg(3), in/out. P : (15,15) in/out. fs, ist : float/int state.
+    par : (N_PAR,) parameters. o_* : outputs per processed sample (index i - i0). st_out : stance records.
+    """
+    n_all = t.shape[0]
+    hw = par[_HW]
+    g = par[_GRAV]
+    sa2 = par[_SA] ** 2
+    sw2 = par[_SW] ** 2
+    dx = np.zeros(15)
+    n_st = 0
+    i = i0
+    while i < n_all:
+        if not final and (i + 1 >= n_all or t[n_all - 1] <= t[i] + hw):
+            break
+        # ---- SHOE / GLRT statistic over a centred window (002 eq. 1-2) ----
+        j0 = i - 1 if i > 0 else 0
+        while j0 > 0 and t[i] - t[j0 - 1] <= hw:
+            j0 -= 1
+        j1 = i + 1 if i + 1 < n_all else i
+        while j1 + 1 < n_all and t[j1 + 1] - t[i] <= hw:
+            j1 += 1
+        m0 = 0.0
+        m1 = 0.0
+        m2 = 0.0
+        for j in range(j0, j1 + 1):
+            m0 += acc[j, 0]
+            m1 += acc[j, 1]
+            m2 += acc[j, 2]
+        nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        if nm > 0:
+            m0 /= nm
+            m1 /= nm
+            m2 /= nm
+        T = 0.0
+        for j in range(j0, j1 + 1):
+            r0 = acc[j, 0] - g * m0
+            r1 = acc[j, 1] - g * m1
+            r2 = acc[j, 2] - g * m2
+            T += (r0 * r0 + r1 * r1 + r2 * r2) / sa2 + (gyr[j, 0] ** 2 + gyr[j, 1] ** 2 + gyr[j, 2] ** 2) / sw2
+        T /= j1 - j0 + 1
+        # ---- gait-intensity adaptive threshold with hysteresis (002 eq. 3, adapted) ----
+        dt = t[i] - fs[1] if ist[3] else 0.0
+        if dt > par[_MAXDT]:
+            dt = par[_MAXDT]
+        decay = math.exp(-dt / par[_ITAU]) if par[_ITAU] > 0 else 0.0
+        inten = fs[0] * decay
+        if T > inten:
+            inten = T
+        fs[0] = inten
+        gam = par[_G0]
+        if par[_GE] != 0.0 and inten > 0:
+            gam = par[_G0] * (inten / par[_IREF]) ** par[_GE]
+        if gam < par[_GMIN]:
+            gam = par[_GMIN]
+        if gam > par[_GMAX]:
+            gam = par[_GMAX]
+        if ist[1]:
+            zv = T < gam * par[_HYS]
+        else:
+            zv = T < gam
+        k = i - i0
+        o_stat[k] = T
+        o_zupt[k] = zv
+        has_m = not (math.isnan(mag[i, 0]) or math.isnan(mag[i, 1]) or math.isnan(mag[i, 2]))
+        if not ist[0]:
+            # ---- waiting for the initial rest: accumulate, align when it is long enough ----
+            if zv:
+                if fs[11] == 0:
+                    fs[13] = t[i]
+                for a in range(3):
+                    fs[2 + a] += acc[i, a]
+                    fs[5 + a] += gyr[i, a]
+                fs[11] += 1
+                if has_m and par[_MAGON] > 0:
+                    for a in range(3):
+                        fs[8 + a] += mag[i, a]
+                    fs[12] += 1
+            dur = t[i] - fs[13] if fs[11] > 0 else 0.0
+            ready = fs[11] >= 3 and ((not zv and dur >= par[_AMIN]) or (zv and dur >= par[_AMAX]))
+            if not zv and not ready:
+                fs[2:13] = 0.0
+            if ready:
+                _align(x, P, fs, par, par[_MAGON] > 0)
+                ist[0] = 1
+                ist[1] = 1
+                ist[5] = 1
+                fs[15:18] = 0.0
+                fs[18] = 0.0
+                fs[19:23] = 0.0
+                fs[27] = fs[11]
+                fs[28] = fs[11]
+                fs[14] = math.atan2(2 * (x[1] * x[2] + x[0] * x[3]), 1 - 2 * (x[2] ** 2 + x[3] ** 2))
+                fs[2:13] = 0.0
+            if not ist[0]:
+                fs[1] = t[i]
+                ist[3] = 1
+                o_pos[k, :] = 0.0
+                o_vel[k, :] = 0.0
+                o_head[k] = np.nan
+                i += 1
+                continue
+            if zv:
+                # alignment made inside the rest: this sample is already used; stance continues
+                fs[1] = t[i]
+                ist[3] = 1
+                o_pos[k, :] = x[7:10]
+                o_vel[k, :] = x[4:7]
+                o_head[k] = fs[14]
+                i += 1
+                continue
+        # ---- strapdown mechanisation (004 eq. 1) with exact exponential-map attitude update ----
+        q = x[0:4].copy()
+        C0 = quat_dcm_s(q)
+        wx = (gyr[i, 0] - x[13]) * dt
+        wy = (gyr[i, 1] - x[14]) * dt
+        wz = (gyr[i, 2] - x[15]) * dt
+        if par[_FO] > 0:
+            dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
+        else:
+            dq = quat_exp_s(wx, wy, wz)
+        q = quat_mul_s(q, dq)
+        nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+        q /= nq
+        C1 = quat_dcm_s(q)
+        fb = np.array([acc[i, 0] - x[10], acc[i, 1] - x[11], acc[i, 2] - x[12]])
+        Cm = 0.5 * (C0 + C1)
+        fn = Cm @ fb
+        vn0 = x[4:7].copy()
+        x[0:4] = q
+        x[4] += fn[0] * dt
+        x[5] += fn[1] * dt
+        x[6] += (fn[2] + g) * dt
+        for a in range(3):
+            x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+        if dt > 0:
+            cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
+        fs[1] = t[i]
+        ist[3] = 1
+        # ---- stance bookkeeping and measurement updates ----
+        if zv:
+            if not ist[1]:
+                # heel strike: start of a stance
+                ist[1] = 1
+                fs[13] = t[i]
+                fs[28] = 0.0
+                fs[19:23] = 0.0
+                fs[14] = math.atan2(C1[1, 0], C1[0, 0])
+            fs[28] += 1
+            # ZUPT (004 eq. 9): z = 0 - v_est = dv
+            z3 = np.array([-x[4], -x[5], -x[6]])
+            _update_block3(P, dx, 3, z3, par[_RZ])
+            if par[_ZARU] > 0:
+                # ZARU (001 eq. 34-35): measured rate minus bias estimate = d(bias)
+                z3 = np.array([gyr[i, 0] - x[13], gyr[i, 1] - x[14], gyr[i, 2] - x[15]])
+                _update_block3(P, dx, 12, z3, par[_RW])
+            _apply_correction(x, dx)
+            if has_m and par[_MAGON] > 0:
+                Cc = quat_dcm_s(x[0:4])
+                mn = Cc @ np.array([mag[i, 0], mag[i, 1], mag[i, 2]])
+                fs[19] += mn[0]
+                fs[20] += mn[1]
+                fs[21] += mn[2]
+                fs[22] += 1
+        else:
+            sp = math.sqrt(x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
+            if ist[1]:
+                # toe-off: the stance ends; magnetic heading update from the stance's mean field
+                ist[1] = 0
+                mag_used = 0.0
+                if fs[22] > 0 and fs[26] > 0 and par[_MAGON] > 0:
+                    mN = fs[19] / fs[22]
+                    mE = fs[20] / fs[22]
+                    mD = fs[21] / fs[22]
+                    mh = math.sqrt(mN * mN + mE * mE)
+                    rh = math.sqrt(fs[23] ** 2 + fs[24] ** 2)
+                    mag_m = math.sqrt(mh * mh + mD * mD)
+                    ref_m = math.sqrt(rh * rh + fs[25] ** 2)
+                    dinc = math.atan2(mD, mh) - math.atan2(fs[25], rh)
+                    # disturbance test: magnitude (002 eq. 4-5, 000 eq. 68) and inclination
+                    if abs(mag_m - ref_m) < par[_DMAG] and abs(dinc) < par[_DINC] and mh > 1.0:
+                        zpsi = math.atan2(fs[24], fs[23]) - math.atan2(mE, mN)
+                        zpsi = (zpsi + math.pi) % (2 * math.pi) - math.pi
+                        Cc = quat_dcm_s(x[0:4])
+                        h = _heading_row(Cc)
+                        if _update_scalar(P, dx, h, zpsi, par[_RMAG] ** 2, par[_MGATE]):
+                            _apply_correction(x, dx)
+                            mag_used = 1.0
+                            fs[29] += 1
+                dur = t[i] - fs[13]
+                if dur >= par[_MINST] and n_st < st_out.shape[0]:
+                    r = st_out[n_st]
+                    r[0] = fs[13]
+                    r[1] = t[i]
+                    r[2] = x[7]
+                    r[3] = x[8]
+                    r[4] = x[9]
+                    r[5] = fs[14]
+                    if ist[5]:
+                        r[6] = x[7] - fs[15]
+                        r[7] = x[8] - fs[16]
+                        r[8] = x[9] - fs[17]
+                    else:
+                        r[6] = 0.0
+                        r[7] = 0.0
+                        r[8] = 0.0
+                    r[9] = fs[18]
+                    r[10] = fs[28]
+                    r[11] = mag_used
+                    fs[15] = x[7]
+                    fs[16] = x[8]
+                    fs[17] = x[9]
+                    fs[18] = 0.0
+                    ist[5] = 1
+                    ist[4] += 1
+                    n_st += 1
+            if sp > fs[18]:
+                fs[18] = sp
+        Cc = quat_dcm_s(x[0:4])
+        o_pos[k, 0] = x[7]
+        o_pos[k, 1] = x[8]
+        o_pos[k, 2] = x[9]
+        o_vel[k, 0] = x[4]
+        o_vel[k, 1] = x[5]
+        o_vel[k, 2] = x[6]
+        o_head[k] = math.atan2(Cc[1, 0], Cc[0, 0])
+        ist[2] += 1
+        i += 1
+    return i, n_st

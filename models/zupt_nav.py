@@ -1,0 +1,413 @@
+"""Streaming ZUPT-aided MARG navigator (004 Sec. 2): detector + strapdown + 15-state error-state KF.
+
+The per-sample work runs in one compiled kernel (:mod:`models._zupt_kernel`); this module holds the
+streaming buffer (the detector looks ``half_window_s`` ahead, so the newest samples are held back until
+their window is complete or :meth:`ZuptNavigator.flush` is called), input validation and the state
+(de)serialisation. Feeding a recording in one piece or in arbitrary pieces gives identical outputs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from models import _zupt_kernel as _k
+
+__all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator"]
+
+
+@dataclass(frozen=True)
+class ZuptConfig:
+    """Every tunable of the navigator (one configuration serves all recordings).
+
+    Detector (SHOE/GLRT, 002 eq. 1-3, with a gait-intensity adaptive threshold):
+    ``sigma_a`` [m/s^2], ``sigma_w`` [rad/s], ``half_window_s`` [s]; threshold
+    ``gamma = clip(gamma0 * (I / intensity_ref) ** gamma_exp, gamma_min, gamma_max)`` where ``I`` is the
+    peak of the statistic decaying with ``intensity_tau_s`` [s]; a stance is left when the statistic
+    exceeds ``hysteresis * gamma``.
+    Filter (004 eq. 6-13): process PSDs ``acc_psd`` [(m/s^2)^2 s], ``gyr_psd`` [(rad/s)^2 s], bias random
+    walks ``ba_psd``, ``bg_psd``; ZUPT noise ``zupt_sigma`` [m/s]; ZARU ``zaru_on``/``zaru_sigma`` [rad/s];
+    magnetic heading ``mag_on``/``mag_sigma`` [rad] gated by magnitude ``mag_dmag`` [uT], inclination
+    ``mag_dinc`` [rad] and innovation ``mag_gate`` [sigma].
+    Alignment: initial rest of at least ``align_min_s`` and at most ``align_max_s`` [s].
+    """
+
+    sigma_a: float = 0.01
+    sigma_w: float = 0.1 * math.pi / 180.0
+    half_window_s: float = 0.011
+    gamma0: float = 3.0e5
+    gamma_exp: float = 0.5
+    intensity_tau_s: float = 1.5
+    intensity_ref: float = 3.0e7
+    gamma_min: float = 1.0e2
+    gamma_max: float = 1.0e10
+    hysteresis: float = 1.0
+    gravity: float = 9.8
+    acc_psd: float = 0.5**2 * 0.005
+    gyr_psd: float = (0.5 * math.pi / 180.0) ** 2 * 0.005
+    ba_psd: float = 1e-6
+    bg_psd: float = 1e-9
+    zupt_sigma: float = 0.01
+    zaru_sigma: float = 0.5 * math.pi / 180.0
+    zaru_on: bool = False
+    mag_on: bool = False
+    mag_sigma: float = 10.0 * math.pi / 180.0
+    mag_dmag: float = 3.0
+    mag_dinc: float = 3.0 * math.pi / 180.0
+    mag_gate: float = 3.0
+    align_min_s: float = 0.1
+    align_max_s: float = 3.0
+    max_dt: float = 0.1
+    p0_tilt: float = 1.0 * math.pi / 180.0
+    p0_yaw: float = 1.0 * math.pi / 180.0
+    p0_ba: float = 0.05
+    p0_bg: float = 0.2 * math.pi / 180.0
+    min_stance_s: float = 0.02
+    first_order: bool = False
+
+    def to_array(self) -> np.ndarray:
+        """Parameter vector in the kernel's layout (:data:`models._zupt_kernel.PAR`)."""
+        out = np.empty(_k.N_PAR)
+        for name, idx in _k.PAR.items():
+            out[idx] = float(getattr(self, name))
+        return out
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first implausible setting."""
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not math.isfinite(float(v)):
+                raise ValueError(f"ZuptConfig.{f.name}: must be finite, got {v!r}")
+        for name in ("sigma_a", "sigma_w", "half_window_s", "gamma0", "gravity", "zupt_sigma", "max_dt"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"ZuptConfig.{name}: must be > 0")
+        if self.hysteresis < 1.0:
+            raise ValueError("ZuptConfig.hysteresis: must be >= 1")
+        if self.gamma_min > self.gamma_max:
+            raise ValueError("ZuptConfig.gamma_min: must not exceed gamma_max")
+
+
+@dataclass(frozen=True)
+class Stance:
+    """One stance phase, reported once it ends.
+
+    Attributes
+    ----------
+    t_start_s, t_end_s : float
+        First stance sample and toe-off sample [s since session start].
+    position : ndarray (3,)
+        NED position at the end of the stance [m].
+    heading : float
+        Heading of the body x axis at heel strike [rad] (004 psi_i, eq. 19).
+    delta : ndarray (3,)
+        Position increment since the previous stance [m] (004 eq. 20; step-length calibration).
+    peak_speed : float
+        Largest speed in the swing before this stance [m/s].
+    samples : int
+        Stance samples. ``mag_used``: a magnetic heading update was applied at this stance.
+    """
+
+    t_start_s: float
+    t_end_s: float
+    position: np.ndarray
+    heading: float
+    delta: np.ndarray
+    peak_speed: float
+    samples: int
+    mag_used: bool
+
+    @property
+    def step_length(self) -> float:
+        """Horizontal length of the position increment [m]."""
+        return float(math.hypot(self.delta[0], self.delta[1]))
+
+
+@dataclass
+class NavOutput:
+    """Per processed sample: ``t_s (n,)`` [s], ``pos (n,3)`` NED [m], ``vel (n,3)`` [m/s], ``heading (n,)``
+    [rad] (NaN before alignment), ``zupt (n,)`` bool, ``statistic (n,)`` detector value; plus the stances
+    that ended in this call."""
+
+    t_s: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    heading: np.ndarray
+    zupt: np.ndarray
+    statistic: np.ndarray
+    stances: list[Stance] = field(default_factory=list)
+
+    @staticmethod
+    def empty() -> NavOutput:
+        z = np.zeros(0)
+        return NavOutput(z, np.zeros((0, 3)), np.zeros((0, 3)), z.copy(), np.zeros(0, bool), z.copy(), [])
+
+    @staticmethod
+    def concatenate(parts: list[NavOutput]) -> NavOutput:
+        """Join outputs of consecutive calls."""
+        if not parts:
+            return NavOutput.empty()
+        return NavOutput(
+            np.concatenate([p.t_s for p in parts]),
+            np.concatenate([p.pos for p in parts]),
+            np.concatenate([p.vel for p in parts]),
+            np.concatenate([p.heading for p in parts]),
+            np.concatenate([p.zupt for p in parts]),
+            np.concatenate([p.statistic for p in parts]),
+            [s for p in parts for s in p.stances],
+        )
+
+
+def _check_array(name: str, a: np.ndarray, n: int, allow_nan: bool) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim != 2 or a.shape != (n, 3):
+        raise ValueError(f"{name}: expected shape ({n}, 3), got {a.shape}")
+    if np.isinf(a).any():
+        raise ValueError(f"{name}: contains inf")
+    if allow_nan:
+        partial = np.isnan(a).any(axis=1) & ~np.isnan(a).all(axis=1)
+        if partial.any():
+            raise ValueError(f"{name}: row {int(np.argmax(partial))} is partly NaN (a row is a sample or all NaN)")
+    elif np.isnan(a).any():
+        raise ValueError(f"{name}: contains NaN at row {int(np.argmax(np.isnan(a).any(axis=1)))}")
+    return np.ascontiguousarray(a)
+
+
+class ZuptNavigator:
+    """Streaming ZUPT-aided MARG navigator for a foot-mounted sensor of any mounting.
+
+    Parameters
+    ----------
+    config : ZuptConfig
+        Tunables (defaults are the project's single configuration).
+    mag_reference : ndarray (3,) or None
+        Expected Earth field in NED [uT] (e.g. from :func:`models.magnetic.wmm_reference`); when None and
+        the magnetometer is used, the field seen during the initial rest becomes the reference.
+    """
+
+    def __init__(self, config: ZuptConfig | None = None, mag_reference: np.ndarray | None = None) -> None:
+        self.config = config if config is not None else ZuptConfig()
+        self.config.validate()
+        self._par = self.config.to_array()
+        self._x = np.zeros(16)
+        self._x[0] = 1.0
+        self._P = np.zeros((15, 15))
+        self._fs = np.zeros(_k.N_FS)
+        self._is = np.zeros(_k.N_IS, dtype=np.int64)
+        if mag_reference is not None:
+            ref = np.asarray(mag_reference, dtype=np.float64).reshape(3)
+            if not np.all(np.isfinite(ref)) or not 5.0 < np.linalg.norm(ref) < 200.0:
+                raise ValueError(f"mag_reference: expected a finite NED field of 5-200 uT, got {ref}")
+            self._fs[_k.FS["ref0"] : _k.FS["ref2"] + 1] = ref
+            self._fs[_k.FS["ref_valid"]] = 1.0
+        self._bt = np.zeros(0)
+        self._ba = np.zeros((0, 3))
+        self._bg = np.zeros((0, 3))
+        self._bm = np.zeros((0, 3))
+        self._next = 0  # index in the buffer of the first unprocessed sample
+        self._t_last = -math.inf
+
+    # ---- public state ---------------------------------------------------------------------------------
+    @property
+    def initialised(self) -> bool:
+        return bool(self._is[_k.IS["initialised"]])
+
+    @property
+    def position(self) -> np.ndarray:
+        """NED position [m] of the last processed sample."""
+        return self._x[7:10].copy()
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """NED velocity [m/s]."""
+        return self._x[4:7].copy()
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        """Body-to-NED attitude quaternion ``[w, x, y, z]``."""
+        return self._x[0:4].copy()
+
+    @property
+    def dcm(self) -> np.ndarray:
+        """Body-to-NED DCM."""
+        return _k.quat_dcm_s(self._x[0:4].copy())
+
+    @property
+    def heading(self) -> float:
+        """Heading of the body x axis [rad], clockwise from north."""
+        c = self.dcm
+        return float(math.atan2(c[1, 0], c[0, 0]))
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        """Estimated gyroscope bias [rad/s]."""
+        return self._x[13:16].copy()
+
+    @property
+    def acc_bias(self) -> np.ndarray:
+        """Estimated accelerometer bias [m/s^2]."""
+        return self._x[10:13].copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """15x15 error-state covariance (004 eq. 6 ordering: dp, dv, phi, dba, dbg)."""
+        return self._P.copy()
+
+    @property
+    def in_stance(self) -> bool:
+        return bool(self._is[_k.IS["in_stance"]])
+
+    # ---- processing -----------------------------------------------------------------------------------
+    def process(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
+        """Feed samples; returns the outputs of every sample whose detector window is now complete.
+
+        Parameters
+        ----------
+        t_s : ndarray (N,)
+            Sample times [s since session start], strictly increasing across calls.
+        acc : ndarray (N, 3)
+            Specific force [m/s^2], body frame.
+        gyr : ndarray (N, 3)
+            Angular rate [rad/s], body frame.
+        mag : ndarray (N, 3) or None
+            Magnetic field [uT], body frame; NaN rows = no magnetometer sample at that time.
+        """
+        t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+        n = t.shape[0]
+        if not np.all(np.isfinite(t)):
+            raise ValueError("t_s: contains NaN or inf")
+        if n and (np.any(np.diff(t) <= 0) or t[0] <= self._t_last):
+            bad = "duplicated" if (np.any(np.diff(t) == 0) or (n and t[0] == self._t_last)) else "non-monotonic"
+            raise ValueError(f"t_s: {bad} timestamps (must be strictly increasing across calls)")
+        acc = _check_array("acc", acc, n, allow_nan=False)
+        gyr = _check_array("gyr", gyr, n, allow_nan=False)
+        mag = np.full((n, 3), np.nan) if mag is None else _check_array("mag", mag, n, allow_nan=True)
+        if n == 0:
+            return NavOutput.empty()
+        self._t_last = float(t[-1])
+        self._bt = np.concatenate([self._bt, t])
+        self._ba = np.concatenate([self._ba, acc])
+        self._bg = np.concatenate([self._bg, gyr])
+        self._bm = np.concatenate([self._bm, mag])
+        return self._run(final=False)
+
+    def flush(self) -> NavOutput:
+        """End of recording: process the samples held back for the detector's look-ahead."""
+        return self._run(final=True)
+
+    def _run(self, final: bool) -> NavOutput:
+        n_buf = self._bt.shape[0]
+        m = n_buf - self._next
+        if m <= 0:
+            return NavOutput.empty()
+        o_pos = np.empty((m, 3))
+        o_vel = np.empty((m, 3))
+        o_head = np.empty(m)
+        o_zupt = np.zeros(m, dtype=np.bool_)
+        o_stat = np.empty(m)
+        st = np.empty((m // 2 + 2, _k.N_ST))
+        nxt, n_st = _k.run_kernel(
+            self._bt, self._ba, self._bg, self._bm, self._next, final, self._x, self._P, self._fs, self._is,
+            self._par, o_pos, o_vel, o_head, o_zupt, o_stat, st,
+        )
+        k = nxt - self._next
+        out = NavOutput(
+            self._bt[self._next : nxt].copy(), o_pos[:k], o_vel[:k], o_head[:k], o_zupt[:k], o_stat[:k],
+            [
+                Stance(
+                    float(r[0]), float(r[1]), r[2:5].copy(), float(r[5]), r[6:9].copy(), float(r[9]), int(r[10]),
+                    bool(r[11]),
+                )
+                for r in st[:n_st]
+            ],
+        )
+        self._next = nxt
+        self._trim()
+        return out
+
+    def _trim(self) -> None:
+        """Drop samples no longer needed as detector history (keeps the buffer short)."""
+        if self._next == 0:
+            return
+        t = self._bt
+        if self._next < t.shape[0]:
+            tn = t[self._next]
+        else:
+            tn = t[-1]  # everything processed: the next sample's window starts after t[-1] - half window
+        keep = int(np.searchsorted(t, tn - self.config.half_window_s, side="left"))
+        keep = min(keep, self._next - 1)
+        keep = max(keep, 0)
+        if keep:
+            self._bt = t[keep:].copy()
+            self._ba = self._ba[keep:].copy()
+            self._bg = self._bg[keep:].copy()
+            self._bm = self._bm[keep:].copy()
+            self._next -= keep
+
+    def run(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
+        """Convenience: ``process`` a whole recording and ``flush``; returns the joined output."""
+        return NavOutput.concatenate([self.process(t_s, acc, gyr, mag), self.flush()])
+
+    # ---- re-initialisation ----------------------------------------------------------------------------
+    def reset(self, position_ned: np.ndarray, heading_rad: float) -> None:
+        """Re-initialise at a stance: position [m NED], heading [rad]; tilt and biases are kept.
+
+        Used when the scheduler comes back from gait dead reckoning. Velocity is set to zero; position and
+        heading uncertainties are reset to small values.
+        """
+        p = np.asarray(position_ned, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(p)) or not math.isfinite(heading_rad):
+            raise ValueError("reset: position and heading must be finite")
+        c = self.dcm
+        dpsi = heading_rad - math.atan2(c[1, 0], c[0, 0])
+        qz = np.array([math.cos(dpsi / 2), 0.0, 0.0, math.sin(dpsi / 2)])
+        self._x[0:4] = _k.quat_mul_s(qz, self._x[0:4].copy())
+        self._x[4:7] = 0.0
+        self._x[7:10] = p
+        fsi = _k.FS
+        self._fs[fsi["prev_n"] : fsi["prev_d"] + 1] = p
+        self._fs[fsi["peak_speed"]] = 0.0
+        self._P[0:9, :] = 0.0
+        self._P[:, 0:9] = 0.0
+        for k in range(3):
+            self._P[k, k] = 1e-6
+            self._P[3 + k, 3 + k] = 1e-4
+        self._P[6, 6] = self._P[7, 7] = self.config.p0_tilt**2
+        self._P[8, 8] = self.config.p0_yaw**2
+
+    # ---- state ------------------------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """Complete state as plain values and numpy arrays (for :mod:`energy.codec`)."""
+        return {
+            "version": 1,
+            "config": asdict(self.config),
+            "x": self._x.copy(),
+            "P": self._P.copy(),
+            "fs": self._fs.copy(),
+            "is": self._is.copy(),
+            "buf_t": self._bt.copy(),
+            "buf_acc": self._ba.copy(),
+            "buf_gyr": self._bg.copy(),
+            "buf_mag": self._bm.copy(),
+            "next": int(self._next),
+            "t_last": float(self._t_last) if math.isfinite(self._t_last) else None,
+        }
+
+    @classmethod
+    def from_state(cls, d: dict) -> ZuptNavigator:
+        """Rebuild a navigator from :meth:`get_state` output."""
+        if d.get("version") != 1:
+            raise ValueError(f"ZuptNavigator state: unsupported version {d.get('version')!r}")
+        nav = cls(ZuptConfig(**d["config"]))
+        nav._x = np.array(d["x"], dtype=np.float64).reshape(16)
+        nav._P = np.array(d["P"], dtype=np.float64).reshape(15, 15)
+        nav._fs = np.array(d["fs"], dtype=np.float64).reshape(_k.N_FS)
+        nav._is = np.array(d["is"], dtype=np.int64).reshape(_k.N_IS)
+        nav._bt = np.array(d["buf_t"], dtype=np.float64).reshape(-1)
+        nav._ba = np.array(d["buf_acc"], dtype=np.float64).reshape(-1, 3)
+        nav._bg = np.array(d["buf_gyr"], dtype=np.float64).reshape(-1, 3)
+        nav._bm = np.array(d["buf_mag"], dtype=np.float64).reshape(-1, 3)
+        nav._next = int(d["next"])
+        nav._t_last = -math.inf if d["t_last"] is None else float(d["t_last"])
+        return nav

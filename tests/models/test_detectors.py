@@ -1,0 +1,69 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.detectors import adaptive_threshold, multi_condition_detector, shoe_detector, shoe_statistic
+
+
+def gait(rate=200.0, stride_s=1.0, stance_frac=0.4, peak_rate=6.0, peak_acc=15.0, n_strides=6, seed=0):
+    """Synthetic foot signal: rest (|a| = g, tiny noise) during stance, strong rotation/acceleration in swing."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, n_strides * stride_s, 1 / rate)
+    ph = (t % stride_s) / stride_s
+    swing = ph >= stance_frac
+    s = np.where(swing, np.sin(np.pi * (ph - stance_frac) / (1 - stance_frac)), 0.0)
+    acc = np.zeros((t.size, 3))
+    acc[:, 2] = -9.8
+    acc[:, 0] = peak_acc * s * np.cos(7 * ph)
+    acc += rng.normal(0, 0.02, acc.shape)
+    gyr = np.zeros((t.size, 3))
+    gyr[:, 1] = peak_rate * s
+    gyr += rng.normal(0, 0.005, gyr.shape)
+    return t, acc, gyr, ~swing
+
+
+@pytest.mark.parametrize("stance_frac", [0.3, 0.5, 0.6])
+def test_shoe_finds_stance(stance_frac):
+    t, acc, gyr, stance = gait(stance_frac=stance_frac)
+    zv = shoe_detector(acc, gyr, threshold=3e5)
+    # interior of every stance is detected; swing core never is
+    core_stance = stance & np.roll(stance, 5) & np.roll(stance, -5)
+    core_swing = ~stance & np.roll(~stance, 10) & np.roll(~stance, -10)
+    assert zv[core_stance].mean() > 0.98
+    assert not zv[core_swing].any()
+
+
+def test_shoe_statistic_grows_with_motion():
+    _, acc, gyr, stance = gait()
+    T = shoe_statistic(acc, gyr)
+    assert np.median(T[~stance]) > 100 * np.median(T[stance])
+
+
+@pytest.mark.parametrize("peak_rate", [3.0, 12.0])
+def test_multi_condition_detects_stance(peak_rate):
+    _, acc, gyr, stance = gait(peak_rate=peak_rate)
+    zv = multi_condition_detector(acc, gyr)
+    core_swing = ~stance & np.roll(~stance, 20) & np.roll(~stance, -20)
+    core_stance = stance & np.roll(stance, 20) & np.roll(stance, -20)
+    assert zv[core_stance].mean() > 0.95
+    assert not zv[core_swing].any()
+
+
+def test_adaptive_threshold_rises_for_running():
+    tw, aw, gw, _ = gait(peak_rate=4.0, peak_acc=10.0)
+    tr, ar, gr, _ = gait(peak_rate=15.0, peak_acc=60.0, stride_s=0.7)
+    kw = dict(gamma0=3e5, gamma_exp=0.5, tau_s=1.5, intensity_ref=3e7, gamma_min=1e2, gamma_max=1e10)
+    gw_ = adaptive_threshold(shoe_statistic(aw, gw), tw, **kw)
+    gr_ = adaptive_threshold(shoe_statistic(ar, gr), tr, **kw)
+    assert np.median(gr_[200:]) > 2 * np.median(gw_[200:])
+    # exponent 0 gives the fixed threshold of 002 eq. (3)
+    fixed = adaptive_threshold(shoe_statistic(aw, gw), tw, **{**kw, "gamma_exp": 0.0})
+    assert np.all(fixed == 3e5)
+
+
+def test_bad_input_named():
+    with pytest.raises(ValueError, match="NaN or inf"):
+        shoe_statistic(np.full((10, 3), np.nan), np.zeros((10, 3)))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        shoe_statistic(np.zeros((10, 2)), np.zeros((10, 2)))
