@@ -51,7 +51,7 @@ def plot_gdin(out_dir: str | Path, row: dict[str, Any], plot: dict[str, Any]) ->
     """Per-stance estimate (y negated, rotated onto the ground-control frame) with the GCPs [m].
 
     With a per-stride truth the rotation is the stride metric's fit on strides 1-5; otherwise the rotation
-    that best maps the stances reached at the GCPs' stride numbers onto the first GCPs (for display only).
+    that maps the stance reached at the first GCP after the start onto that GCP (for display only).
     """
     fig, ax = _figure()
     gcp = np.asarray(plot["gcp_xy"], dtype=np.float64)
@@ -85,5 +85,5 @@ def _display_rotation(e: np.ndarray, gcp: np.ndarray, stride_numbers: Any) -> fl
     m = (sn > 0) & (sn < e.shape[0])
     if not m.any():
         return 0.0
-    idx = np.flatnonzero(m)[:5]
+    idx = np.flatnonzero(m)[:1]  # the first leg only: later corners carry the drift being shown
     return fit_rotation_2d(e[sn[idx]], gcp[idx])
