@@ -1,0 +1,113 @@
+"""``pednav bench speed``: per-sample cost of each engine mode vs the ``ahrs`` Madgwick ``updateIMU`` peer.
+
+Both are measured in the same run on the same real recording (a VICON trial from ``PEDNAV_DATA``; a
+synthetic walk when the data is absent, reported in ``"data"``), so the ratio is meaningful on a noisy,
+shared machine. Compilation is excluded (one warm-up run); each figure is the best of ``--repeat`` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--repeat", type=int, default=3, help="timed runs per measurement (best is kept)")
+    parser.add_argument("--peer-samples", type=int, default=4000, help="samples fed to the Madgwick peer")
+    parser.add_argument("--file", type=Path, default=None, help="a VICON .mat to use instead of the default trial")
+
+
+def _load() -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """(name, t [s], acc [m/s^2], gyr [rad/s]) of the benchmark recording."""
+    from clients.datasets import dataset_dir
+
+    d = dataset_dir("vicon")
+    if d is not None:
+        files = sorted(d.glob("*.mat"))
+        if files:
+            return _load_file(files[len(files) // 4])
+    # synthetic fallback: 60 s of alternating rest and swing-like motion at 200 Hz
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 60.0, 0.005)
+    ph = (t % 1.1) / 1.1
+    s = np.where(ph > 0.5, np.sin(np.pi * (ph - 0.5) / 0.5), 0.0)
+    acc = np.column_stack([8 * s, np.zeros_like(s), -9.8 + 3 * s]) + rng.normal(0, 0.02, (t.size, 3))
+    gyr = np.column_stack([np.zeros_like(s), 5 * s, np.zeros_like(s)]) + rng.normal(0, 0.005, (t.size, 3))
+    return "synthetic", t, acc, gyr
+
+
+def _load_file(path: Path) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    import scipy.io as sio
+
+    m = sio.loadmat(path)
+    t = m["ts"].ravel().astype(np.float64)
+    imu = m["imu"].astype(np.float64)
+    return f"vicon/{path.stem}", t - t[0], imu[:, :3].copy(), imu[:, 3:].copy()
+
+
+def _best(fn, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _engine_us(mode: str, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, repeat: int) -> float | None:
+    try:
+        from energy.engine import Engine
+        from models.batch import SensorBatch
+    except ImportError:
+        return None
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    batch = SensorBatch(acc_t_ns=t_ns, acc=acc, gyr_t_ns=t_ns, gyr=gyr)
+
+    def go() -> None:
+        e = Engine(mode=mode)
+        e.feed(batch)
+        e.flush()
+
+    go()  # warm-up (compilation)
+    return _best(go, repeat) / t.size * 1e6
+
+
+def run(args: argparse.Namespace) -> dict:
+    from ahrs.filters import Madgwick
+
+    from models.zupt_nav import ZuptNavigator
+
+    name, t, acc, gyr = _load_file(args.file) if args.file else _load()
+    n = t.size
+
+    def zupt() -> None:
+        ZuptNavigator().run(t, acc, gyr)
+
+    zupt()  # compile / load cache
+    zupt_us = _best(zupt, args.repeat) / n * 1e6
+
+    m = min(args.peer_samples, n)
+    dt = float(np.median(np.diff(t)))
+
+    def peer() -> None:
+        f = Madgwick(frequency=1.0 / dt)
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(m):
+            q = f.updateIMU(q, gyr[k], acc[k])
+
+    peer_us = _best(peer, args.repeat) / m * 1e6
+    out: dict = {"zupt_us_per_sample": round(zupt_us, 3)}
+    for mode in ("pdr", "auto"):
+        us = _engine_us(mode, t, acc, gyr, args.repeat)
+        if us is not None:
+            out[f"{mode}_us_per_sample"] = round(us, 3)
+    out["peer_madgwick_us_per_sample"] = round(peer_us, 3)
+    out["zupt_speedup_vs_peer"] = round(peer_us / zupt_us, 2)
+    out["data"] = name
+    out["samples"] = int(n)
+    return out
