@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io as sio
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from clients.importers import ImporterError, list_recordings, load
 from clients.importers._common import G0
@@ -288,3 +290,28 @@ def test_gaitmap_files(gaitmap_dir: Path) -> None:
     assert not np.allclose(right.batch.acc, rec.batch.acc)
     stairs = load(gaitmap_dir / "imu_sample_healthy_stair_up.csv")
     assert stairs.meta.rate_hz == pytest.approx(204.8, rel=1e-3)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    rate=st.sampled_from([50.0, 100.0, 200.0, 400.0]),
+    n=st.integers(20, 300),
+    tilt=st.floats(-1.5, 1.5),
+    t0=st.floats(0.0, 1e4),
+)
+def test_format_a_round_trip(tmp_path: Path, rate: float, n: int, tilt: float, t0: float) -> None:
+    """Whatever the rate, start time and attitude: SI values = file values x the vendor unit, times in ns."""
+    rng = np.random.default_rng(n)
+    t = t0 + np.arange(n) / rate
+    acc_g = np.tile([np.sin(tilt), 0.0, np.cos(tilt)], (n, 1)) + 0.01 * rng.standard_normal((n, 3))
+    gyr = 0.5 * rng.standard_normal((n, 3))
+    mag_g = np.tile([0.25, -0.1, 0.35], (n, 1)) + 0.01 * rng.standard_normal((n, 3))
+    rows = np.column_stack([t, acc_g, gyr, mag_g, np.zeros((n, 3))])
+    p = tmp_path / f"rt_{rate}_{n}.csv"
+    np.savetxt(p, rows, delimiter=",", header="Time," + ",".join(PREFIX + c for c in A_COLS), comments="", fmt="%.17g")
+    rec = load_sensorconnect(p)
+    np.testing.assert_array_equal(rec.batch.acc_t_ns, np.round(t * 1e9).astype(np.int64))
+    np.testing.assert_allclose(rec.batch.acc, acc_g * G0, rtol=1e-12)
+    np.testing.assert_allclose(rec.batch.gyr, gyr, rtol=1e-12)
+    np.testing.assert_allclose(rec.batch.mag, mag_g * 100.0, rtol=1e-12)
+    assert rec.meta.rate_hz == pytest.approx(rate, rel=1e-6)
