@@ -89,7 +89,7 @@ class FirFilter:
         y = np.empty_like(x2)
         for c in range(self.channels):
             y[:, c] = np.convolve(ext[:, c], self.taps, mode="valid")
-        self._hist = ext[ext.shape[0] - n_hist :].copy() if n_hist else ext[:0].copy()
+        self._hist = ext[max(ext.shape[0] - n_hist, 0) :].copy() if n_hist else ext[:0].copy()
         return y.reshape(-1) if squeeze else y
 
     def get_state(self) -> dict:
@@ -176,7 +176,7 @@ class Decimator:
         # output n is centred on input n - delay: keep inputs 0, factor, 2 factor, ... (none before the start)
         keep = (idx >= delay) & (((idx - delay) % self.factor) == 0)
         self._count += t_ns.size
-        self._t_hist = t_all[t_all.size - delay :].copy() if delay else t_all[:0].copy()
+        self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
         return t_centre[keep].copy(), y[keep]
 
     def get_state(self) -> dict:

@@ -113,10 +113,7 @@ class StepSegmenter:
         self._last_event = float("nan")
         self._last_stance_end = float("nan")
         self._periods: list[float] = []
-        self._sum = 0.0
-        self._n = 0
-        self._max = -np.inf
-        self._min = np.inf
+        self._buf = np.zeros(0)  # filtered |a| of the current step [m/s^2]
         self._count = 0
         self._n_events = 0
 
@@ -147,44 +144,65 @@ class StepSegmenter:
             self._t_hist = np.repeat(t_s[:1], self._delay)  # matches the FIR's replicated start
         t_all = np.concatenate([self._t_hist, t_s])
         t_out = t_all[: t_s.size]  # time of the input at the centre of the filter
-        self._t_hist = t_all[t_all.size - self._delay:] if self._delay else t_all[:0]
+        self._t_hist = t_all[max(t_all.size - self._delay, 0):] if self._delay else t_all[:0]
         mag = np.linalg.norm(af, axis=1)
         events: list[StepEvent] = []
         w = self._w
         win = np.concatenate([self._win, af])
         win_t = np.concatenate([self._win_t, t_out])
         off = self._win.shape[0]
-        for k in range(t_s.size):
-            j = off + k
-            tk = float(win_t[j])
-            # step features accumulate over every sample of the step (004 eq. 15 inputs)
-            self._sum += mag[k]
-            self._n += 1
-            self._max = max(self._max, mag[k])
-            self._min = min(self._min, mag[k])
-            if j + 1 < w:
-                continue
-            seg = win[j + 1 - w: j + 1]
-            mu = seg.mean(axis=0)
-            var = float(((seg - mu) ** 2).sum(axis=1).mean())
-            stat = np.sqrt(var + (np.linalg.norm(mu) - G0) ** 2)
-            if stat < self.stance_threshold:
-                if not self._stance:
-                    self._stance = True
-                    onset = float(win_t[j + 1 - w])
-                    ev = self._on_onset(onset, tuple(float(v) for v in mu))
-                    if ev is not None:
-                        events.append(ev)
-            else:
-                if self._stance:
-                    self._last_stance_end = tk
+        n = t_s.size
+        # stance statistic of every new sample whose window is complete (vectorised)
+        stat = np.zeros(n)
+        valid = (off + np.arange(n) + 1) >= w
+        if np.any(valid):
+            k0 = int(np.argmax(valid))
+            seg = np.lib.stride_tricks.sliding_window_view(win[off + k0 + 1 - w:], w, axis=0)  # (m, 3, w)
+            mu = seg.mean(axis=2)
+            var = ((seg - mu[:, :, None]) ** 2).sum(axis=1).mean(axis=1)
+            stat[k0:] = np.sqrt(var + (np.linalg.norm(mu, axis=1) - G0) ** 2)
+        else:
+            k0 = n
+            mu = np.zeros((0, 3))
+        below = valid & (stat < self.stance_threshold)
+        # walk the state machine only at transitions; features accumulate over sample ranges
+        acc_from = 0
+        k = k0
+        while k < n:
+            if self._stance:
+                nxt = np.flatnonzero(~below[k:])
+                if nxt.size == 0:
+                    break
+                k += int(nxt[0])
+                self._last_stance_end = float(win_t[off + k])
                 self._stance = False
-                self._peak = max(self._peak, float(stat))
+            else:
+                nxt = np.flatnonzero(below[k:])
+                stop = n if nxt.size == 0 else k + int(nxt[0])
+                if stop > k:
+                    self._peak = max(self._peak, float(stat[k:stop].max()))
+                if nxt.size == 0:
+                    break
+                k = stop
+                self._stance = True
+                self._accumulate(mag[acc_from:k + 1])
+                acc_from = k + 1
+                onset = float(win_t[off + k + 1 - w])
+                ev = self._on_onset(onset, tuple(float(v) for v in mu[k - k0]))
+                if ev is not None:
+                    events.append(ev)
+                k += 1
+        self._accumulate(mag[acc_from:])
         keep = max(w - 1, 0)
-        self._win = win[win.shape[0] - keep:].copy()
-        self._win_t = win_t[win_t.size - keep:].copy()
+        self._win = win[max(win.shape[0] - keep, 0):].copy()
+        self._win_t = win_t[max(win_t.size - keep, 0):].copy()
         self._count += t_s.size
         return events
+
+    def _accumulate(self, m: np.ndarray) -> None:
+        # the step's magnitudes are kept, so its mean does not depend on how the stream was chunked
+        if m.size:
+            self._buf = np.concatenate([self._buf, m])
 
     def _on_onset(self, onset: float, mu: tuple[float, float, float]) -> StepEvent | None:
         refr = self.min_period_s
@@ -206,13 +224,15 @@ class StepSegmenter:
             self._periods.append(period)
             self._periods = self._periods[-9:]
         ev = StepEvent(t_s=onset, period_s=period, f_s=1.0 / period,
-                       acc_mean=self._sum / max(self._n, 1), acc_max=float(self._max), acc_min=float(self._min),
+                       acc_mean=float(self._buf.mean()) if self._buf.size else float("nan"),
+                       acc_max=float(self._buf.max()) if self._buf.size else float("nan"),
+                       acc_min=float(self._buf.min()) if self._buf.size else float("nan"),
                        acc_stance=mu, after_rest=after_rest, index=self._n_events)
         self._n_events += 1
         self._last_event = onset
         self._last_onset = onset
         self._peak = 0.0
-        self._sum, self._n, self._max, self._min = 0.0, 0, -np.inf, np.inf
+        self._buf = np.zeros(0)
         return ev
 
     # -- state -----------------------------------------------------------------------------------------
@@ -225,7 +245,7 @@ class StepSegmenter:
             "win_t": self._win_t.copy(), "stance": self._stance, "peak": self._peak,
             "last_onset": self._last_onset, "last_event": self._last_event,
             "last_stance_end": self._last_stance_end, "periods": list(self._periods),
-            "acc": [self._sum, self._n, float(self._max), float(self._min)], "count": self._count,
+            "buf": self._buf.copy(), "count": self._count,
             "n_events": self._n_events,
         }
 
@@ -243,8 +263,7 @@ class StepSegmenter:
         obj._last_event = float(d["last_event"])
         obj._last_stance_end = float(d["last_stance_end"])
         obj._periods = [float(v) for v in d["periods"]]
-        obj._sum, n, mx, mn = d["acc"]
-        obj._sum, obj._n, obj._max, obj._min = float(obj._sum), int(n), float(mx), float(mn)
+        obj._buf = np.asarray(d["buf"], dtype=np.float64).reshape(-1).copy()
         obj._count = int(d["count"])
         obj._n_events = int(d["n_events"])
         return obj

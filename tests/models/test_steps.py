@@ -42,13 +42,15 @@ def test_counts_synthetic_strides_at_any_rate(rate: float, period: float) -> Non
 
 
 @settings(max_examples=20, deadline=None)
-@given(cuts=st.lists(st.integers(min_value=0, max_value=800), max_size=6))
-def test_chunk_invariance_and_state_round_trip(cuts: list[int]) -> None:
-    t, acc = synthetic_foot(25.0, strides=25)
-    ref = StepSegmenter(25.0).feed(t, acc)
-    seg = StepSegmenter(25.0)
+@given(rate=st.sampled_from([25.0, 200.0]), cuts=st.lists(st.integers(min_value=0, max_value=6000), max_size=8),
+       small=st.integers(min_value=1, max_value=30))
+def test_chunk_invariance_and_state_round_trip(rate: float, cuts: list[int], small: int) -> None:
+    t, acc = synthetic_foot(rate, strides=25)
+    ref = StepSegmenter(rate).feed(t, acc)
+    cuts = cuts + list(range(100, 400, small))  # also many chunks shorter than the filter and the window
+    seg = StepSegmenter(rate)
     got = []
-    bounds = [0, *sorted(c for c in cuts if c < t.size), t.size]
+    bounds = [0, *sorted({c for c in cuts if c < t.size}), t.size]
     for i, j in zip(bounds[:-1], bounds[1:]):
         seg = StepSegmenter.from_state(loads(dumps(seg.get_state())))
         got += seg.feed(t[i:j], acc[i:j])
