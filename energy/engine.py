@@ -17,7 +17,8 @@ import numpy as np
 
 from energy import codec
 from energy.config import EngineConfig
-from energy.profile import Profile
+from energy.gait_dr import GaitPipeline
+from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import BatchError, SensorBatch
@@ -29,6 +30,7 @@ __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-e
 EngineMode = Literal["zupt", "pdr", "auto"]
 _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
 _STATE_VERSION = 1
+_GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples (gyro was off) re-seats the ZUPT-KF
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 
 
@@ -207,6 +209,8 @@ class Engine:
         self._nav = ZuptNavigator()
         self._behaviour = BehaviourRecognizer()
         self._labels = _LabelHistory()
+        self._gait = GaitPipeline(self.config.pdr_rate_hz) if mode != "zupt" else None
+        self._last_gyr_s = -np.inf
 
     # ------------------------------------------------------------------ contract
     @property
@@ -255,32 +259,76 @@ class Engine:
         for td, label in self._behaviour.process(t_s, acc):
             self._labels.add(td, label)
             events += self._sched.on_behaviour(label, td, t0 + int(round(td * 1e9)))
-        # ZUPT-KF: samples that carry a gyroscope reading
-        has_gyr = ~np.isnan(gyr[:, 0])
-        mag_in = mag if np.any(~np.isnan(mag[:, 0])) else None
-        if final:
-            out = self._nav.flush()
-        else:
-            m = has_gyr
-            out = self._nav.process(t_s[m], acc[m], gyr[m], None if mag_in is None else mag_in[m])
-        for st in out.stances:
-            d = st.step_length
-            t_ns = t0 + int(round(st.t_end_s * 1e9))
-            p = st.position
-            positions.append(
-                Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), self._labels.at(st.t_end_s),
-                         "zupt", d, True)
-            )
-            events += self._sched.on_zupt_distance(d, t_ns)
-        if self.trace is not None and len(out.t_s):
-            labels = self._labels.at_many(out.t_s)
-            self.trace.append(
-                t0 + np.round(out.t_s * 1e9).astype(np.int64), out.pos, labels,
-                np.full(len(out.t_s), "zupt"), np.ones(len(out.t_s), dtype=bool),
-            )
+        gait = self._gait
+        if gait is not None and len(t_s):
+            gait.feed(t_s, acc, mag)
+        t_switch = np.inf
+        if self._sched.working == "zupt":
+            has_gyr = ~np.isnan(gyr[:, 0])
+            if final:
+                out = self._nav.flush()
+            else:
+                ts, a_, g_, m_ = t_s[has_gyr], acc[has_gyr], gyr[has_gyr], mag[has_gyr]
+                if len(ts) and ts[0] - self._last_gyr_s > _GYRO_GAP_S and self._nav.initialised:
+                    self._nav.reset(self._nav.position, self._nav.heading)  # gyro was off (standing): re-seat
+                if len(ts):
+                    self._last_gyr_s = float(ts[-1])
+                out = self._nav.process(ts, a_, g_, m_ if np.any(~np.isnan(m_[:, 0])) else None)
+            for st in out.stances:
+                label = self._labels.at(st.t_end_s)
+                d = st.step_length
+                t_ns = t0 + int(round(st.t_end_s * 1e9))
+                p = st.position
+                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
+                events += self._sched.on_zupt_distance(d, t_ns)
+                if gait is None:
+                    continue
+                gait.learn(st, label)
+                if self._sched.ready_for_pdr() and gait.ready(label):
+                    fits = gait.fit(label)
+                    self._store_calibration(label, fits)
+                    gait.start(np.asarray(p, dtype=float), float(st.heading), st.t_end_s)
+                    events += self._sched.on_calibrated(st.t_end_s, t_ns)
+                    t_switch = st.t_end_s
+                    break
+            if self.trace is not None and len(out.t_s):
+                keep = out.t_s <= t_switch
+                n = int(np.count_nonzero(keep))
+                self.trace.append(
+                    t0 + np.round(out.t_s[keep] * 1e9).astype(np.int64), out.pos[keep], self._labels.at_many(out.t_s[keep]),
+                    np.full(n, "zupt"), np.ones(n, dtype=bool),
+                )
+        if gait is not None and self._sched.working == "pdr":
+            steps = gait.reckon(self._labels.at)
+            for step, ev in steps:
+                t_ns = t0 + int(round(step.t_s * 1e9))
+                pos = step.position
+                positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
+            if self.trace is not None and steps:
+                self.trace.append(
+                    np.array([t0 + int(round(s.t_s * 1e9)) for s, _ in steps], dtype=np.int64),
+                    np.array([s.position for s, _ in steps]), np.array([s.behaviour for s, _ in steps]),
+                    np.full(len(steps), "pdr"), np.zeros(len(steps), dtype=bool),
+                )
         if len(t_s):
             self._labels.prune(float(t_s[-1]) - _LABEL_KEEP_S)
         return self._update(positions, events)
+
+    def _store_calibration(self, behaviour: str, fits: dict) -> None:
+        """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
+        b = behaviour if behaviour in ("walk", "run") else "walk"
+        gait = self._gait
+        assert gait is not None
+        pooled = fits.get(b, {})
+        kf = gait.kf2[b]
+        self._sched.profile.behaviours[b] = BehaviourCalibration(
+            step_model={"calibrator": gait.cal.get_state()},
+            sigma_d_m=float(pooled.get("sigma_d", float("nan"))),
+            heading_deviation_rad=kf.deviation,
+            heading_deviation_var=kf.variance,
+            n_steps=int(pooled.get("n", 0)),
+            calibrated=True,
+        )
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
         return Update(positions, events, self.sensor_config, self._sched.behaviour, self._sched.working)
@@ -299,6 +347,8 @@ class Engine:
             "nav": self._nav.get_state(),
             "behaviour": self._behaviour.get_state(),
             "labels": self._labels.get_state(),
+            "gait": None if self._gait is None else self._gait.get_state(),
+            "last_gyr_s": self._last_gyr_s,
         }
 
     @classmethod
@@ -314,6 +364,8 @@ class Engine:
         obj._nav = ZuptNavigator.from_state(d["nav"])
         obj._behaviour = BehaviourRecognizer.from_state(d["behaviour"])
         obj._labels = _LabelHistory.from_state(d["labels"])
+        obj._gait = None if d["gait"] is None else GaitPipeline.from_state(d["gait"])
+        obj._last_gyr_s = float(d["last_gyr_s"])
         return obj
 
     def to_bytes(self) -> bytes:

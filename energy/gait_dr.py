@@ -1,0 +1,206 @@
+"""The Gait-DR half of the engine: low-rate step stream, online calibration against the ZUPT-KF, dead reckoning.
+
+Runs on a low-rate copy of the accelerometer/magnetometer streams (anti-aliased to ``pdr_rate_hz`` whatever
+the device sends), so its step events do not change when the device is de-sampled (004 Section 4.3). While
+the ZUPT-KF runs, each of its stances is paired with the step event of the same stance and feeds the
+step-length calibrator (004 eq. 15, Table 3), KF II (004 eq. 17-20) and the magnetometer calibration; in
+Gait-DR the step events are dead-reckoned (004 eq. 14, 16) with the compass heading, or the last good heading
+where the field is disturbed or absent.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from models.compass import MagCalibrator
+from models.fir import Decimator
+from models.gait_pdr import GaitDeadReckoner, PdrStep
+from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
+from models.step_length import StepFeatures, StepLengthCalibrator
+from models.steps import StepEvent, StepSegmenter
+from models.zupt_nav import Stance
+
+__all__ = ["GaitPipeline"]
+
+_PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance closer than this are the same stance
+_MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
+_BEHAVIOURS = ("walk", "run")
+
+
+def _features(e: StepEvent) -> StepFeatures:
+    return StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min)
+
+
+class _LowRate:
+    """Accelerometer (+magnetometer) at a fixed low rate, whatever rate arrives."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = float(rate_hz)
+        self.in_rate_hz = 0.0
+        self.dec: Decimator | None = None
+        self.last_t = -math.inf
+
+    def process(self, t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if len(t_s) == 0:
+            return t_s, x
+        dt = float(np.median(np.diff(t_s))) if len(t_s) > 2 else (1.0 / self.in_rate_hz if self.in_rate_hz else 1.0 / self.rate_hz)
+        in_rate = 1.0 / dt if dt > 0 else self.rate_hz
+        factor = max(1, int(round(in_rate / self.rate_hz)))
+        if self.dec is None or factor != self.dec.factor:
+            self.dec = Decimator(self.rate_hz * factor, self.rate_hz, channels=x.shape[1])
+            self.in_rate_hz = self.rate_hz * factor
+        t_ns = np.round(t_s * 1e9).astype(np.int64)
+        out_t, out_x = self.dec.process(t_ns, x)
+        out_s = out_t / 1e9
+        keep = out_s > self.last_t
+        out_s, out_x = out_s[keep], out_x[keep]
+        if len(out_s):
+            self.last_t = float(out_s[-1])
+        return out_s, out_x
+
+    def get_state(self) -> dict[str, Any]:
+        return {"rate_hz": self.rate_hz, "in_rate_hz": self.in_rate_hz, "last_t": self.last_t,
+                "dec": None if self.dec is None else self.dec.get_state()}
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any]) -> _LowRate:
+        obj = cls(d["rate_hz"])
+        obj.in_rate_hz, obj.last_t = float(d["in_rate_hz"]), float(d["last_t"])
+        obj.dec = None if d["dec"] is None else Decimator.from_state(d["dec"])
+        return obj
+
+
+class GaitPipeline:
+    """Step events, calibration and dead reckoning for one session.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Rate of the low-rate stream the step segmentation runs on [Hz].
+    """
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = float(rate_hz)
+        self._low = _LowRate(rate_hz)
+        self._seg = StepSegmenter(rate_hz)
+        self.cal = StepLengthCalibrator()
+        self.kf2 = {b: HeadingDeviationKF() for b in _BEHAVIOURS}
+        self.mag = MagCalibrator()
+        self.dr: GaitDeadReckoner | None = None
+        self.queue: list[StepEvent] = []
+        self._mag_t = np.zeros(0)
+        self._mag_v = np.zeros((0, 3))
+        self.heading = float("nan")  # last good heading of the sensor x axis [rad]
+        self.t_switch = math.inf  # steps after this time are dead-reckoned
+        self.compass_steps = 0
+        self.held_steps = 0
+
+    # ------------------------------------------------------------------ streams
+    def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
+        """Consume full- or low-rate samples; new step events join :attr:`queue`."""
+        has_mag = ~np.isnan(mag[:, 0])
+        x = np.c_[acc, np.where(has_mag[:, None], mag, 0.0), has_mag.astype(float)]
+        lt, lx = self._low.process(t_s, x)
+        if not len(lt):
+            return
+        self.queue.extend(self._seg.feed(lt, lx[:, :3]))
+        valid = lx[:, 6] > 0.999
+        self._mag_t = np.concatenate([self._mag_t, lt[valid]])[-64:]
+        self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])[-64:]
+
+    def mag_at(self, t_s: float) -> np.ndarray | None:
+        """Mean field over the quiet window after a stance onset [uT], or None without magnetometer."""
+        m = (self._mag_t >= t_s - 0.02) & (self._mag_t <= t_s + 0.12)
+        return self._mag_v[m].mean(axis=0) if np.any(m) else None
+
+    # ------------------------------------------------------------------ calibration while the ZUPT-KF runs
+    def learn(self, st: Stance, behaviour: str) -> None:
+        """Pair a ZUPT-KF stance with its step event; feed calibrator, KF II and magnetometer calibration."""
+        self.heading = float(st.heading)
+        e = next((q for q in self.queue if abs(q.t_s - st.t_start_s) <= _PAIR_TOL_S), None)
+        self.queue = [q for q in self.queue if q.t_s > st.t_start_s + _PAIR_TOL_S]  # later stances stay queued
+        if e is None:
+            return
+        m = self.mag_at(e.t_s)
+        if m is not None:
+            self.mag.add(np.asarray(e.acc_stance), m, float(st.heading))
+        if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
+            return
+        self.cal.add(behaviour, _features(e), st.step_length)
+        gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)
+        self.kf2[behaviour].update(wrap_angle(gamma - float(st.heading)), dt=e.period_s)  # 004 eq. (19)
+
+    def ready(self, behaviour: str) -> bool:
+        return self.cal.n_pairs(behaviour if behaviour in _BEHAVIOURS else "walk") >= self.cal.min_pairs
+
+    def fit(self, behaviour: str) -> dict:
+        self.mag.fit()
+        return self.cal.fit(behaviour if behaviour in _BEHAVIOURS else "walk")
+
+    # ------------------------------------------------------------------ dead reckoning
+    def start(self, position: np.ndarray, heading: float, t_switch: float) -> None:
+        """Hand-over from the ZUPT-KF at a stance."""
+        self.dr = GaitDeadReckoner(position)
+        self.heading = float(heading)
+        self.t_switch = float(t_switch)
+        self.queue = [e for e in self.queue if e.t_s > t_switch + _PAIR_TOL_S]
+
+    def stop(self) -> None:
+        self.dr = None
+        self.t_switch = math.inf
+
+    def reckon(self, label_at) -> list[tuple[PdrStep, StepEvent]]:
+        """Dead-reckon queued step events after the hand-over."""
+        out: list[tuple[PdrStep, StepEvent]] = []
+        if self.dr is None:
+            return out
+        for e in self.queue:
+            b = label_at(e.t_s)
+            b = b if b in _BEHAVIOURS else "walk"
+            d, _ = self.cal.predict(b, _features(e))
+            m = self.mag_at(e.t_s)
+            acc_st = np.asarray(e.acc_stance)
+            if m is not None and self.mag.ready and not self.mag.disturbed(acc_st, m):
+                self.heading = self.mag.heading(acc_st, m)
+                self.compass_steps += 1
+            else:
+                self.held_steps += 1  # disturbed or no magnetometer: hold the last good heading
+            out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e))
+        self.queue = []
+        return out
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> dict[str, Any]:
+        return {
+            "rate_hz": self.rate_hz,
+            "low": self._low.get_state(),
+            "seg": self._seg.get_state(),
+            "cal": self.cal.get_state(),
+            "kf2": {b: k.get_state() for b, k in self.kf2.items()},
+            "mag": self.mag.get_state(),
+            "dr": None if self.dr is None else self.dr.get_state(),
+            "queue": [[e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, float(e.after_rest), e.index]
+                      for e in self.queue],
+            "mag_t": self._mag_t, "mag_v": self._mag_v,
+            "heading": self.heading, "t_switch": self.t_switch,
+            "compass_steps": self.compass_steps, "held_steps": self.held_steps,
+        }
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any]) -> GaitPipeline:
+        obj = cls(d["rate_hz"])
+        obj._low = _LowRate.from_state(d["low"])
+        obj._seg = StepSegmenter.from_state(d["seg"])
+        obj.cal = StepLengthCalibrator.from_state(d["cal"])
+        obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
+        obj.mag = MagCalibrator.from_state(d["mag"])
+        obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
+        obj.queue = [StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), bool(q[9]), int(q[10])) for q in d["queue"]]
+        obj._mag_t = np.asarray(d["mag_t"], dtype=float)
+        obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
+        obj.heading, obj.t_switch = float(d["heading"]), float(d["t_switch"])
+        obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
+        return obj
