@@ -127,7 +127,8 @@ def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: Se
         db.commit()
     except IntegrityError:
         db.rollback()
-        return {"session_id": link.session_id, "duplicate": True, "positions": []}
+        return {"session_id": link.session_id, "duplicate": True, "late_samples": link.late_samples, "positions": [],
+                "behaviour": None}
     if late:
         link.late_samples += late
         db.commit()

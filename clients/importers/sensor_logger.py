@@ -1,0 +1,222 @@
+"""Sensor Logger (Android/iOS app by Kelvin Choi) exports: CSV folder, zip of it, or the JSON export.
+
+CSV files are named by sensor (``Accelerometer.csv``, ``TotalAcceleration.csv``, ``Gravity.csv``,
+``Gyroscope.csv``, ``Magnetometer.csv``, ...), each with the header ``time,seconds_elapsed,z,y,x``: note
+the z, y, x column order. ``time`` is UTC epoch [ns]. The JSON export is one list of records
+``{"sensor": "Accelerometer", "time": ..., "seconds_elapsed": ..., "z": ..., "y": ..., "x": ...}`` (values
+often as strings).
+
+Accelerometer choice, decided from the data and reported in ``RecordingMeta.notes`` (never guessed):
+``TotalAcceleration`` (specific force, with gravity) is used when present. Otherwise ``Accelerometer`` is used
+as it is when it carries gravity (its mean vector is nearly as long as its typical sample: Android's raw
+accelerometer), or summed with ``Gravity`` when it averages to about zero (gravity removed, as Sensor
+Logger's ``Accelerometer`` is on iOS and often on Android). A gravity-carrying stream whose median magnitude
+reads about 1.0 is in units of g and is converted (x 9.80665) and said so.
+Gyroscope [rad/s] and magnetometer [uT] are used as recorded.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from clients.importers._common import G0, ImporterError, check_finite, clean_timestamps, make_batch
+from clients.recording import Recording, RecordingMeta
+
+__all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
+
+SENSOR_FILES = ("TotalAcceleration", "Accelerometer", "Gravity", "Gyroscope", "Magnetometer")
+_HEADER = ["time", "seconds_elapsed", "z", "y", "x"]
+
+
+def _is_header(row: list[str]) -> bool:
+    cols = [c.strip().lower() for c in row]
+    return cols[:2] == ["time", "seconds_elapsed"] and {"x", "y", "z"} <= set(cols)
+
+
+def _read_csv_text(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t_ns, xyz)`` of one Sensor Logger CSV (columns found by name, so z,y,x order is handled)."""
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or not _is_header(rows[0]):
+        raise ImporterError(where, "header", f"expected {','.join(_HEADER)}, got {rows[0] if rows else 'nothing'}")
+    cols = [c.strip().lower() for c in rows[0]]
+    it, ix, iy, iz = cols.index("time"), cols.index("x"), cols.index("y"), cols.index("z")
+    body = [r for r in rows[1:] if r]
+    if not body:
+        raise ImporterError(where, "time", "no samples (empty file)")
+    try:
+        t = np.array([int(r[it]) if r[it].strip().lstrip("-").isdigit() else int(round(float(r[it]))) for r in body], dtype=np.int64)
+        v = np.array([[float(r[ix]), float(r[iy]), float(r[iz])] for r in body])
+    except (ValueError, IndexError) as exc:
+        raise ImporterError(where, "row", f"not a number or missing column ({exc})") from None
+    return t, v
+
+
+def _read_json(obj: object, where: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    if not isinstance(obj, list):
+        raise ImporterError(where, "file", "Sensor Logger JSON export must be a list of records")
+    per: dict[str, list[tuple[int, float, float, float]]] = {}
+    for i, rec in enumerate(obj):
+        if not isinstance(rec, dict) or "sensor" not in rec:
+            continue
+        name = str(rec["sensor"])
+        if name not in SENSOR_FILES:
+            continue
+        try:
+            per.setdefault(name, []).append((int(float(rec["time"])) if not str(rec["time"]).isdigit() else int(rec["time"]),
+                                             float(rec["x"]), float(rec["y"]), float(rec["z"])))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ImporterError(where, f"record {i} ({name})", f"missing or non-numeric time/x/y/z ({exc})") from None
+    out = {}
+    for name, rows in per.items():
+        a = np.array(rows, dtype=object)
+        out[name] = (a[:, 0].astype(np.int64), a[:, 1:].astype(np.float64))
+    return out
+
+
+def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, Path]:
+    """Streams by sensor name, the platform (from Metadata.csv when present) and the source path."""
+    streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    platform = "unknown"
+    if path.suffix.lower() == ".zip":
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                stem = Path(info.filename).stem
+                if Path(info.filename).suffix.lower() != ".csv":
+                    continue
+                text = zf.read(info).decode("utf-8-sig")
+                if stem in SENSOR_FILES:
+                    streams[stem] = _read_csv_text(text, f"{path}:{info.filename}")
+                elif stem.lower() == "metadata":
+                    platform = _platform(text)
+        return streams, platform, path
+    if path.suffix.lower() == ".json":
+        try:
+            obj = json.loads(path.read_text(encoding="utf-8-sig"))
+        except (OSError, ValueError) as exc:
+            raise ImporterError(path, "file", f"not readable JSON ({exc})") from None
+        return _read_json(obj, str(path)), platform, path
+    folder = path if path.is_dir() else path.parent
+    for name in SENSOR_FILES:
+        f = folder / f"{name}.csv"
+        if f.exists():
+            streams[name] = _read_csv_text(f.read_text(encoding="utf-8-sig"), str(f))
+    meta = folder / "Metadata.csv"
+    if meta.exists():
+        platform = _platform(meta.read_text(encoding="utf-8-sig"))
+    return streams, platform, folder
+
+
+def _platform(text: str) -> str:
+    rows = list(csv.DictReader(io.StringIO(text)))
+    return str(rows[0].get("platform", "unknown")).lower() if rows else "unknown"
+
+
+def _median_norm(v: np.ndarray) -> float:
+    return float(np.median(np.linalg.norm(v, axis=1))) if len(v) else float("nan")
+
+
+def _has_gravity(v: np.ndarray) -> bool:
+    """Gravity dominates a stream that carries it: its mean vector is nearly as long as its typical sample,
+    while a gravity-removed stream averages to about zero."""
+    return bool(np.linalg.norm(v.mean(axis=0)) > 0.5 * _median_norm(v))
+
+
+def _to_ms2(name: str, v: np.ndarray, conv: dict[str, str]) -> np.ndarray:
+    """A gravity-carrying stream whose median magnitude is about 1 is in g: convert to m/s^2 and say so."""
+    med = _median_norm(v)
+    if 0.5 < med < 1.5:
+        conv[name] = "g -> m/s^2 (x 9.80665)"
+        return v * G0
+    return v
+
+
+def load_sensor_logger(path: str | Path) -> Recording:
+    """Import a Sensor Logger export (folder, one of its CSVs, zip, or JSON) as SI streams."""
+    p = Path(path)
+    streams, platform, src = _collect(p)
+    notes: list[str] = [f"platform: {platform}"]
+    conv: dict[str, str] = {}
+
+    def clean(name: str) -> tuple[np.ndarray, np.ndarray]:
+        t, v = streams[name]
+        check_finite(src, [f"{name}.x", f"{name}.y", f"{name}.z"], v)
+        order = np.argsort(t, kind="stable")
+        if np.any(order != np.arange(len(t))):
+            notes.append(f"{name}: rows were not in time order; sorted")
+            t, v = t[order], v[order]
+        t, v, n = clean_timestamps(src, f"{name}.time", t, v)
+        notes.extend(n)
+        return t, v
+
+    if "TotalAcceleration" in streams:
+        acc_t, acc = clean("TotalAcceleration")
+        acc = _to_ms2("TotalAcceleration", acc, conv)
+        notes.append("accelerometer: TotalAcceleration (specific force including gravity)")
+    elif "Accelerometer" in streams:
+        acc_t, acc = clean("Accelerometer")
+        if _has_gravity(acc):  # Android's raw accelerometer
+            acc = _to_ms2("Accelerometer", acc, conv)
+            notes.append("accelerometer: Accelerometer carries gravity (mean vector ~ 1 g); used as is")
+        elif "Gravity" in streams:
+            g_t, g = clean("Gravity")
+            g = _to_ms2("Gravity", g, conv)
+            if "Gravity" in conv:
+                acc = acc * G0
+                conv["Accelerometer"] = "g -> m/s^2 (x 9.80665), like Gravity"
+            j = np.clip(np.searchsorted(g_t, acc_t), 0, len(g_t) - 1)
+            jm = np.clip(j - 1, 0, len(g_t) - 1)
+            j = np.where(np.abs(g_t[jm] - acc_t) < np.abs(g_t[j] - acc_t), jm, j)
+            acc = acc + g[j]
+            notes.append("accelerometer: Accelerometer (gravity removed) + Gravity, nearest sample")
+        else:
+            raise ImporterError(src, "Accelerometer", "gravity removed (mean vector ~ 0) and no TotalAcceleration "
+                                "or Gravity file to restore it; export with TotalAcceleration on")
+    else:
+        raise ImporterError(src, "TotalAcceleration", "no accelerometer file (TotalAcceleration.csv or Accelerometer.csv)")
+    gyr_t = gyr = mag_t = mag = None
+    if "Gyroscope" in streams:
+        gyr_t, gyr = clean("Gyroscope")
+    if "Magnetometer" in streams:
+        mag_t, mag = clean("Magnetometer")
+    batch = make_batch(src, acc_t, acc, gyr_t, gyr, mag_t, mag)
+    rate = batch.rate_hz("acc")
+    return Recording(
+        name=src.stem if src.is_file() else src.name,
+        batch=batch,
+        meta=RecordingMeta(source_format="sensor-logger", rate_hz=rate, units_converted=conv, mount="phone",
+                           notes=tuple(notes)),
+    )
+
+
+def sniff(path: str | Path) -> bool:
+    """A Sensor Logger CSV (``time,seconds_elapsed,z,y,x``), a zip holding them, or its JSON export."""
+    p = Path(path)
+    if p.is_dir():
+        return any((p / f"{n}.csv").exists() for n in ("TotalAcceleration", "Accelerometer"))
+    suf = p.suffix.lower()
+    try:
+        if suf == ".csv":
+            with open(p, encoding="utf-8-sig", newline="") as fh:
+                return p.stem in SENSOR_FILES and _is_header(next(csv.reader(fh), []))
+        if suf == ".zip":
+            with zipfile.ZipFile(p) as zf:
+                stems = {Path(n).stem for n in zf.namelist()}
+            return bool(stems & {"TotalAcceleration", "Accelerometer"}) and "time" not in stems
+        if suf == ".json":
+            with open(p, encoding="utf-8-sig") as fh:
+                head = fh.read(4096)
+            return head.lstrip().startswith("[") and '"seconds_elapsed"' in head and '"sensor"' in head
+    except (OSError, zipfile.BadZipFile, UnicodeDecodeError):
+        return False
+    return False
+
+
+def load(path: str | Path) -> Recording:
+    """Importer entry point (see :mod:`clients.importers`): a CSV loads its whole export folder."""
+    return load_sensor_logger(path)

@@ -1,0 +1,232 @@
+"""Sensor Logger and phyphox importers (CSV folder/zip with z,y,x columns, JSON, unit and gravity handling)
+and the Sensor Logger HTTP push endpoint (out-of-order and duplicated messages)."""
+
+from __future__ import annotations
+
+import json
+import random
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clients.importers import ImporterError, importer_for
+from clients.importers import load as load_any
+from clients.importers.phyphox import load_phyphox
+from clients.importers.sensor_logger import load_sensor_logger
+from models.batch import SensorBatch
+from tests.server.conftest import app, auth, backend, client, make_user, settings  # noqa: F401 - fixtures
+
+T_EPOCH = 1_698_000_000_000_000_000
+G0 = 9.80665
+
+
+def _phone_batch(seconds: float = 4.0, rate: float = 100.0, seed: int = 0) -> SensorBatch:
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate)
+    t = T_EPOCH + np.arange(n, dtype=np.int64) * int(1e9 / rate) + rng.integers(0, 300_000, n)  # jitter
+    t = np.sort(t)
+    grav = np.array([0.3, 6.5, 7.3])  # |g| = 9.78, tilted phone; x, y, z distinct
+    lin = rng.normal(0, 0.5, (n, 3))
+    gyr = rng.normal(0, 0.3, (n, 3)) + [0.01, -0.02, 0.03]
+    mag = np.array([12.0, -25.0, 33.0]) + rng.normal(0, 0.5, (n, 3))
+    return SensorBatch(acc_t_ns=t, acc=grav + lin, gyr_t_ns=t + 1000, gyr=gyr, mag_t_ns=t[::2] + 5000, mag=mag[::2])
+
+
+def _csv(t: np.ndarray, v: np.ndarray) -> str:
+    lines = ["time,seconds_elapsed,z,y,x"]  # Sensor Logger's column order
+    for ti, (x, y, z) in zip(t.tolist(), v.tolist()):
+        lines.append(f"{ti},{(ti - T_EPOCH) / 1e9!r},{z!r},{y!r},{x!r}")
+    return "\n".join(lines) + "\n"
+
+
+def _export(b: SensorBatch, style: str, unit_g: bool = False) -> dict[str, str]:
+    grav = np.array([0.3, 6.5, 7.3])
+    scale = 1 / G0 if unit_g else 1.0
+    files = {"Gyroscope": _csv(b.gyr_t_ns, b.gyr), "Magnetometer": _csv(b.mag_t_ns, b.mag),
+             "Metadata": "version,device name,recording time,platform\n1,Pixel,2024,android\n"}
+    if style == "total":
+        files["TotalAcceleration"] = _csv(b.acc_t_ns, b.acc * scale)
+        files["Accelerometer"] = _csv(b.acc_t_ns, (b.acc - grav) * scale)
+    elif style == "user+gravity":
+        files["Accelerometer"] = _csv(b.acc_t_ns, (b.acc - grav) * scale)
+        files["Gravity"] = _csv(b.acc_t_ns, np.tile(grav, (len(b.acc), 1)) * scale)
+    elif style == "raw-android":
+        files["Accelerometer"] = _csv(b.acc_t_ns, b.acc * scale)
+    elif style == "user-only":
+        files["Accelerometer"] = _csv(b.acc_t_ns, (b.acc - grav) * scale)
+    return files
+
+
+def _write_folder(tmp: Path, files: dict[str, str]) -> Path:
+    d = tmp / "export"
+    d.mkdir()
+    for k, v in files.items():
+        (d / f"{k}.csv").write_text(v)
+    return d
+
+
+@pytest.mark.parametrize("style", ["total", "user+gravity", "raw-android"])
+@pytest.mark.parametrize("container", ["folder", "csv", "zip", "json"])
+def test_sensor_logger_export_round_trip(tmp_path: Path, style: str, container: str) -> None:
+    b = _phone_batch()
+    files = _export(b, style)
+    if container in ("folder", "csv"):
+        d = _write_folder(tmp_path, files)
+        path = d if container == "folder" else d / "Gyroscope.csv"
+    elif container == "zip":
+        path = tmp_path / "export.zip"
+        with zipfile.ZipFile(path, "w") as zf:
+            for k, v in files.items():
+                zf.writestr(f"rec_2024/{k}.csv", v)
+    else:
+        recs = []
+        for k, text in files.items():
+            if k == "Metadata":
+                continue
+            for line in text.splitlines()[1:]:
+                t, el, z, y, x = line.split(",")
+                recs.append({"sensor": k, "time": t, "seconds_elapsed": el, "z": z, "y": y, "x": x})
+        random.Random(0).shuffle(recs)  # the JSON export is not guaranteed sorted
+        path = tmp_path / "export.json"
+        path.write_text(json.dumps(recs))
+    rec = load_any(path) if container != "folder" else load_sensor_logger(path)
+    assert rec.meta.source_format == "sensor-logger" and rec.meta.mount == "phone"
+    assert np.array_equal(rec.batch.acc_t_ns, b.acc_t_ns)
+    assert np.allclose(rec.batch.acc, b.acc, atol=1e-12)  # x, y, z back in x, y, z order
+    assert np.array_equal(rec.batch.gyr, b.gyr) and np.array_equal(rec.batch.mag_t_ns, b.mag_t_ns)
+    assert any("accelerometer:" in n for n in rec.meta.notes)
+
+
+@pytest.mark.parametrize("style", ["total", "user+gravity"])
+def test_sensor_logger_in_g_is_converted_and_reported(tmp_path: Path, style: str) -> None:
+    b = _phone_batch(seed=1)
+    rec = load_sensor_logger(_write_folder(tmp_path, _export(b, style, unit_g=True)))
+    assert np.allclose(rec.batch.acc, b.acc, atol=1e-9)
+    assert any("g -> m/s^2" in v for v in rec.meta.units_converted.values())
+
+
+def test_sensor_logger_without_gravity_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ImporterError) as exc:
+        load_sensor_logger(_write_folder(tmp_path, _export(_phone_batch(), "user-only")))
+    assert exc.value.field == "Accelerometer" and "TotalAcceleration" in exc.value.problem
+
+
+def test_sensor_logger_bad_header_and_values(tmp_path: Path) -> None:
+    d = tmp_path / "e"
+    d.mkdir()
+    (d / "TotalAcceleration.csv").write_text("time,seconds_elapsed,z,y,x\n1,0.0,9.8,0,abc\n")
+    with pytest.raises(ImporterError):
+        load_sensor_logger(d)
+    assert importer_for(tmp_path / "nothing.csv") is None
+
+
+@pytest.mark.parametrize("sep", [",", ";"])
+def test_phyphox_export(tmp_path: Path, sep: str) -> None:
+    b = _phone_batch(seed=2)
+    t0 = b.acc_t_ns[0]
+
+    def table(head: str, t: np.ndarray, v: np.ndarray) -> str:
+        cols = [f'"Time (s)"'] + [f'"{head} {a} ({u})"' for a, u in zip("xyz", [UNITS[head]] * 3)]
+        rows = [sep.join(cols)]
+        for ti, row in zip(t.tolist(), v.tolist()):
+            vals = [repr((ti - int(t0)) / 1e9)] + [repr(float(x)) for x in row]
+            rows.append(sep.join(s.replace(".", ",") if sep == ";" else s for s in vals))
+        return "\n".join(rows) + "\n"
+
+    UNITS = {"Acceleration": "m/s^2", "Gyroscope": "rad/s", "Magnetic field": "µT"}
+    path = tmp_path / "phyphox.zip"
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("Accelerometer.csv", table("Acceleration", b.acc_t_ns, b.acc))
+        zf.writestr("Gyroscope.csv", table("Gyroscope", b.gyr_t_ns, b.gyr))
+        zf.writestr("Magnetometer.csv", table("Magnetic field", b.mag_t_ns, b.mag))
+        zf.writestr("meta/time.csv", f"event,experiment time,system time\nSTART,0.0,{int(t0) / 1e9!r}\n")
+    rec = load_any(path)
+    assert rec.meta.source_format == "phyphox"
+    assert np.allclose(rec.batch.acc, b.acc) and np.allclose(rec.batch.gyr, b.gyr) and len(rec.batch.mag) == len(b.mag)
+    assert np.max(np.abs(rec.batch.acc_t_ns - b.acc_t_ns)) < 1000  # ns; epoch from meta/time.csv
+    single = tmp_path / "Raw Data.csv"
+    single.write_text(table("Acceleration", b.acc_t_ns, b.acc))
+    assert np.allclose(load_phyphox(single).batch.acc, b.acc)
+    lin = tmp_path / "lin.csv"
+    lin.write_text(table("Acceleration", b.acc_t_ns, b.acc).replace("Acceleration", "Linear Acceleration"))
+    with pytest.raises(ImporterError):
+        load_phyphox(lin)
+
+
+# ---------------------------------------------------------------- HTTP push
+def _messages(b: SensorBatch, per_msg_s: float = 0.5) -> list[dict]:  # type: ignore[type-arg]
+    items = []
+    for name, tag in (("acc", "totalacceleration"), ("gyr", "gyroscope"), ("mag", "magnetometer")):
+        t, v = b.stream(name)
+        items += [{"name": tag, "time": int(ti), "values": {"x": x, "y": y, "z": z}} for ti, (x, y, z) in zip(t, v.tolist())]
+    items.sort(key=lambda it: it["time"])
+    t0 = items[0]["time"]
+    groups: dict[int, list] = {}  # type: ignore[type-arg]
+    for it in items:
+        groups.setdefault(int((it["time"] - t0) // (per_msg_s * 1e9)), []).append(it)
+    extra = [{"name": "location", "time": t0, "values": {"latitude": 1.0}}]
+    return [{"messageId": k, "sessionId": "sl-1", "deviceId": "dev", "payload": g + (extra if k == 0 else [])}
+            for k, g in sorted(groups.items())]
+
+
+def _push_all(client, tok: str, msgs: list[dict], sl_id: str) -> list[dict]:  # type: ignore[no-untyped-def]  # noqa: F811
+    out = []
+    for m in msgs:
+        r = client.post("/v1/sensorlogger", json={**m, "sessionId": sl_id}, params={"token": tok})
+        assert r.status_code == 200, r.text
+        out.append(r.json())
+    r = client.post(f"/v1/sensorlogger/{sl_id}/flush", headers=auth(tok))
+    assert r.status_code == 200
+    sid = r.json()["session_id"]
+    client.post(f"/v1/sessions/{sid}/close", headers=auth(tok))
+    return client.get(f"/v1/sessions/{sid}/trajectory", headers=auth(tok)).json()["positions"], out  # type: ignore[return-value]
+
+
+def test_sensor_logger_push_out_of_order_and_duplicated(client, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    from clients.synth import synthesize
+    from energy.engine import Engine
+
+    rec = synthesize("walk", seed=4, rate_hz=100.0)
+    b = rec.batch.time_slice(None, rec.batch.t_start_ns + 30 * 10**9)
+    b = SensorBatch(**{k: (v + T_EPOCH if k.endswith("_t_ns") else v) for k, v in b._kwargs().items()})
+    msgs = _messages(b)
+    _, tok = make_user()
+    in_order, _ = _push_all(client, tok, msgs, "in-order")
+    rng = random.Random(1)
+    shuffled = list(msgs)
+    for i in range(0, len(shuffled) - 1, 2):  # neighbours swapped: within the 2-s hold
+        if rng.random() < 0.7:
+            shuffled[i], shuffled[i + 1] = shuffled[i + 1], shuffled[i]
+    shuffled += [msgs[3], msgs[10], msgs[0]]  # duplicates, late
+    shuffled.insert(20, msgs[19])
+    messy, answers = _push_all(client, tok, shuffled, "messy")
+    assert sum(a["duplicate"] for a in answers) == 4
+    assert answers[-1]["late_samples"] == 0
+    eng = Engine(mode="auto")
+    local = eng.feed(b).positions + eng.flush().positions
+    assert len(in_order) == len(local) > 3
+    for got in (in_order, messy):
+        g = np.array([[p["t_ns"], p["north"], p["east"], p["down"]] for p in got])
+        ref = np.array([[p.t_ns, p.north, p.east, p.down] for p in local])
+        assert g.shape == ref.shape and np.array_equal(g[:, 0], ref[:, 0])
+        assert np.max(np.abs(g[:, 1:] - ref[:, 1:])) <= 1e-9
+
+
+def test_sensor_logger_push_refusals_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    _, a = make_user()
+    _, b = make_user()
+    msg = {"messageId": 1, "sessionId": "x", "deviceId": "d",
+           "payload": [{"name": "accelerometer", "time": T_EPOCH, "values": {"x": 0.1, "y": 0.0, "z": 0.0}}]}
+    assert client.post("/v1/sensorlogger", json=msg).status_code == 401
+    r = client.post("/v1/sensorlogger", json={**msg, "payload": [{"name": "gyroscope", "time": T_EPOCH, "values": {"x": 1}}]},
+                    headers=auth(a))
+    assert r.status_code == 422 and "values.y" in r.json()["detail"]
+    r = client.post("/v1/sensorlogger", json={"messageId": 1}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] in ("sessionId", "payload")
+    r = client.post("/v1/sensorlogger", json=msg, headers=auth(a))
+    assert r.status_code == 200
+    assert client.post("/v1/sensorlogger/x/flush", headers=auth(b)).status_code == 404
+    sid = r.json()["session_id"]
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(b)).status_code == 404
