@@ -72,21 +72,32 @@ def load(path: str | Path) -> Recording:
     p = Path(path)
     if not p.exists():
         raise ImporterError(p, "file", "does not exist")
-    if p.is_dir():
-        raise ImporterError(p, "file", "is a folder; use list_recordings() for folders")
     m = importer_for(p)
     if m is None:
+        if p.is_dir():
+            raise ImporterError(p, "file", "is a folder that no importer recognises; use list_recordings() for folders")
         raise ImporterError(p, "file", "no importer recognises this file (supported: " + ", ".join(_MODULES) + ")")
     if m.__name__ == "clients.importers.sensorconnect":
         m = importlib.import_module("clients.importers.gdin")  # attaches truth when in the gdin layout
     return m.load(p)
 
 
+_SUFFIXES = (".mat", ".csv", ".json", ".zip")
+
+
 def list_recordings(directory: str | Path, recursive: bool = True) -> list[Path]:
-    """Sorted importable sensor files under ``directory`` (truth-only files excluded)."""
+    """Sorted importable recordings under ``directory``: files, and sub-folders that an importer reads as one
+    recording (e.g. a Sensor Logger export folder, not descended into). Truth-only files are excluded."""
     d = Path(directory)
     if not d.is_dir():
         raise ImporterError(d, "directory", "does not exist or is not a folder")
-    pattern = "**/*" if recursive else "*"
-    files = [f for f in sorted(d.glob(pattern)) if f.is_file() and f.suffix.lower() in (".mat", ".csv", ".json", ".zip")]
-    return [f for f in files if importer_for(f) is not None]
+    out: list[Path] = []
+    for f in sorted(d.iterdir()):
+        if f.is_dir():
+            if importer_for(f) is not None:
+                out.append(f)
+            elif recursive:
+                out += list_recordings(f, recursive=True)
+        elif f.suffix.lower() in _SUFFIXES and importer_for(f) is not None:
+            out.append(f)
+    return sorted(out)

@@ -315,3 +315,16 @@ def test_format_a_round_trip(tmp_path: Path, rate: float, n: int, tilt: float, t
     np.testing.assert_allclose(rec.batch.gyr, gyr, rtol=1e-12)
     np.testing.assert_allclose(rec.batch.mag, mag_g * 100.0, rtol=1e-12)
     assert rec.meta.rate_hz == pytest.approx(rate, rel=1e-6)
+
+
+def test_load_and_list_on_folders(tmp_path: Path) -> None:
+    with pytest.raises(ImporterError, match="folder"):
+        load(tmp_path)
+    with pytest.raises(ImporterError, match="does not exist"):
+        load(tmp_path / "missing.csv")
+    nested = tmp_path / "a" / "b"
+    nested.mkdir(parents=True)
+    f = write_format_a(nested / "walk.csv")
+    (tmp_path / "notes.csv").write_text("just,some\n1,2\n")
+    assert list_recordings(tmp_path) == [f]
+    assert list_recordings(tmp_path, recursive=False) == []
