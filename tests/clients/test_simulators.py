@@ -1,0 +1,59 @@
+"""Device simulators obey the server's sensor configuration: gyroscope off -> no gyroscope samples sent,
+rate changes -> the sent rate follows."""
+
+from __future__ import annotations
+
+import pytest
+
+from clients.sdk import PednavClient
+from clients.simulators import FootSensorSimulator, PhoneSimulator, WatchSimulator, simulator_for
+from tests.server.conftest import app, backend, client, make_user, settings  # noqa: F401 - fixtures
+
+
+@pytest.fixture(scope="module")
+def walk_recording():  # type: ignore[no-untyped-def]
+    from clients.synth import synthesize
+
+    return synthesize("walk", seed=7)
+
+
+@pytest.mark.parametrize("cls", [FootSensorSimulator, PhoneSimulator, WatchSimulator])
+def test_simulator_obeys_sensor_configuration(client, make_user, walk_recording, cls) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    _, tok = make_user()
+    api = PednavClient(token=tok, http=client)
+    res = cls(walk_recording, batch_seconds=1.0).run(api)
+    assert api.session(res.session_id)["device_kind"] == cls.kind
+    stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")
+    assert len(stored) == len(res.configs)
+    gyro_states = {c["gyro_on"] for _, c in res.configs}
+    rates = {c["acc_rate_hz"] for _, c in res.configs}
+    # the scenario makes the scheduler switch: otherwise this test would prove nothing
+    assert gyro_states == {True, False} and len(rates) > 1
+    native = walk_recording.batch.rate_hz("acc")
+    steady = 0
+    for k, ((t0, cfg), b) in enumerate(zip(res.configs, stored)):
+        if not cfg["gyro_on"]:
+            assert b["n_gyr"] == 0
+        else:
+            assert b["n_gyr"] > 0
+        # full 1-s batches under an unchanged command: the accelerometer count follows the commanded rate
+        # (native / integer factor); batches right after a change lose the anti-aliasing filter's delay
+        factor = max(1, round(native / cfg["acc_rate_hz"]))
+        if 0 < k < len(stored) - 1 and res.configs[k - 1][1] == cfg:
+            steady += 1
+            assert abs(b["n_acc"] - native / factor) <= 1, (cfg, b)
+            if cfg["mag_rate_hz"] > 0:
+                assert abs(b["n_mag"] - native / max(1, round(native / cfg["mag_rate_hz"]))) <= 1
+            else:
+                assert b["n_mag"] == 0
+    assert steady > len(stored) / 2
+    assert sum(b["n_acc"] for b in stored) == res.samples_sent["acc"]
+    assert 0.0 < res.gyro_on_fraction < 1.0
+
+
+def test_simulator_for_kinds(walk_recording) -> None:  # type: ignore[no-untyped-def]
+    assert isinstance(simulator_for("watch", walk_recording), WatchSimulator)
+    with pytest.raises(ValueError):
+        simulator_for("toaster", walk_recording)
+    with pytest.raises(ValueError):
+        FootSensorSimulator(walk_recording, batch_seconds=0)
