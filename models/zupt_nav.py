@@ -37,18 +37,18 @@ class ZuptConfig:
     sigma_a: float = 0.01
     sigma_w: float = 0.1 * math.pi / 180.0
     half_window_s: float = 0.011
-    gamma0: float = 3.0e5
-    gamma_exp: float = 0.5
-    intensity_tau_s: float = 1.5
+    gamma0: float = 1.5e5
+    gamma_exp: float = 2.0
+    intensity_tau_s: float = 3.0
     intensity_ref: float = 3.0e7
-    gamma_min: float = 1.0e2
+    gamma_min: float = 1.0e3
     gamma_max: float = 1.0e10
     hysteresis: float = 1.0
     gravity: float = 9.8
     acc_psd: float = 0.5**2 * 0.005
     gyr_psd: float = (0.5 * math.pi / 180.0) ** 2 * 0.005
     ba_psd: float = 1e-6
-    bg_psd: float = 1e-9
+    bg_psd: float = 1e-12
     zupt_sigma: float = 0.01
     zaru_sigma: float = 0.5 * math.pi / 180.0
     zaru_on: bool = False
@@ -63,7 +63,7 @@ class ZuptConfig:
     p0_tilt: float = 1.0 * math.pi / 180.0
     p0_yaw: float = 1.0 * math.pi / 180.0
     p0_ba: float = 0.05
-    p0_bg: float = 0.2 * math.pi / 180.0
+    p0_bg: float = 2e-4  # rad/s: trust the initial-rest gyro bias (re-estimating it via ZUPT hurt on real data)
     min_stance_s: float = 0.02
     first_order: bool = False
 
