@@ -26,6 +26,8 @@ from models.zupt_nav import Stance
 __all__ = ["GaitPipeline"]
 
 _PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance closer than this are the same stance
+_MAG_WINDOW_S = 0.12  # field averaged over this quiet window before a stance onset [s]
+_MAG_KEEP_S = 2.0  # low-rate field samples kept (>> the segmenter's look-ahead) [s]
 _MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
 
@@ -93,6 +95,7 @@ class GaitPipeline:
         self.queue: list[StepEvent] = []
         self._mag_t = np.zeros(0)
         self._mag_v = np.zeros((0, 3))
+        self.stance_mag: dict[int, np.ndarray | None] = {}
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
         self.t_switch = math.inf  # steps after this time are dead-reckoned
         self.compass_steps = 0
@@ -106,15 +109,24 @@ class GaitPipeline:
         lt, lx = self._low.process(t_s, x)
         if not len(lt):
             return
-        self.queue.extend(self._seg.feed(lt, lx[:, :3]))
         valid = lx[:, 6] > 0.999
-        self._mag_t = np.concatenate([self._mag_t, lt[valid]])[-64:]
-        self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])[-64:]
+        self._mag_t = np.concatenate([self._mag_t, lt[valid]])
+        self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
+        for e in self._seg.feed(lt, lx[:, :3]):
+            self.queue.append(e)
+            self.stance_mag[e.index] = self._mag_before(e.t_s)
+        keep = self._mag_t >= lt[-1] - _MAG_KEEP_S
+        self._mag_t, self._mag_v = self._mag_t[keep], self._mag_v[keep]
+        live = {e.index for e in self.queue}
+        self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
 
-    def mag_at(self, t_s: float) -> np.ndarray | None:
-        """Mean field over the quiet window after a stance onset [uT], or None without magnetometer."""
-        m = (self._mag_t >= t_s - 0.02) & (self._mag_t <= t_s + 0.12)
+    def _mag_before(self, t_s: float) -> np.ndarray | None:
+        """Mean field over the quiet window ending at a stance onset [uT]; None without magnetometer."""
+        m = (self._mag_t >= t_s - _MAG_WINDOW_S) & (self._mag_t <= t_s)
         return self._mag_v[m].mean(axis=0) if np.any(m) else None
+
+    def mag_at(self, e: StepEvent) -> np.ndarray | None:
+        return self.stance_mag.get(e.index)
 
     # ------------------------------------------------------------------ calibration while the ZUPT-KF runs
     def learn(self, st: Stance, behaviour: str) -> None:
@@ -124,7 +136,7 @@ class GaitPipeline:
         self.queue = [q for q in self.queue if q.t_s > st.t_start_s + _PAIR_TOL_S]  # later stances stay queued
         if e is None:
             return
-        m = self.mag_at(e.t_s)
+        m = self.mag_at(e)
         if m is not None:
             self.mag.add(np.asarray(e.acc_stance), m, float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
@@ -134,7 +146,14 @@ class GaitPipeline:
         self.kf2[behaviour].update(wrap_angle(gamma - float(st.heading)), dt=e.period_s)  # 004 eq. (19)
 
     def ready(self, behaviour: str) -> bool:
-        return self.cal.n_pairs(behaviour if behaviour in _BEHAVIOURS else "walk") >= self.cal.min_pairs
+        """Enough calibration steps, and a calibrated compass when a magnetometer is there.
+
+        With a magnetometer the hand-over waits until the stances span enough headings for the
+        hard-iron fit (otherwise Gait-DR would have to hold one heading through every turn).
+        """
+        if self.cal.n_pairs(behaviour if behaviour in _BEHAVIOURS else "walk") < self.cal.min_pairs:
+            return False
+        return self.mag.fit() if self._mag_t.size else True
 
     def fit(self, behaviour: str) -> dict:
         self.mag.fit()
@@ -161,7 +180,7 @@ class GaitPipeline:
             b = label_at(e.t_s)
             b = b if b in _BEHAVIOURS else "walk"
             d, _ = self.cal.predict(b, _features(e))
-            m = self.mag_at(e.t_s)
+            m = self.mag_at(e)
             acc_st = np.asarray(e.acc_stance)
             if m is not None and self.mag.ready and not self.mag.disturbed(acc_st, m):
                 self.heading = self.mag.heading(acc_st, m)
@@ -185,6 +204,7 @@ class GaitPipeline:
             "queue": [[e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, float(e.after_rest), e.index]
                       for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v,
+            "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "heading": self.heading, "t_switch": self.t_switch,
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
         }
@@ -201,6 +221,7 @@ class GaitPipeline:
         obj.queue = [StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), bool(q[9]), int(q[10])) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
+        obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.heading, obj.t_switch = float(d["heading"]), float(d["t_switch"])
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         return obj
