@@ -323,7 +323,15 @@ def _plan(scn: Scenario, rng: np.random.Generator) -> tuple[_Strides, list[tuple
             pos = pos + length * np.array([np.cos(yaw + dyaw / 2), np.sin(yaw + dyaw / 2), 0.0])
             yaw += dyaw
             t += period
-        # The gait lasts until the last heel strike; the remaining time is a rest (the person stops).
+        # The gait lasts until the last heel strike; the remaining time is a rest (the person stops). Starting
+        # from standing, the gait begins at the first toe-off (the first flat-foot phase is still standing).
+        if n and (not labels or labels[-1][2] == "stand"):
+            first_toe_off = st.t0[len(st.t0) - n]
+            if labels and labels[-1][2] == "stand":
+                labels[-1] = (labels[-1][0], first_toe_off, "stand")
+            else:
+                labels.append((seg_start, first_toe_off, "stand"))
+            seg_start = first_toe_off
         labels.append((seg_start, t, BEHAVIOUR_OF[seg.kind]))
         if t_end > t:
             labels.append((t, t_end, "stand"))

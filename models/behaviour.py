@@ -40,6 +40,7 @@ LABELS: tuple[str, ...] = ("stand", "walk", "run", "other")
 G = 9.80665  # m/s^2
 WINDOW_S = 3.0  # s, feature window (>= 2 walking strides)
 HOP_S = 0.25  # s, decision interval
+STANCE_WINDOW_S = 2.75  # s, the duty factor looks at the most recent ~2-3 strides (fast walk <-> run changes)
 STILL_WINDOW_S = 1.0  # s, the stand test looks at the most recent second only (fast wake / fast sleep)
 HYSTERESIS = 3  # consecutive decisions a new label needs (0.5 s beyond the first)
 STANCE_TOL = 1.5  # m/s^2, | |a| - g | below this counts as foot at rest
@@ -128,7 +129,7 @@ def _gait_stance_fraction(t: np.ndarray, rest: np.ndarray) -> float:
     for a, b in zip(edges[::2], edges[1::2]):
         if t[b - 1] - t[a] > MAX_STANCE_S:
             keep[a:b] = False
-    if np.count_nonzero(keep) < 0.25 * rest.size:
+    if np.count_nonzero(keep) < 0.25 * rest.size or np.count_nonzero(keep) < 3:
         return 1.0
     return float(np.mean(rest[keep]))
 
@@ -150,7 +151,8 @@ def window_features(t_s: np.ndarray, acc_norm: np.ndarray) -> WindowFeatures:
     energy = float(np.mean((x - G) ** 2))
     recent = x[t >= t[-1] - STILL_WINDOW_S]
     still = float(recent.std()) if recent.size > 1 else 0.0
-    stance = _gait_stance_fraction(t, np.abs(x - G) < STANCE_TOL)
+    rs = t >= t[-1] - STANCE_WINDOW_S
+    stance = _gait_stance_fraction(t[rs], np.abs(x[rs] - G) < STANCE_TOL)
     fs = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else float("nan")
     period, periodicity = _stride_period(x - dc, fs) if np.isfinite(fs) else (float("nan"), 0.0)
     return WindowFeatures(dc, var, energy, still, stance, period, periodicity)

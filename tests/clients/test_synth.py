@@ -1,0 +1,146 @@
+"""Synthesiser: determinism, physical consistency (strapdown reproduces truth), realism vs real recordings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from clients.recording import Recording
+from clients.synth import LSM9DS1, Scenario, Segment, SensorErrors, scenario_names, synthesize
+
+G = 9.80665
+ZERO_ERRORS = SensorErrors(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("name", ["walk", "run", "demo", "mixed-day"])
+def test_named_scenarios(name):
+    assert {"walk", "run", "demo", "mixed-day"} <= set(scenario_names())
+    r = synthesize(name, seed=0)
+    assert isinstance(r, Recording)
+    r.batch.validate()
+    n = len(r.batch)
+    assert r.truth.positions.shape == (n, 3)
+    assert r.truth.extra["behaviour"].shape == (n,)
+    assert set(np.unique(r.truth.extra["behaviour"])) <= {"stand", "walk", "run", "other"}
+    assert len(r.truth.extra["step_t_s"]) == len(r.truth.extra["step_lengths_m"])
+
+
+def test_mixed_day_content():
+    r = synthesize("mixed-day", seed=0)
+    b = set(r.truth.extra["behaviour"])
+    assert {"stand", "walk", "run"} <= b
+    assert r.truth.extra["steel_intervals"]
+    assert 120.0 <= (r.batch.t_end_ns - r.batch.t_start_ns) / 1e9 <= 900.0
+    heading = r.truth.extra["heading_rad"]
+    assert np.ptp(heading) >= np.pi / 2  # turns
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_deterministic_from_seed(seed):
+    a, b = synthesize("demo", seed=seed), synthesize("demo", seed=seed)
+    c = synthesize("demo", seed=seed + 1)
+    np.testing.assert_array_equal(a.batch.acc, b.batch.acc)
+    np.testing.assert_array_equal(a.batch.gyr, b.batch.gyr)
+    np.testing.assert_array_equal(a.truth.positions, b.truth.positions)
+    assert not np.array_equal(a.batch.acc[: len(c.batch)][:1000], c.batch.acc[:1000])
+
+
+def test_stance_is_at_rest():
+    r = synthesize("walk", seed=1, errors=ZERO_ERRORS)
+    st = r.truth.extra["stance"]
+    v = r.truth.extra["velocity"]
+    assert np.all(v[st] == 0.0)
+    np.testing.assert_allclose(np.linalg.norm(r.batch.acc[st], axis=1), G, atol=1e-9)
+    np.testing.assert_allclose(r.batch.gyr[st], 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind,turn", [("walk", 0.0), ("walk_fast", 90.0), ("run", -90.0), ("walk_slow", 45.0)])
+def test_strapdown_reproduces_truth(kind, turn):
+    """Integrating the noise-free specific force and angular rate from each stance gives the next stance."""
+    rate = 200.0
+    scn = Scenario("t", (Segment("stand", 1.0), Segment(kind, 6.0, turn), Segment("stand", 1.0)))
+    r = synthesize(scn, seed=0, rate_hz=rate, errors=ZERO_ERRORS)
+    f, w, tr = r.batch.acc, r.batch.gyr, r.truth
+    e = tr.extra["attitude_euler"]
+    st = tr.extra["stance"]
+    starts = np.flatnonzero(st[:-1] & ~st[1:])  # last stance sample before each swing
+    assert len(starts) >= 4
+    dt = 1.0 / rate
+    for i0 in starts:
+        i1 = i0 + 1 + np.argmax(st[i0 + 1 :])  # first stance sample after the swing
+        c = Rotation.from_euler("ZYX", [e[i0, 2], e[i0, 1], e[i0, 0]]).as_matrix()
+        p, v = tr.positions[i0].copy(), np.zeros(3)
+        for i in range(i0, i1):
+            a0 = c @ f[i] + [0, 0, G]
+            c1 = c @ Rotation.from_rotvec(0.5 * (w[i] + w[i + 1]) * dt).as_matrix()
+            a1 = c1 @ f[i + 1] + [0, 0, G]
+            p += v * dt + (2 * a0 + a1) / 6 * dt * dt
+            v += 0.5 * (a0 + a1) * dt
+            c = c1
+        assert np.linalg.norm(p - tr.positions[i1]) < 0.005, "position after one swing off by >= 5 mm"
+        assert np.linalg.norm(v) < 0.01
+        ct = Rotation.from_euler("ZYX", [e[i1, 2], e[i1, 1], e[i1, 0]]).as_matrix()
+        assert np.degrees(np.linalg.norm(Rotation.from_matrix(ct.T @ c).as_rotvec())) < 0.05
+
+
+def test_noise_matches_datasheet():
+    """White noise at rest has the 002 Table 3 density (sigma = density x sqrt(rate))."""
+    r = synthesize("stand", seed=2)
+    acc = r.batch.acc - r.batch.acc.mean(axis=0)
+    gyr = r.batch.gyr - r.batch.gyr.mean(axis=0)
+    rate = r.meta.rate_hz
+    np.testing.assert_allclose(acc.std(axis=0), LSM9DS1.acc_noise_density * np.sqrt(rate), rtol=0.1)
+    np.testing.assert_allclose(gyr.std(axis=0), LSM9DS1.gyr_noise_density * np.sqrt(rate), rtol=0.1)
+    mag = np.linalg.norm(r.batch.mag, axis=1)
+    assert 20.0 <= np.median(mag) <= 70.0
+
+
+# ------------------------------------------------------------------ realism against the real recordings
+def _gait_stats(t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray) -> dict[str, float]:
+    """Over the moving part (1-s std of |a| > 1 m/s^2): |a|~g fraction, p99 |a|, p99 |w|."""
+    n = np.linalg.norm(acc, axis=1)
+    fs = 1.0 / np.median(np.diff(t_s))
+    k = max(3, int(fs))
+    pad = np.pad(n, (k // 2, k - k // 2 - 1), mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(pad, k)
+    moving = win.std(axis=1) > 1.0
+    return {
+        "stance": float(np.mean(np.abs(n[moving] - G) < 1.5)),
+        "p99_acc": float(np.percentile(n[moving], 99)),
+        "p99_gyr": float(np.percentile(np.linalg.norm(gyr[moving], axis=1), 99)),
+    }
+
+
+@pytest.fixture(scope="module")
+def real_ranges(vicon_dir, gdin_dir):
+    """Per class (walk, run), min/max of each statistic over the real recordings."""
+    import re
+
+    from clients.importers import list_recordings, load
+
+    labels = {}
+    for line in (vicon_dir / "ABOUT.md").read_text().splitlines():
+        m = re.match(r"\| (20\d\d-[\d-]+) \| [\d.]+ \| [\d.]+ \| ([^|]+) \|", line)
+        if m:
+            labels[m.group(1)] = m.group(2).strip()
+    stats: dict[str, list[dict[str, float]]] = {"walk": [], "run": []}
+    for name, lab in labels.items():
+        cls = "walk" if lab.startswith("walk") else "run" if lab.startswith("run") else None
+        if cls:
+            r = load(vicon_dir / f"{name}.mat")
+            stats[cls].append(_gait_stats(r.batch.acc_t_ns / 1e9, r.batch.acc, r.batch.gyr))
+    for p in list_recordings(gdin_dir)[:8]:  # walking recordings (a subset keeps the test short)
+        r = load(p)
+        stats["walk"].append(_gait_stats(r.batch.acc_t_ns / 1e9, r.batch.acc, r.batch.gyr))
+    return {c: {k: (min(s[k] for s in v), max(s[k] for s in v)) for k in v[0]} for c, v in stats.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cls,scenario", [("walk", "walk"), ("run", "run")])
+def test_synthetic_gait_within_real_ranges(real_ranges, cls, scenario):
+    r = synthesize(scenario, seed=0)
+    s = _gait_stats(r.batch.acc_t_ns / 1e9, r.batch.acc, r.batch.gyr)
+    for k, (lo, hi) in real_ranges[cls].items():
+        print(f"{cls} {k}: synthetic {s[k]:.2f}, real {lo:.2f} .. {hi:.2f}")
+        assert lo <= s[k] <= hi, f"{cls} {k} = {s[k]:.2f} outside the real range {lo:.2f} .. {hi:.2f}"
