@@ -60,9 +60,13 @@ def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None
 
     res = replay(Engine(mode="auto", trace=True), rec.batch, batch_seconds=batch_seconds)  # type: ignore[attr-defined]
     tr = res.trace
-    t = (tr.t_ns - tr.t_ns[0]) / 1e9
+    t_origin = int(rec.batch.t_start_ns)  # type: ignore[attr-defined]
+    t = (tr.t_ns - t_origin) / 1e9
     truth_b = rec.truth.extra["behaviour"]  # type: ignore[attr-defined]
-    tt = (rec.truth.t_ns - rec.truth.t_ns[0]) / 1e9  # type: ignore[attr-defined]
+    tt = (rec.truth.t_ns - t_origin) / 1e9  # type: ignore[attr-defined]
+    tc = np.array([(t0 - t_origin) / 1e9 for t0, _ in res.configs])
+    gyro_cfg = np.array([float(c.gyro_on) for _, c in res.configs])
+    rate_cfg = np.array([c.acc_rate_hz for _, c in res.configs])
     cats = ["stand", "walk", "run", "other"]
     fig, ax = plt.subplots(4, 1, figsize=(11, 7), sharex=True)
     ax[0].plot(tt, [cats.index(b) for b in truth_b], "k-", lw=1, label="truth")
@@ -72,9 +76,9 @@ def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None
     modes = ["idle", "pdr", "zupt"]
     ax[1].plot(t, [modes.index(str(m)) if str(m) in modes else -1 for m in tr.mode], "b.", ms=1)
     ax[1].set_yticks(range(3), modes)
-    ax[2].plot(t, np.asarray(tr.gyro_on, dtype=float), "g-")
+    ax[2].step(tc, gyro_cfg, "g-", where="post")
     ax[2].set_ylabel("gyro on")
-    ax[3].plot(t[1:], 1.0 / np.maximum(np.diff(t), 1e-6), "m.", ms=1)
+    ax[3].step(tc, rate_cfg, "m-", where="post")
     ax[3].set_ylabel("acc rate [Hz]")
     ax[3].set_xlabel("time [s]")
     fig.tight_layout()
