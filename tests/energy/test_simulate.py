@@ -37,6 +37,7 @@ def demo_doc():
     return simulate(*args), simulate(*args)
 
 
+@pytest.mark.slow
 def test_simulation_is_deterministic_and_adds_up(demo_doc):
     a, b = demo_doc
     for run in ("scheduler", "baseline"):
@@ -47,12 +48,14 @@ def test_simulation_is_deterministic_and_adds_up(demo_doc):
     assert a["position_error_m"] == b["position_error_m"]
 
 
+@pytest.mark.slow
 def test_baseline_is_always_on(demo_doc):
     a, _ = demo_doc
     assert a["baseline"]["gyro_on_fraction"] == pytest.approx(1.0, abs=0.01)
     assert a["baseline"]["mean_rate_hz"] == pytest.approx(200.0, rel=0.01)
 
 
+@pytest.mark.slow
 def test_scheduler_saves_energy(demo_doc):
     """The scheduler must not cost more than the always-on baseline (the issue's <= 25 % is reported, not asserted here)."""
     a, _ = demo_doc
