@@ -1,0 +1,97 @@
+"""``pednav replay FILE``: stream a recording through the HTTP API or a local engine (same positions)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register", "load_recording", "replay_local", "replay_server"]
+
+
+def load_recording(spec: str):  # type: ignore[no-untyped-def]
+    """A file of any importable format, or a synthetic scenario name (``clients.synth.scenario_names()``)."""
+    if Path(spec).exists():
+        from clients.importers import load
+
+        return load(spec)
+    from clients.synth import scenario_names, synthesize
+
+    if spec in scenario_names():
+        return synthesize(spec)
+    raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(scenario_names())})")
+
+
+def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int) -> dict[str, Any]:
+    n = len(rows)
+    modes: dict[str, float] = {}
+    for r in rows:
+        modes[r[5]] = modes.get(r[5], 0) + 1
+    return {
+        "positions": [[(t - t0_ns) / 1e9, nn, e, d] for t, nn, e, d, _, _, _ in rows],
+        "labels": [[b, m, bool(g)] for _, _, _, _, b, m, g in rows],
+        "modes": {k: v / n for k, v in sorted(modes.items())} if n else {},
+    }
+
+
+def replay_local(rec, batch_seconds: float, mode: str = "auto") -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """Device emulation through a local engine (no server)."""
+    from energy.device import replay
+    from energy.engine import Engine
+
+    res = replay(Engine(mode=mode), rec.batch, batch_seconds)  # type: ignore[arg-type]
+    rows = [(p.t_ns, p.north, p.east, p.down, p.behaviour, p.mode, p.gyro_on) for p in res.positions]
+    return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction}
+
+
+def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot") -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """The same device emulation, streamed through the HTTP API (lossless msgpack bodies)."""
+    from clients.sdk import PednavClient
+    from clients.simulators import simulator_for
+
+    with PednavClient(server, token, encoding="msgpack", float_dtype="<f8") as api:
+        res = simulator_for(device, rec, batch_seconds).run(api)
+    rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in res.positions]
+    return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, "session_id": res.session_id}
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        rec = load_recording(args.file)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    if args.server:
+        token = args.token or os.environ.get("PEDNAV_TOKEN")
+        if not token:
+            print("error: --token (or PEDNAV_TOKEN) is required with --server", file=sys.stderr)
+            return 2
+        doc = replay_server(rec, args.server, token, args.batch_seconds, args.device)
+    else:
+        doc = replay_local(rec, args.batch_seconds, args.mode)
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        print(f"{rec.name}: {len(doc['positions'])} positions, modes {doc['modes']}, gyro on {doc['gyro_on_fraction']:.0%}")
+        if doc["positions"]:
+            t, n, e, d = doc["positions"][-1]
+            print(f"final position at t={t:.1f} s: north {n:.2f} m, east {e:.2f} m, down {d:.2f} m")
+        if "session_id" in doc:
+            print(f"session {doc['session_id']}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("replay", help="stream a recording through the API (--server) or a local engine")
+    p.add_argument("file", help="recording file (any importable format) or synthetic scenario name")
+    p.add_argument("--server", default=None, help="server URL, e.g. http://127.0.0.1:8000 (default: local engine)")
+    p.add_argument("--token", default=None, help="bearer token (default PEDNAV_TOKEN)")
+    p.add_argument("--batch-seconds", type=float, default=1.0, help="seconds per uploaded batch (default 1)")
+    p.add_argument("--device", choices=("foot", "phone", "watch"), default="foot", help="device kind of the session")
+    p.add_argument("--mode", choices=("auto", "zupt", "pdr"), default="auto",
+                   help="local engine mode (the server uses its own configured mode)")
+    p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.set_defaults(func=_run)
