@@ -23,7 +23,7 @@ from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
-from models.zupt_nav import ZuptNavigator
+from models.zupt_nav import NavOutput, ZuptNavigator
 
 __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-exported from energy.config
 
@@ -269,11 +269,18 @@ class Engine:
                 out = self._nav.flush()
             else:
                 ts, a_, g_, m_ = t_s[has_gyr], acc[has_gyr], gyr[has_gyr], mag[has_gyr]
-                if len(ts) and ts[0] - self._last_gyr_s > _GYRO_GAP_S and self._nav.initialised:
-                    self._nav.reset(self._nav.position, self._nav.heading)  # gyro was off (standing): re-seat
+                gaps = np.flatnonzero(np.diff(np.r_[self._last_gyr_s, ts]) > _GYRO_GAP_S)
+                parts = []
+                for lo, hi in zip(np.r_[0, gaps], np.r_[gaps, len(ts)]):
+                    if hi <= lo:
+                        continue
+                    if lo in gaps and self._nav.initialised:
+                        self._nav.reset(self._nav.position, self._nav.heading)  # gyro was off (standing): re-seat
+                    mm = m_[lo:hi]
+                    parts.append(self._nav.process(ts[lo:hi], a_[lo:hi], g_[lo:hi], mm if np.any(~np.isnan(mm[:, 0])) else None))
                 if len(ts):
                     self._last_gyr_s = float(ts[-1])
-                out = self._nav.process(ts, a_, g_, m_ if np.any(~np.isnan(m_[:, 0])) else None)
+                out = NavOutput.concatenate(parts)
             for st in out.stances:
                 label = self._labels.at(st.t_end_s)
                 d = st.step_length

@@ -44,19 +44,36 @@ class _LowRate:
         self.in_rate_hz = 0.0
         self.dec: Decimator | None = None
         self.last_t = -math.inf
+        self.prev_t = -math.inf
 
     def process(self, t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Samples at the low rate: runs faster than 1.6 x the rate are decimated, slower runs pass through.
+
+        The decision is per sample (its spacing to the previous one), so a batch that mixes the full and the
+        de-sampled rate gives the same output whether it arrives in one piece or in many.
+        """
         if len(t_s) == 0:
             return t_s, x
-        dt = float(np.median(np.diff(t_s))) if len(t_s) > 2 else (1.0 / self.in_rate_hz if self.in_rate_hz else 1.0 / self.rate_hz)
-        in_rate = 1.0 / dt if dt > 0 else self.rate_hz
-        factor = max(1, int(round(in_rate / self.rate_hz)))
-        if self.dec is None or factor != self.dec.factor:
-            self.dec = Decimator(self.rate_hz * factor, self.rate_hz, channels=x.shape[1])
-            self.in_rate_hz = self.rate_hz * factor
-        t_ns = np.round(t_s * 1e9).astype(np.int64)
-        out_t, out_x = self.dec.process(t_ns, x)
-        out_s = out_t / 1e9
+        prev = np.concatenate([[self.prev_t], t_s[:-1]])
+        fast = (t_s - prev) < 1.0 / (1.6 * self.rate_hz)
+        outs_t, outs_x = [], []
+        edges = np.flatnonzero(np.diff(fast.astype(np.int8))) + 1
+        for lo, hi in zip(np.r_[0, edges], np.r_[edges, len(t_s)]):
+            if fast[lo]:
+                dt = float(np.median(np.diff(np.r_[prev[lo], t_s[lo:hi]])))
+                factor = max(1, int(round(1.0 / (dt * self.rate_hz))))
+                if self.dec is None or factor != self.dec.factor:
+                    self.dec = Decimator(self.rate_hz * factor, self.rate_hz, channels=x.shape[1])
+                    self.in_rate_hz = self.rate_hz * factor
+                ot, ox = self.dec.process(np.round(t_s[lo:hi] * 1e9).astype(np.int64), x[lo:hi])
+                outs_t.append(ot / 1e9)
+                outs_x.append(ox)
+            else:
+                self.dec = None  # a slow run already is at (or below) the low rate
+                outs_t.append(t_s[lo:hi])
+                outs_x.append(x[lo:hi])
+        self.prev_t = float(t_s[-1])
+        out_s, out_x = np.concatenate(outs_t), np.concatenate(outs_x)
         keep = out_s > self.last_t
         out_s, out_x = out_s[keep], out_x[keep]
         if len(out_s):
@@ -64,13 +81,13 @@ class _LowRate:
         return out_s, out_x
 
     def get_state(self) -> dict[str, Any]:
-        return {"rate_hz": self.rate_hz, "in_rate_hz": self.in_rate_hz, "last_t": self.last_t,
+        return {"rate_hz": self.rate_hz, "in_rate_hz": self.in_rate_hz, "last_t": self.last_t, "prev_t": self.prev_t,
                 "dec": None if self.dec is None else self.dec.get_state()}
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> _LowRate:
         obj = cls(d["rate_hz"])
-        obj.in_rate_hz, obj.last_t = float(d["in_rate_hz"]), float(d["last_t"])
+        obj.in_rate_hz, obj.last_t, obj.prev_t = float(d["in_rate_hz"]), float(d["last_t"]), float(d["prev_t"])
         obj.dec = None if d["dec"] is None else Decimator.from_state(d["dec"])
         return obj
 
