@@ -68,6 +68,19 @@ PAR = {
             "p0_bg",  # [rad/s]
             "min_stance_s",  # shortest stance reported as a stance [s]
             "first_order",  # 1 = first-order attitude update I + [w x] dt (for comparison only)
+            "align_gamma",  # fixed (strict) SHOE threshold for the initial rest used by the alignment
+            "zaru_gamma",  # ZARU only where the statistic is below this (truly still foot)
+            "bias_from_rest",  # > 0: initial gyro bias = mean rate over the rest shrunk by d / (d + bias_shrink_s)
+            "bias_shrink_s",  # [s] prior weight of a zero bias (short, restless initial rests say little)
+            "erosion_s",  # [s] the statistic is the max over +-erosion_s (shrinks stances at their edges)
+            "hdr_on",  # heuristic drift reduction: straight strides keep the segment's heading
+            "hdr_sigma",  # [rad] noise of that pseudo-measurement
+            "hdr_delta",  # [rad] a stride within this of the segment heading counts as straight
+            "hdr_min_stride",  # [m] shorter horizontal strides are ignored
+            "hdr_min_n",  # consistent strides needed before the aid applies
+            "dom_on",  # snap straight segments to dominant directions (iHDE, indoor buildings)
+            "dom_delta",  # [rad] snap only segments within this of a dominant direction
+            "intensity_mode",  # 0 = decaying peak of the statistic, 1 = exp. mean of log10 statistic, 2 = decaying peak |a|
         )
     )
 }
@@ -96,6 +109,10 @@ FS = {
             "n_align_used",  # samples used by the initial alignment
             "st_n",  # samples in the current stance
             "n_mag_used",  # magnetic heading updates applied
+            "hdr_ref",  # heading of the current straight segment [rad]
+            "hdr_n",  # consecutive strides consistent with it
+            "dom_ref",  # first straight segment's heading: building dominant directions are dom_ref + k*90 deg
+            "dom_valid",
         )
     )
 }
@@ -110,7 +127,7 @@ N_ST = len(ST_COLS)
 
 _SA, _SW, _HW, _G0, _GE, _ITAU, _IREF, _GMIN, _GMAX, _HYS, _GRAV = range(11)
 _QA, _QG, _QBA, _QBG, _RZ, _RW, _ZARU, _MAGON, _RMAG, _DMAG, _DINC, _MGATE = range(11, 23)
-_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO = range(23, 32)
+_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _IMODE = range(23, 45)
 
 
 @njit(cache=True)
@@ -354,7 +371,7 @@ def _heading_row(C):
 
 
 @njit(cache=True)
-def _align(x, P, fs, par, has_mag):
+def _align(x, P, fs, par, has_mag, dur):
     """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD)."""
     n = fs[11]
     fb = np.array([fs[2] / n, fs[3] / n, fs[4] / n])
@@ -381,9 +398,10 @@ def _align(x, P, fs, par, has_mag):
     x[0:4] = q
     x[4:10] = 0.0
     x[10:13] = 0.0
-    x[13] = fs[5] / n
-    x[14] = fs[6] / n
-    x[15] = fs[7] / n
+    use_b = dur / (dur + par[_BSHR]) if par[_BREST] > 0 else 0.0
+    x[13] = use_b * fs[5] / n
+    x[14] = use_b * fs[6] / n
+    x[15] = use_b * fs[7] / n
     P[:, :] = 0.0
     for k in range(3):
         P[9 + k, 9 + k] = par[_P0BA] ** 2
@@ -399,6 +417,76 @@ def _align(x, P, fs, par, has_mag):
         fs[24] = mn[1]
         fs[25] = mn[2]
         fs[26] = 1.0
+
+
+@njit(cache=True)
+def _shoe_at(i, t, acc, gyr, hw, g, sa2, sw2):
+    """SHOE statistic of sample i over the samples within +-hw [s] (at least one neighbour each side)."""
+    n_all = t.shape[0]
+    j0 = i - 1 if i > 0 else 0
+    while j0 > 0 and t[i] - t[j0 - 1] <= hw:
+        j0 -= 1
+    j1 = i + 1 if i + 1 < n_all else i
+    while j1 + 1 < n_all and t[j1 + 1] - t[i] <= hw:
+        j1 += 1
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for j in range(j0, j1 + 1):
+        m0 += acc[j, 0]
+        m1 += acc[j, 1]
+        m2 += acc[j, 2]
+    nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if nm > 0:
+        m0 /= nm
+        m1 /= nm
+        m2 /= nm
+    T = 0.0
+    for j in range(j0, j1 + 1):
+        r0 = acc[j, 0] - g * m0
+        r1 = acc[j, 1] - g * m1
+        r2 = acc[j, 2] - g * m2
+        T += (r0 * r0 + r1 * r1 + r2 * r2) / sa2 + (gyr[j, 0] ** 2 + gyr[j, 1] ** 2 + gyr[j, 2] ** 2) / sw2
+    return T / (j1 - j0 + 1)
+
+
+@njit(cache=True)
+def _hdr(x, P, dx, fs, par):
+    """Heuristic drift reduction (003 Sec. drift reduction; Borenstein's HDR): while strides keep one
+    direction, the heading is pulled back to that segment's direction; a turn starts a new segment."""
+    dn = x[7] - fs[15]
+    de = x[8] - fs[16]
+    if math.sqrt(dn * dn + de * de) < par[_HDRL]:
+        return
+    psi = math.atan2(de, dn)
+    d = psi - fs[30]
+    d = (d + math.pi) % (2 * math.pi) - math.pi
+    if fs[31] > 0 and abs(d) < par[_HDRD]:
+        fs[31] += 1
+        if fs[31] == par[_HDRN] + 1 and par[_DOM] > 0:
+            # a segment just became straight: snap its reference to the nearest dominant direction
+            if fs[33] == 0:
+                fs[32] = fs[30]
+                fs[33] = 1.0
+            else:
+                k = round((fs[30] - fs[32]) / (0.5 * math.pi))
+                dom = fs[32] + k * 0.5 * math.pi
+                dd = (fs[30] - dom + math.pi) % (2 * math.pi) - math.pi
+                if abs(dd) < par[_DOMD]:
+                    fs[30] = fs[30] - dd
+                    d = psi - fs[30]
+                    d = (d + math.pi) % (2 * math.pi) - math.pi
+        if fs[31] > par[_HDRN]:
+            C = quat_dcm_s(x[0:4])
+            h = _heading_row(C)
+            if _update_scalar(P, dx, h, -d, par[_HDRS] ** 2, 0.0):
+                _apply_correction(x, dx)
+        # follow slow curvature of the segment (not once it is locked to a dominant direction)
+        if par[_DOM] == 0 or fs[31] <= par[_HDRN]:
+            fs[30] = fs[30] + 0.1 * d
+    else:
+        fs[30] = psi
+        fs[31] = 1.0
 
 
 @njit(cache=True)
@@ -418,47 +506,52 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
     g = par[_GRAV]
     sa2 = par[_SA] ** 2
     sw2 = par[_SW] ** 2
+    ew = par[_EROS]
     dx = np.zeros(15)
     n_st = 0
     i = i0
     while i < n_all:
-        if not final and (i + 1 >= n_all or t[n_all - 1] <= t[i] + hw):
+        if not final and (i + 1 >= n_all or t[n_all - 1] <= t[i] + hw + ew):
             break
-        # ---- SHOE / GLRT statistic over a centred window (002 eq. 1-2) ----
-        j0 = i - 1 if i > 0 else 0
-        while j0 > 0 and t[i] - t[j0 - 1] <= hw:
-            j0 -= 1
-        j1 = i + 1 if i + 1 < n_all else i
-        while j1 + 1 < n_all and t[j1 + 1] - t[i] <= hw:
-            j1 += 1
-        m0 = 0.0
-        m1 = 0.0
-        m2 = 0.0
-        for j in range(j0, j1 + 1):
-            m0 += acc[j, 0]
-            m1 += acc[j, 1]
-            m2 += acc[j, 2]
-        nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-        if nm > 0:
-            m0 /= nm
-            m1 /= nm
-            m2 /= nm
-        T = 0.0
-        for j in range(j0, j1 + 1):
-            r0 = acc[j, 0] - g * m0
-            r1 = acc[j, 1] - g * m1
-            r2 = acc[j, 2] - g * m2
-            T += (r0 * r0 + r1 * r1 + r2 * r2) / sa2 + (gyr[j, 0] ** 2 + gyr[j, 1] ** 2 + gyr[j, 2] ** 2) / sw2
-        T /= j1 - j0 + 1
+        # ---- SHOE / GLRT statistic (002 eq. 1-2), eroded: max over +-erosion_s (no ZUPT at swing edges) ----
+        T = _shoe_at(i, t, acc, gyr, hw, g, sa2, sw2)
+        if ew > 0.0:
+            j = i - 1
+            while j >= 0 and t[i] - t[j] <= ew:
+                v = _shoe_at(j, t, acc, gyr, hw, g, sa2, sw2)
+                if v > T:
+                    T = v
+                j -= 1
+            j = i + 1
+            while j < n_all and t[j] - t[i] <= ew:
+                v = _shoe_at(j, t, acc, gyr, hw, g, sa2, sw2)
+                if v > T:
+                    T = v
+                j += 1
         # ---- gait-intensity adaptive threshold with hysteresis (002 eq. 3, adapted) ----
         dt = t[i] - fs[1] if ist[3] else 0.0
         if dt > par[_MAXDT]:
             dt = par[_MAXDT]
         decay = math.exp(-dt / par[_ITAU]) if par[_ITAU] > 0 else 0.0
-        inten = fs[0] * decay
-        if T > inten:
-            inten = T
-        fs[0] = inten
+        if par[_IMODE] == 2:
+            # decaying peak of the specific-force magnitude [m/s^2]: heel-strike / push-off intensity
+            an = math.sqrt(acc[i, 0] ** 2 + acc[i, 1] ** 2 + acc[i, 2] ** 2)
+            inten = fs[0] * decay
+            if an > inten:
+                inten = an
+            fs[0] = inten
+        elif par[_IMODE] == 1:
+            # exponential mean of log10(T): a smooth gait-intensity level
+            lt = math.log10(T if T > 1.0 else 1.0)
+            if not ist[3]:
+                fs[0] = lt
+            fs[0] = decay * fs[0] + (1.0 - decay) * lt
+            inten = 10.0 ** fs[0]
+        else:
+            inten = fs[0] * decay
+            if T > inten:
+                inten = T
+            fs[0] = inten
         gam = par[_G0]
         if par[_GE] != 0.0 and inten > 0:
             gam = par[_G0] * (inten / par[_IREF]) ** par[_GE]
@@ -476,6 +569,8 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         has_m = not (math.isnan(mag[i, 0]) or math.isnan(mag[i, 1]) or math.isnan(mag[i, 2]))
         if not ist[0]:
             # ---- waiting for the initial rest: accumulate, align when it is long enough ----
+            zv = T < par[_AGAM]
+            o_zupt[k] = zv
             if zv:
                 if fs[11] == 0:
                     fs[13] = t[i]
@@ -492,7 +587,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             if not zv and not ready:
                 fs[2:13] = 0.0
             if ready:
-                _align(x, P, fs, par, par[_MAGON] > 0)
+                _align(x, P, fs, par, par[_MAGON] > 0, dur)
                 ist[0] = 1
                 ist[1] = 1
                 ist[5] = 1
@@ -561,7 +656,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             # ZUPT (004 eq. 9): z = 0 - v_est = dv
             z3 = np.array([-x[4], -x[5], -x[6]])
             _update_block3(P, dx, 3, z3, par[_RZ])
-            if par[_ZARU] > 0:
+            if par[_ZARU] > 0 and T < par[_ZGAM]:
                 # ZARU (001 eq. 34-35): measured rate minus bias estimate = d(bias)
                 z3 = np.array([gyr[i, 0] - x[13], gyr[i, 1] - x[14], gyr[i, 2] - x[15]])
                 _update_block3(P, dx, 12, z3, par[_RW])
@@ -599,6 +694,8 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                             mag_used = 1.0
                             fs[29] += 1
                 dur = t[i] - fs[13]
+                if dur >= par[_MINST] and ist[5] and par[_HDR] > 0:
+                    _hdr(x, P, dx, fs, par)
                 if dur >= par[_MINST] and n_st < st_out.shape[0]:
                     r = st_out[n_st]
                     r[0] = fs[13]
@@ -637,4 +734,28 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         o_head[k] = math.atan2(Cc[1, 0], Cc[0, 0])
         ist[2] += 1
         i += 1
+    if final and i >= n_all and ist[0] and ist[1] and n_st < st_out.shape[0] and t[n_all - 1] - fs[13] >= par[_MINST]:
+        # end of the recording inside a stance: report it (the walker stopped there)
+        r = st_out[n_st]
+        r[0] = fs[13]
+        r[1] = t[n_all - 1]
+        r[2] = x[7]
+        r[3] = x[8]
+        r[4] = x[9]
+        r[5] = fs[14]
+        r[6] = x[7] - fs[15] if ist[5] else 0.0
+        r[7] = x[8] - fs[16] if ist[5] else 0.0
+        r[8] = x[9] - fs[17] if ist[5] else 0.0
+        r[9] = fs[18]
+        r[10] = fs[28]
+        r[11] = 0.0
+        fs[15] = x[7]
+        fs[16] = x[8]
+        fs[17] = x[9]
+        fs[18] = 0.0
+        fs[13] = t[n_all - 1]
+        fs[28] = 0.0
+        ist[5] = 1
+        ist[4] += 1
+        n_st += 1
     return i, n_st

@@ -37,10 +37,10 @@ class ZuptConfig:
     sigma_a: float = 0.01
     sigma_w: float = 0.1 * math.pi / 180.0
     half_window_s: float = 0.011
-    gamma0: float = 1.5e5
-    gamma_exp: float = 2.0
-    intensity_tau_s: float = 3.0
-    intensity_ref: float = 3.0e7
+    gamma0: float = 6.0e4
+    gamma_exp: float = 2.5
+    intensity_tau_s: float = 1.5
+    intensity_ref: float = 30.0
     gamma_min: float = 1.0e3
     gamma_max: float = 1.0e10
     hysteresis: float = 1.0
@@ -66,6 +66,19 @@ class ZuptConfig:
     p0_bg: float = 2e-4  # rad/s: trust the initial-rest gyro bias (re-estimating it via ZUPT hurt on real data)
     min_stance_s: float = 0.02
     first_order: bool = False
+    align_gamma: float = 1.0e3
+    zaru_gamma: float = 1.0e3
+    bias_from_rest: bool = True
+    bias_shrink_s: float = 1.0
+    erosion_s: float = 0.0
+    hdr_on: bool = True
+    hdr_sigma: float = 0.02
+    hdr_delta: float = 0.1
+    hdr_min_stride: float = 0.3
+    hdr_min_n: float = 2.0
+    dom_on: bool = True
+    dom_delta: float = 15.0 * math.pi / 180.0
+    intensity_mode: int = 2
 
     def to_array(self) -> np.ndarray:
         """Parameter vector in the kernel's layout (:data:`models._zupt_kernel.PAR`)."""
@@ -335,9 +348,9 @@ class ZuptNavigator:
             tn = t[self._next]
         else:
             tn = t[-1]  # everything processed: the next sample's window starts after t[-1] - half window
-        keep = int(np.searchsorted(t, tn - self.config.half_window_s, side="left"))
-        keep = min(keep, self._next - 1)
-        keep = max(keep, 0)
+        # detector windows reach back half_window_s + erosion_s (and one extra sample per window level)
+        keep = int(np.searchsorted(t, tn - self.config.half_window_s - self.config.erosion_s, side="left"))
+        keep = max(min(keep, self._next) - 2, 0)
         if keep:
             self._bt = t[keep:].copy()
             self._ba = self._ba[keep:].copy()
