@@ -80,6 +80,7 @@ PAR = {
             "hdr_min_n",  # consistent strides needed before the aid applies
             "dom_on",  # snap straight segments to dominant directions (iHDE, indoor buildings)
             "dom_delta",  # [rad] snap only segments within this of a dominant direction
+            "gyr_scale_sigma",  # relative gyro scale-factor uncertainty: attitude noise grows with the turned angle
             "intensity_mode",  # 0 = decaying peak of the statistic, 1 = exp. mean of log10 statistic, 2 = decaying peak |a|
         )
     )
@@ -127,7 +128,7 @@ N_ST = len(ST_COLS)
 
 _SA, _SW, _HW, _G0, _GE, _ITAU, _IREF, _GMIN, _GMAX, _HYS, _GRAV = range(11)
 _QA, _QG, _QBA, _QBG, _RZ, _RW, _ZARU, _MAGON, _RMAG, _DMAG, _DINC, _MGATE = range(11, 23)
-_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _IMODE = range(23, 45)
+_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _GSS, _IMODE = range(23, 46)
 
 
 @njit(cache=True)
@@ -641,6 +642,12 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
         if dt > 0:
             cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
+            if par[_GSS] > 0:
+                # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
+                qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
+                P[6, 6] += qs
+                P[7, 7] += qs
+                P[8, 8] += qs
         fs[1] = t[i]
         ist[3] = 1
         # ---- stance bookkeeping and measurement updates ----

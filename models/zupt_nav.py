@@ -78,6 +78,7 @@ class ZuptConfig:
     hdr_min_n: float = 2.0
     dom_on: bool = True
     dom_delta: float = 15.0 * math.pi / 180.0
+    gyr_scale_sigma: float = 0.01
     intensity_mode: int = 2
 
     def to_array(self) -> np.ndarray:
