@@ -50,22 +50,26 @@ def shoe_statistic(
 
 
 def adaptive_threshold(
-    statistic: np.ndarray, t_s: np.ndarray, gamma0: float, gamma_exp: float, tau_s: float,
+    intensity_signal: np.ndarray, t_s: np.ndarray, gamma0: float, gamma_exp: float, tau_s: float,
     intensity_ref: float, gamma_min: float, gamma_max: float,
 ) -> np.ndarray:
     """Gait-intensity adaptive SHOE threshold (project design; reduces to 002 eq. 3 when ``gamma_exp = 0``).
 
-    The intensity ``I_k = max(T_k, I_{k-1} exp(-dt/tau))`` is the decaying peak of the statistic (swing
-    energy of the recent strides); the threshold is ``clip(gamma0 (I/intensity_ref)^gamma_exp, min, max)``:
-    running (strong swings, short and noisy stances) raises it, slow motions lower it.
+    The intensity ``I_k = max(s_k, I_{k-1} exp(-dt/tau_s))`` is the decaying peak of ``intensity_signal``
+    (the navigator uses the specific-force magnitude |a| [m/s^2]: heel strikes of running are hard, slow
+    shuffling is soft); the threshold is ``clip(gamma0 (I/intensity_ref)^gamma_exp, gamma_min, gamma_max)``.
+
+    Parameters
+    ----------
+    intensity_signal : (N,) e.g. |a| [m/s^2] or the SHOE statistic; t_s : (N,) times [s]; tau_s [s].
     """
-    T = np.asarray(statistic, dtype=np.float64)
+    s = np.asarray(intensity_signal, dtype=np.float64)
     t = np.asarray(t_s, dtype=np.float64)
-    out = np.empty_like(T)
+    out = np.empty_like(s)
     inten = 0.0
-    for k in range(T.shape[0]):
+    for k in range(s.shape[0]):
         dt = t[k] - t[k - 1] if k else 0.0
-        inten = max(T[k], inten * (np.exp(-dt / tau_s) if tau_s > 0 else 0.0))
+        inten = max(s[k], inten * (np.exp(-dt / tau_s) if tau_s > 0 else 0.0))
         g = gamma0 * (inten / intensity_ref) ** gamma_exp if gamma_exp != 0 and inten > 0 else gamma0
         out[k] = min(max(g, gamma_min), gamma_max)
     return out

@@ -20,18 +20,33 @@ __all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator"]
 
 @dataclass(frozen=True)
 class ZuptConfig:
-    """Every tunable of the navigator (one configuration serves all recordings).
+    """Every tunable of the navigator (one configuration serves all recordings; defaults = the project's).
 
     Detector (SHOE/GLRT, 002 eq. 1-3, with a gait-intensity adaptive threshold):
-    ``sigma_a`` [m/s^2], ``sigma_w`` [rad/s], ``half_window_s`` [s]; threshold
-    ``gamma = clip(gamma0 * (I / intensity_ref) ** gamma_exp, gamma_min, gamma_max)`` where ``I`` is the
-    peak of the statistic decaying with ``intensity_tau_s`` [s]; a stance is left when the statistic
-    exceeds ``hysteresis * gamma``.
+    ``sigma_a`` [m/s^2], ``sigma_w`` [rad/s], ``half_window_s`` [s] (centred window); threshold
+    ``gamma = clip(gamma0 * (I / intensity_ref) ** gamma_exp, gamma_min, gamma_max)`` where the gait
+    intensity ``I`` is, by ``intensity_mode``: 2 (default) the peak of the specific-force magnitude |a|
+    [m/s^2] decaying with ``intensity_tau_s`` [s] (heel-strike intensity: running -> higher threshold, slow
+    shuffling -> lower); 0 the decaying peak of the statistic itself; 1 an exponential mean of log10 of
+    the statistic. A stance is left when the statistic exceeds ``hysteresis * gamma``; with
+    ``erosion_s`` > 0 the statistic is the max over +-erosion_s (narrower stances).
     Filter (004 eq. 6-13): process PSDs ``acc_psd`` [(m/s^2)^2 s], ``gyr_psd`` [(rad/s)^2 s], bias random
-    walks ``ba_psd``, ``bg_psd``; ZUPT noise ``zupt_sigma`` [m/s]; ZARU ``zaru_on``/``zaru_sigma`` [rad/s];
-    magnetic heading ``mag_on``/``mag_sigma`` [rad] gated by magnitude ``mag_dmag`` [uT], inclination
-    ``mag_dinc`` [rad] and innovation ``mag_gate`` [sigma].
-    Alignment: initial rest of at least ``align_min_s`` and at most ``align_max_s`` [s].
+    walks ``ba_psd``, ``bg_psd``; gyro scale-factor uncertainty ``gyr_scale_sigma`` (relative: the attitude
+    variance grows by (sigma * turned angle)^2); ZUPT noise ``zupt_sigma`` [m/s]; ZARU ``zaru_on``/
+    ``zaru_sigma`` [rad/s], applied only where the statistic is below ``zaru_gamma``; magnetic heading
+    ``mag_on``/``mag_sigma`` [rad] gated by magnitude ``mag_dmag`` [uT], inclination ``mag_dinc`` [rad]
+    and innovation ``mag_gate`` [sigma], once per stance from the stance's mean field.
+    Heading aids (003 drift reduction): ``hdr_on`` pulls the heading back to the direction of the current
+    straight segment (strides >= ``hdr_min_stride`` m within ``hdr_delta`` rad, after ``hdr_min_n``
+    strides; noise ``hdr_sigma`` rad); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
+    building's dominant directions (the first straight segment + k * 90 deg; indoor heuristic).
+    Alignment (001 eq. 1-5 via TRIAD): the initial rest is where the statistic is below ``align_gamma``;
+    at least ``align_min_s`` and at most ``align_max_s`` [s]; initial tilt/heading sigmas ``p0_tilt``,
+    ``p0_yaw`` [rad], bias sigmas ``p0_ba`` [m/s^2], ``p0_bg`` [rad/s]; with ``bias_from_rest`` the gyro
+    bias starts at the rest's mean rate times ``d / (d + bias_shrink_s)`` (d = rest duration [s]).
+    Timing: intervals longer than ``max_dt`` [s] are integrated as ``max_dt``; stances shorter than
+    ``min_stance_s`` [s] get ZUPTs but are not reported. ``first_order`` (comparison only) replaces the
+    exponential-map attitude update by I + [w x] dt.
     """
 
     sigma_a: float = 0.01

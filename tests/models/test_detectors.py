@@ -53,13 +53,22 @@ def test_multi_condition_detects_stance(peak_rate):
 def test_adaptive_threshold_rises_for_running():
     tw, aw, gw, _ = gait(peak_rate=4.0, peak_acc=10.0)
     tr, ar, gr, _ = gait(peak_rate=15.0, peak_acc=60.0, stride_s=0.7)
-    kw = dict(gamma0=3e5, gamma_exp=0.5, tau_s=1.5, intensity_ref=3e7, gamma_min=1e2, gamma_max=1e10)
-    gw_ = adaptive_threshold(shoe_statistic(aw, gw), tw, **kw)
-    gr_ = adaptive_threshold(shoe_statistic(ar, gr), tr, **kw)
-    assert np.median(gr_[200:]) > 2 * np.median(gw_[200:])
+    kw = dict(gamma0=6e4, gamma_exp=2.5, tau_s=1.5, intensity_ref=30.0, gamma_min=1e3, gamma_max=1e10)
+    walk = adaptive_threshold(np.linalg.norm(aw, axis=1), tw, **kw)
+    run = adaptive_threshold(np.linalg.norm(ar, axis=1), tr, **kw)
+    assert np.median(run[200:]) > 10 * np.median(walk[200:])
     # exponent 0 gives the fixed threshold of 002 eq. (3)
-    fixed = adaptive_threshold(shoe_statistic(aw, gw), tw, **{**kw, "gamma_exp": 0.0})
-    assert np.all(fixed == 3e5)
+    fixed = adaptive_threshold(np.linalg.norm(aw, axis=1), tw, **{**kw, "gamma_exp": 0.0})
+    assert np.all(fixed == 6e4)
+
+
+def test_kernel_statistic_matches_reference():
+    from models.zupt_nav import ZuptNavigator
+
+    t, acc, gyr, _ = gait()
+    out = ZuptNavigator().run(t, acc, gyr)
+    # half_window_s = 0.011 s at 200 Hz is +-2 samples, as the reference's half_window=2
+    np.testing.assert_allclose(out.statistic, shoe_statistic(acc, gyr, half_window=2), rtol=1e-9)
 
 
 def test_bad_input_named():
