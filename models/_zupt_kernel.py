@@ -81,6 +81,7 @@ PAR = {
             "dom_on",  # snap straight segments to dominant directions (iHDE, indoor buildings)
             "dom_delta",  # [rad] snap only segments within this of a dominant direction
             "gyr_scale_sigma",  # relative gyro scale-factor uncertainty: attitude noise grows with the turned angle
+            "zupt_soft",  # ZUPT noise grows as sigma * (1 + zupt_soft * T / gamma): weak near the threshold
             "intensity_mode",  # 0 = decaying peak of the statistic, 1 = exp. mean of log10 statistic, 2 = decaying peak |a|
         )
     )
@@ -128,7 +129,7 @@ N_ST = len(ST_COLS)
 
 _SA, _SW, _HW, _G0, _GE, _ITAU, _IREF, _GMIN, _GMAX, _HYS, _GRAV = range(11)
 _QA, _QG, _QBA, _QBG, _RZ, _RW, _ZARU, _MAGON, _RMAG, _DMAG, _DINC, _MGATE = range(11, 23)
-_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _GSS, _IMODE = range(23, 46)
+_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _GSS, _ZSOFT, _IMODE = range(23, 47)
 
 
 @njit(cache=True)
@@ -662,7 +663,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             fs[28] += 1
             # ZUPT (004 eq. 9): z = 0 - v_est = dv
             z3 = np.array([-x[4], -x[5], -x[6]])
-            _update_block3(P, dx, 3, z3, par[_RZ])
+            _update_block3(P, dx, 3, z3, par[_RZ] * (1.0 + par[_ZSOFT] * T / gam))
             if par[_ZARU] > 0 and T < par[_ZGAM]:
                 # ZARU (001 eq. 34-35): measured rate minus bias estimate = d(bias)
                 z3 = np.array([gyr[i, 0] - x[13], gyr[i, 1] - x[14], gyr[i, 2] - x[15]])

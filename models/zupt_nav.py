@@ -31,8 +31,9 @@ class ZuptConfig:
     the statistic. A stance is left when the statistic exceeds ``hysteresis * gamma``; with
     ``erosion_s`` > 0 the statistic is the max over +-erosion_s (narrower stances).
     Filter (004 eq. 6-13): process PSDs ``acc_psd`` [(m/s^2)^2 s], ``gyr_psd`` [(rad/s)^2 s], bias random
-    walks ``ba_psd``, ``bg_psd``; gyro scale-factor uncertainty ``gyr_scale_sigma`` (relative: the attitude
-    variance grows by (sigma * turned angle)^2); ZUPT noise ``zupt_sigma`` [m/s]; ZARU ``zaru_on``/
+    walks ``ba_psd``, ``bg_psd``; ZUPT noise ``zupt_sigma * (1 + zupt_soft * T / gamma)`` [m/s] (strong deep
+    in the stance, weak at its edges where the foot may still move); gyro scale-factor uncertainty ``gyr_scale_sigma`` (relative: the attitude
+    variance grows by (sigma * turned angle)^2); ZARU ``zaru_on``/
     ``zaru_sigma`` [rad/s], applied only where the statistic is below ``zaru_gamma``; magnetic heading
     ``mag_on``/``mag_sigma`` [rad] gated by magnitude ``mag_dmag`` [uT], inclination ``mag_dinc`` [rad]
     and innovation ``mag_gate`` [sigma], once per stance from the stance's mean field.
@@ -52,7 +53,7 @@ class ZuptConfig:
     sigma_a: float = 0.01
     sigma_w: float = 0.1 * math.pi / 180.0
     half_window_s: float = 0.011
-    gamma0: float = 6.0e4
+    gamma0: float = 1.2e5
     gamma_exp: float = 2.5
     intensity_tau_s: float = 1.5
     intensity_ref: float = 30.0
@@ -94,6 +95,7 @@ class ZuptConfig:
     dom_on: bool = True
     dom_delta: float = 15.0 * math.pi / 180.0
     gyr_scale_sigma: float = 0.01
+    zupt_soft: float = 10.0
     intensity_mode: int = 2
 
     def to_array(self) -> np.ndarray:
