@@ -82,7 +82,7 @@ PAR = {
             "dom_delta",  # [rad] snap only segments within this of a dominant direction
             "gyr_scale_sigma",  # relative gyro scale-factor uncertainty: attitude noise grows with the turned angle
             "zupt_soft",  # ZUPT noise grows as sigma * (1 + zupt_soft * T / gamma): weak near the threshold
-            "intensity_mode",  # 0 = decaying peak of the statistic, 1 = exp. mean of log10 statistic, 2 = decaying peak |a|
+            "intensity_mode",  # 0: decaying peak of the statistic, 1: exp. mean of its log10, 2: decaying peak |a|
         )
     )
 }
@@ -120,16 +120,64 @@ FS = {
 }
 N_FS = len(FS)
 
-IS = {name: i for i, name in enumerate(("initialised", "in_stance", "n_done", "has_prev", "n_stances", "has_prev_stance"))}
+IS = {
+    name: i
+    for i, name in enumerate(("initialised", "in_stance", "n_done", "has_prev", "n_stances", "has_prev_stance"))
+}
 N_IS = len(IS)
 
 # stance record columns
 ST_COLS = ("t_start", "t_end", "n", "e", "d", "heading", "dn", "de", "dd", "peak_speed", "samples", "mag_used")
 N_ST = len(ST_COLS)
 
-_SA, _SW, _HW, _G0, _GE, _ITAU, _IREF, _GMIN, _GMAX, _HYS, _GRAV = range(11)
-_QA, _QG, _QBA, _QBG, _RZ, _RW, _ZARU, _MAGON, _RMAG, _DMAG, _DINC, _MGATE = range(11, 23)
-_AMIN, _AMAX, _MAXDT, _P0T, _P0Y, _P0BA, _P0BG, _MINST, _FO, _AGAM, _ZGAM, _BREST, _BSHR, _EROS, _HDR, _HDRS, _HDRD, _HDRL, _HDRN, _DOM, _DOMD, _GSS, _ZSOFT, _IMODE = range(23, 47)
+# parameter indices as module constants (compile-time constants for numba)
+_SA = PAR["sigma_a"]
+_SW = PAR["sigma_w"]
+_HW = PAR["half_window_s"]
+_G0 = PAR["gamma0"]
+_GE = PAR["gamma_exp"]
+_ITAU = PAR["intensity_tau_s"]
+_IREF = PAR["intensity_ref"]
+_GMIN = PAR["gamma_min"]
+_GMAX = PAR["gamma_max"]
+_HYS = PAR["hysteresis"]
+_GRAV = PAR["gravity"]
+_QA = PAR["acc_psd"]
+_QG = PAR["gyr_psd"]
+_QBA = PAR["ba_psd"]
+_QBG = PAR["bg_psd"]
+_RZ = PAR["zupt_sigma"]
+_RW = PAR["zaru_sigma"]
+_ZARU = PAR["zaru_on"]
+_MAGON = PAR["mag_on"]
+_RMAG = PAR["mag_sigma"]
+_DMAG = PAR["mag_dmag"]
+_DINC = PAR["mag_dinc"]
+_MGATE = PAR["mag_gate"]
+_AMIN = PAR["align_min_s"]
+_AMAX = PAR["align_max_s"]
+_MAXDT = PAR["max_dt"]
+_P0T = PAR["p0_tilt"]
+_P0Y = PAR["p0_yaw"]
+_P0BA = PAR["p0_ba"]
+_P0BG = PAR["p0_bg"]
+_MINST = PAR["min_stance_s"]
+_FO = PAR["first_order"]
+_AGAM = PAR["align_gamma"]
+_ZGAM = PAR["zaru_gamma"]
+_BREST = PAR["bias_from_rest"]
+_BSHR = PAR["bias_shrink_s"]
+_EROS = PAR["erosion_s"]
+_HDR = PAR["hdr_on"]
+_HDRS = PAR["hdr_sigma"]
+_HDRD = PAR["hdr_delta"]
+_HDRL = PAR["hdr_min_stride"]
+_HDRN = PAR["hdr_min_n"]
+_DOM = PAR["dom_on"]
+_DOMD = PAR["dom_delta"]
+_GSS = PAR["gyr_scale_sigma"]
+_ZSOFT = PAR["zupt_soft"]
+_IMODE = PAR["intensity_mode"]
 
 
 @njit(cache=True)

@@ -30,7 +30,9 @@ def triad(r1: np.ndarray, r2: np.ndarray, s1: np.ndarray, s2: np.ndarray) -> np.
     return c
 
 
-def align_at_rest(acc_mean: np.ndarray, mag_mean: np.ndarray | None = None, mag_reference: np.ndarray | None = None) -> np.ndarray:
+def align_at_rest(
+    acc_mean: np.ndarray, mag_mean: np.ndarray | None = None, mag_reference: np.ndarray | None = None
+) -> np.ndarray:
     """Body-to-NED DCM from the mean specific force (and field) over a rest period (001 eq. 1-5).
 
     Parameters

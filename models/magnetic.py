@@ -26,7 +26,9 @@ def reference_from_rest(mag_mean_body: np.ndarray, c_bn: np.ndarray) -> np.ndarr
     return np.asarray(c_bn, dtype=np.float64) @ m
 
 
-def wmm_reference(latitude_deg: float, longitude_deg: float, height_km: float = 0.0, date: _dt.date | None = None) -> np.ndarray:
+def wmm_reference(
+    latitude_deg: float, longitude_deg: float, height_km: float = 0.0, date: _dt.date | None = None
+) -> np.ndarray:
     """Earth field in NED [uT] from the World Magnetic Model (``ahrs.utils.WMM``, which works in nT)."""
     from ahrs.utils import WMM
 
@@ -38,7 +40,10 @@ def wmm_reference(latitude_deg: float, longitude_deg: float, height_km: float = 
 
 
 def field_undisturbed(
-    field_ned: np.ndarray, reference_ned: np.ndarray, magnitude_tol_ut: float = 3.0, inclination_tol_rad: float = np.radians(3.0)
+    field_ned: np.ndarray,
+    reference_ned: np.ndarray,
+    magnitude_tol_ut: float = 3.0,
+    inclination_tol_rad: float = float(np.radians(3.0)),
 ) -> np.ndarray:
     """Disturbance test: magnitude (002 eq. 4-5, 000 eq. 68) and inclination close to the reference.
 

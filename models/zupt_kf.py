@@ -43,10 +43,13 @@ def transition_matrix(c_bn: np.ndarray, f_n: np.ndarray, dt: float) -> np.ndarra
 
 
 def predict_covariance(
-    P: np.ndarray, c_bn: np.ndarray, f_n: np.ndarray, dt: float, acc_psd: float, gyr_psd: float, ba_psd: float, bg_psd: float
+    P: np.ndarray, c_bn: np.ndarray, f_n: np.ndarray, dt: float,
+    acc_psd: float, gyr_psd: float, ba_psd: float, bg_psd: float,
 ) -> None:
     """In place ``P <- F P F^T + Q dt`` using the sparsity of F (004 eq. 8). PSDs in SI units per second."""
-    _k.cov_predict(P, np.ascontiguousarray(c_bn, dtype=np.float64), np.ascontiguousarray(f_n, dtype=np.float64), float(dt), acc_psd, gyr_psd, ba_psd, bg_psd)
+    c = np.ascontiguousarray(c_bn, dtype=np.float64)
+    f = np.ascontiguousarray(f_n, dtype=np.float64)
+    _k.cov_predict(P, c, f, float(dt), float(acc_psd), float(gyr_psd), float(ba_psd), float(bg_psd))
 
 
 def update_zupt(P: np.ndarray, dx: np.ndarray, v_est: np.ndarray, sigma: float) -> None:
@@ -65,7 +68,10 @@ def heading_row(c_bn: np.ndarray) -> np.ndarray:
     return _k._heading_row(np.ascontiguousarray(c_bn, dtype=np.float64))
 
 
-def update_heading(P: np.ndarray, dx: np.ndarray, c_bn: np.ndarray, innovation_rad: float, sigma_rad: float, gate_sigma: float = 0.0) -> bool:
+def update_heading(
+    P: np.ndarray, dx: np.ndarray, c_bn: np.ndarray, innovation_rad: float, sigma_rad: float, gate_sigma: float = 0.0
+) -> bool:
     """Heading observation (004 eq. 10): ``innovation = psi_measured - psi_est`` [rad]; returns False when
     the innovation gate (``gate_sigma`` > 0) rejects it."""
-    return bool(_k._update_scalar(P, dx, heading_row(c_bn), float(innovation_rad), float(sigma_rad) ** 2, float(gate_sigma)))
+    h = heading_row(c_bn)
+    return bool(_k._update_scalar(P, dx, h, float(innovation_rad), float(sigma_rad) ** 2, float(gate_sigma)))

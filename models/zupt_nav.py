@@ -32,9 +32,9 @@ class ZuptConfig:
     ``erosion_s`` > 0 the statistic is the max over +-erosion_s (narrower stances).
     Filter (004 eq. 6-13): process PSDs ``acc_psd`` [(m/s^2)^2 s], ``gyr_psd`` [(rad/s)^2 s], bias random
     walks ``ba_psd``, ``bg_psd``; ZUPT noise ``zupt_sigma * (1 + zupt_soft * T / gamma)`` [m/s] (strong deep
-    in the stance, weak at its edges where the foot may still move); gyro scale-factor uncertainty ``gyr_scale_sigma`` (relative: the attitude
-    variance grows by (sigma * turned angle)^2); ZARU ``zaru_on``/
-    ``zaru_sigma`` [rad/s], applied only where the statistic is below ``zaru_gamma``; magnetic heading
+    in the stance, weak at its edges where the foot may still move); gyro scale-factor uncertainty
+    ``gyr_scale_sigma`` (relative: the attitude variance grows by (sigma * turned angle)^2); ZARU
+    ``zaru_on``/``zaru_sigma`` [rad/s], applied only where the statistic is below ``zaru_gamma``; magnetic heading
     ``mag_on``/``mag_sigma`` [rad] gated by magnitude ``mag_dmag`` [uT], inclination ``mag_dinc`` [rad]
     and innovation ``mag_gate`` [sigma], once per stance from the stance's mean field.
     Heading aids (003 drift reduction): ``hdr_on`` pulls the heading back to the direction of the current
