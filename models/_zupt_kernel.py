@@ -82,6 +82,7 @@ PAR = {
             "dom_delta",  # [rad] snap only segments within this of a dominant direction
             "gyr_scale_sigma",  # relative gyro scale-factor uncertainty: attitude noise grows with the turned angle
             "zupt_soft",  # ZUPT noise grows as sigma * (1 + zupt_soft * T / gamma): weak near the threshold
+            "align_timeout_s",  # [s] no strict rest by then: align on the adaptive detector's first stance
             "intensity_mode",  # 0: decaying peak of the statistic, 1: exp. mean of its log10, 2: decaying peak |a|
         )
     )
@@ -115,6 +116,7 @@ FS = {
             "hdr_n",  # consecutive strides consistent with it
             "dom_ref",  # first straight segment's heading: building dominant directions are dom_ref + k*90 deg
             "dom_valid",
+            "t_first",  # time of the first sample [s]
         )
     )
 }
@@ -177,6 +179,8 @@ _DOM = PAR["dom_on"]
 _DOMD = PAR["dom_delta"]
 _GSS = PAR["gyr_scale_sigma"]
 _ZSOFT = PAR["zupt_soft"]
+_ATO = PAR["align_timeout_s"]
+_F_TFIRST = FS["t_first"]
 _IMODE = PAR["intensity_mode"]
 
 
@@ -619,7 +623,10 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         has_m = not (math.isnan(mag[i, 0]) or math.isnan(mag[i, 1]) or math.isnan(mag[i, 2]))
         if not ist[0]:
             # ---- waiting for the initial rest: accumulate, align when it is long enough ----
-            zv = T < par[_AGAM]
+            if not ist[3]:
+                fs[_F_TFIRST] = t[i]
+            if t[i] - fs[_F_TFIRST] < par[_ATO]:
+                zv = T < par[_AGAM]
             o_zupt[k] = zv
             if zv:
                 if fs[11] == 0:

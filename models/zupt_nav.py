@@ -41,7 +41,8 @@ class ZuptConfig:
     straight segment (strides >= ``hdr_min_stride`` m within ``hdr_delta`` rad, after ``hdr_min_n``
     strides; noise ``hdr_sigma`` rad); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
     building's dominant directions (the first straight segment + k * 90 deg; indoor heuristic).
-    Alignment (001 eq. 1-5 via TRIAD): the initial rest is where the statistic is below ``align_gamma``;
+    Alignment (001 eq. 1-5 via TRIAD): the initial rest is where the statistic is below ``align_gamma``
+    (after ``align_timeout_s`` [s] without such a rest, e.g. a noisy sensor, the adaptive detector's);
     at least ``align_min_s`` and at most ``align_max_s`` [s]; initial tilt/heading sigmas ``p0_tilt``,
     ``p0_yaw`` [rad], bias sigmas ``p0_ba`` [m/s^2], ``p0_bg`` [rad/s]; with ``bias_from_rest`` the gyro
     bias starts at the rest's mean rate times ``d / (d + bias_shrink_s)`` (d = rest duration [s]).
@@ -83,6 +84,7 @@ class ZuptConfig:
     min_stance_s: float = 0.02
     first_order: bool = False
     align_gamma: float = 1.0e3
+    align_timeout_s: float = 5.0
     zaru_gamma: float = 1.0e3
     bias_from_rest: bool = True
     bias_shrink_s: float = 1.0
