@@ -83,6 +83,7 @@ PAR = {
             "gyr_scale_sigma",  # relative gyro scale-factor uncertainty: attitude noise grows with the turned angle
             "zupt_soft",  # ZUPT noise grows as sigma * (1 + zupt_soft * T / gamma): weak near the threshold
             "align_timeout_s",  # [s] no strict rest by then: align on the adaptive detector's first stance
+            "trapezoid",  # 1: integrate the mean of consecutive samples (better at low rates)
             "intensity_mode",  # 0: decaying peak of the statistic, 1: exp. mean of its log10, 2: decaying peak |a|
         )
     )
@@ -181,6 +182,7 @@ _GSS = PAR["gyr_scale_sigma"]
 _ZSOFT = PAR["zupt_soft"]
 _ATO = PAR["align_timeout_s"]
 _F_TFIRST = FS["t_first"]
+_TRAP = PAR["trapezoid"]
 _IMODE = PAR["intensity_mode"]
 
 
@@ -675,9 +677,11 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         # ---- strapdown mechanisation (004 eq. 1) with exact exponential-map attitude update ----
         q = x[0:4].copy()
         C0 = quat_dcm_s(q)
-        wx = (gyr[i, 0] - x[13]) * dt
-        wy = (gyr[i, 1] - x[14]) * dt
-        wz = (gyr[i, 2] - x[15]) * dt
+        # rate and specific force over (t[i-1], t[i]]: this sample's, or the mean of both ends (trapezoid)
+        ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
+        wx = (0.5 * (gyr[i, 0] + gyr[ip, 0]) - x[13]) * dt
+        wy = (0.5 * (gyr[i, 1] + gyr[ip, 1]) - x[14]) * dt
+        wz = (0.5 * (gyr[i, 2] + gyr[ip, 2]) - x[15]) * dt
         if par[_FO] > 0:
             dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
         else:
@@ -686,7 +690,10 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
         q /= nq
         C1 = quat_dcm_s(q)
-        fb = np.array([acc[i, 0] - x[10], acc[i, 1] - x[11], acc[i, 2] - x[12]])
+        fb = np.array([
+            0.5 * (acc[i, 0] + acc[ip, 0]) - x[10], 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11],
+            0.5 * (acc[i, 2] + acc[ip, 2]) - x[12],
+        ])
         Cm = 0.5 * (C0 + C1)
         fn = Cm @ fb
         vn0 = x[4:7].copy()

@@ -83,6 +83,7 @@ class ZuptConfig:
     p0_bg: float = 2e-4  # rad/s: trust the initial-rest gyro bias (re-estimating it via ZUPT hurt on real data)
     min_stance_s: float = 0.02
     first_order: bool = False
+    trapezoid: bool = False
     align_gamma: float = 1.0e3
     align_timeout_s: float = 5.0
     zaru_gamma: float = 1.0e3
