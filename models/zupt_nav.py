@@ -402,6 +402,7 @@ class ZuptNavigator:
         fsi = _k.FS
         self._fs[fsi["prev_n"] : fsi["prev_d"] + 1] = p
         self._fs[fsi["peak_speed"]] = 0.0
+        self._fs[fsi["hdr_n"]] = 0.0  # a new straight segment starts (dominant directions are kept)
         self._P[0:9, :] = 0.0
         self._P[:, 0:9] = 0.0
         for k in range(3):
