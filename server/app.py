@@ -14,7 +14,26 @@ from server.formats import PayloadTooLarge
 from server.ingest import EngineHost, IngestConflict
 from server.settings import Settings
 
-__all__ = ["create_app"]
+__all__ = ["create_app", "BodyLimit"]
+
+
+class BodyLimit:
+    """Pure ASGI middleware: 413 for a declared ``Content-Length`` above ``max_bytes`` (streamed bodies are
+    counted by the routes that read them)."""
+
+    def __init__(self, app: Any, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] == "http":
+            for k, v in scope["headers"]:
+                if k == b"content-length" and v.isdigit() and int(v) > self.max_bytes:
+                    resp = JSONResponse(status_code=413, content={
+                        "detail": f"body of {int(v)} bytes exceeds the limit of {self.max_bytes} bytes"})
+                    await resp(scope, receive, send)
+                    return
+        await self.app(scope, receive, send)
 
 
 def create_app(settings: Settings | None = None, engine_cls: Any | None = None) -> FastAPI:
@@ -41,17 +60,9 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.settings = settings
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
-    app.state.host = EngineHost(settings.engine_cache_size, engine_cls)
+    app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite")
 
-    @app.middleware("http")
-    async def _limit_body(request: Request, call_next):  # type: ignore[no-untyped-def]
-        length = request.headers.get("content-length")
-        if length is not None and length.isdigit() and int(length) > settings.max_body_bytes:
-            return JSONResponse(
-                status_code=413,
-                content={"detail": f"body of {length} bytes exceeds the limit of {settings.max_body_bytes} bytes"},
-            )
-        return await call_next(request)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 
     @app.exception_handler(BatchError)
     async def _batch_error(_request: Request, exc: BatchError) -> JSONResponse:

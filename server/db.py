@@ -19,7 +19,8 @@ def make_engine(settings: Settings) -> Engine:
     """SQLAlchemy engine for ``settings.database_url`` (SQLite: WAL + busy timeout; PostgreSQL: schema)."""
     url = settings.database_url
     if url.startswith("sqlite"):
-        eng = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        # unbounded overflow: SQLite connections are cheap and a bounded pool can starve the thread pool
+        eng = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30}, pool_size=20, max_overflow=-1)
 
         @event.listens_for(eng, "connect")
         def _sqlite_pragmas(dbapi_conn, _rec) -> None:  # type: ignore[no-untyped-def]
@@ -30,7 +31,7 @@ def make_engine(settings: Settings) -> Engine:
             cur.close()
 
         return eng
-    eng = create_engine(url, pool_size=10, max_overflow=20, pool_pre_ping=True)
+    eng = create_engine(url, pool_size=20, max_overflow=40, pool_timeout=15, pool_pre_ping=True)
     if settings.db_schema:
         schema = settings.db_schema
 

@@ -49,6 +49,11 @@ def current_user(
     if not token:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers={"WWW-Authenticate": "Bearer"})
     user = crud.user_by_token(db, token)
+    if user is not None:
+        db.expunge(user)  # keep the loaded row usable after the transaction ends
+    # end the read transaction now: the connection goes back to the pool before the next thread hop, so
+    # requests waiting for a worker thread never sit on pooled connections (that deadlocks under load)
+    db.rollback()
     if user is None:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers={"WWW-Authenticate": "Bearer"})
     return user

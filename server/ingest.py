@@ -14,7 +14,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from typing import Any, Protocol
 
 from sqlalchemy.exc import IntegrityError, OperationalError
@@ -67,10 +67,15 @@ class EngineHost:
         Engines kept in memory; 0 disables the cache (every batch restores from bytes).
     engine_cls : type, optional
         The engine class (default :class:`energy.engine.Engine`).
+    serialize_writes : bool
+        Serialise this process's write transactions (SQLite).
     """
 
-    def __init__(self, cache_size: int = 512, engine_cls: Any | None = None) -> None:
+    def __init__(self, cache_size: int = 512, engine_cls: Any | None = None, serialize_writes: bool = False) -> None:
         self.cache_size = cache_size
+        # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
+        # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
+        self.write_lock: Any = threading.Lock() if serialize_writes else nullcontext()
         self._engine_cls = engine_cls
         self._cache: OrderedDict[int, tuple[int, EngineLike]] = OrderedDict()
         self._locks: dict[int, threading.Lock] = {}
@@ -215,8 +220,9 @@ def _apply_once(
     raw = canonical_bytes(batch)
     h = digest(raw)
     with host.lock(session_id):
-        sess = crud.get_session(db, user, session_id, for_update=True)
+        sess = crud.get_session(db, user, session_id)
         if sess is None:
+            db.rollback()
             return None
         if seq < sess.next_seq:
             resp = _replayed(db, sess, seq, h)
@@ -231,6 +237,7 @@ def _apply_once(
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {expected}", expected)
         engine = host.restore(sess)
         host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
+        db.commit()  # end the read transaction: the engine runs outside any transaction
         upd = engine.feed(batch)
         next_seq = seq + 1
         resp = _update_dict(sess.id, seq, next_seq, upd)
@@ -244,7 +251,10 @@ def _apply_once(
         sess.engine_state = engine.to_bytes()
         sess.next_seq = next_seq
         try:
-            db.commit()
+            # one short write transaction; the UPDATE of the session checks the version read above, so a
+            # concurrent worker that applied this batch first makes it fail instead of applying it twice
+            with host.write_lock:
+                db.commit()
         except (StaleDataError, IntegrityError):
             # another worker applied this sequence number first: answer as for a retry
             db.rollback()
@@ -276,7 +286,8 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int) ->
         sess.engine_state = engine.to_bytes()
         sess.status = "closed"
         sess.closed_at = utcnow()
-        db.commit()
+        with host.write_lock:
+            db.commit()
         return sess
 
 

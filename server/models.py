@@ -109,7 +109,7 @@ class TrackSession(Base):
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     closed_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     next_seq: Mapped[int] = mapped_column(Integer, default=0)
-    engine_state: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    engine_state: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True, deferred=True)  # loaded on a cache miss
     behaviour: Mapped[str] = mapped_column(String(10), default="stand")
     mode: Mapped[str] = mapped_column(String(10), default="idle")
     sensor_config: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)

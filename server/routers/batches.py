@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
+from fastapi.security import HTTPAuthorizationCredentials
+from starlette.concurrency import run_in_threadpool
 
 from models.batch import BatchError
 from server import crud
-from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.deps import CurrentUser, SessionDep, current_user
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
 from server.schemas import BatchResponse
@@ -30,42 +33,53 @@ async def _body(request: Request) -> bytes:
     return b"".join(chunks)
 
 
+def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes) -> Response:
+    """The whole upload in ONE worker thread: auth, decode, validate, apply (no connection is held while a
+    request waits for a thread)."""
+    app = request.app
+    settings, host = app.state.settings, app.state.host
+    with app.state.sessionmaker() as db:
+        user = current_user(db, request, _bearer_of(request))
+        if seq < 0:
+            raise BatchError("seq", "must be >= 0")
+        batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
+        batch.validate()
+        try:
+            out = apply_batch(db, host, user, session_id, seq, batch)
+        except BatchError:
+            db.rollback()
+            raise
+    if out is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    resp, replayed = out
+    return Response(
+        content=json.dumps(resp, separators=(",", ":")), media_type="application/json",
+        headers={"X-Pednav-Replayed": "true" if replayed else "false"},
+    )
+
+
+def _bearer_of(request: Request) -> HTTPAuthorizationCredentials | None:
+    auth = request.headers.get("authorization", "")
+    scheme, _, cred = auth.partition(" ")
+    if scheme.lower() == "bearer" and cred:
+        return HTTPAuthorizationCredentials(scheme=scheme, credentials=cred.strip())
+    return None
+
+
 @router.put(
     "/{seq}",
     response_model=BatchResponse,
     openapi_extra={"requestBody": {"required": True, "content": {"application/json": {}, MSGPACK_TYPE: {}}}},
 )
-def put_batch(
-    session_id: int,
-    seq: int,
-    body: Annotated[bytes, Depends(_body)],
-    request: Request,
-    response: Response,
-    db: SessionDep,
-    user: CurrentUser,
-    settings: SettingsDep,
-    host: HostDep,
-) -> Any:
-    """Upload batch number ``seq`` (0, 1, 2, ...) of a session.
+async def put_batch(session_id: int, seq: int, body: Annotated[bytes, Depends(_body)], request: Request) -> Response:
+    """Upload batch number ``seq`` (0, 1, 2, ...) of a session (``Authorization: Bearer``).
 
     Idempotent: a retry with the same number and content gets the same answer (header
     ``X-Pednav-Replayed: true``) and is never applied twice. A gap or an old number with other content
     gets 409 with ``expected_seq``. Samples are validated (units, order, finiteness): 422 names the field.
+    The body is JSON or msgpack (``Content-Type``), see ``server/formats.py``.
     """
-    if seq < 0:
-        raise BatchError("seq", "must be >= 0")
-    batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
-    batch.validate()
-    try:
-        out = apply_batch(db, host, user, session_id, seq, batch)
-    except BatchError:
-        db.rollback()
-        raise
-    if out is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
-    resp, replayed = out
-    response.headers["X-Pednav-Replayed"] = "true" if replayed else "false"
-    return resp
+    return await run_in_threadpool(_put_batch_sync, request, session_id, seq, body)
 
 
 @router.get("")

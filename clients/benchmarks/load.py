@@ -1,0 +1,234 @@
+"""``pednav bench load``: N simulated devices against ONE uvicorn worker on 127.0.0.1.
+
+Each device opens a session and sends one 1-s batch of 100 Hz 9-axis samples (accelerometer, gyroscope,
+magnetometer; compact msgpack body, float32 values) every second, waiting for each answer before the next
+batch (sequence numbers must follow each other). Send instants are spread evenly over the second. The
+benchmark starts the server itself (``uvicorn server.app:app_from_env --factory``, 1 worker) on a free port,
+warms it up (numba compilation of the engine) with one session that is not measured, then runs for
+``--seconds``. It reports latency percentiles of the batch uploads, throughput, late sends (a device could
+not keep its 1-s cadence because an answer came late), and — checked against the server's stored batches
+afterwards — lost batches (sent but not stored/acknowledged) and duplicated batches (stored more than once).
+
+The traffic goes to 127.0.0.1 only and the run is bounded by ``--seconds``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from typing import Any
+
+import numpy as np
+
+__all__ = ["add_arguments", "run"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--devices", type=int, default=200, help="simulated devices (default 200)")
+    p.add_argument("--seconds", type=float, default=60.0, help="measured duration [s] (default 60)")
+    p.add_argument("--rate-hz", type=float, default=100.0, help="sample rate of every stream [Hz] (default 100)")
+    p.add_argument("--database-url", default=None,
+                   help="SQLAlchemy URL (default: a fresh SQLite file in a temporary folder); for PostgreSQL a "
+                        "unique schema is created and dropped")
+    p.add_argument("--encoding", choices=("msgpack", "json"), default="msgpack")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _bodies(seconds: int, rate_hz: float, encoding: str) -> list[tuple[bytes, str]]:
+    """Consecutive 1-s batches of a synthetic walk (foot IMU, all three streams at ``rate_hz``)."""
+    from clients.sdk import encode_batch
+    from clients.synth import synthesize
+
+    rec = synthesize("walk", seed=11, rate_hz=rate_hz)
+    parts = rec.batch.split_seconds(1.0)
+    out = []
+    for k in range(seconds):
+        # loop the recording if the run is longer: shift time so it keeps increasing
+        base = parts[k % len(parts)]
+        shift = (k // len(parts)) * (int(rec.batch.t_end_ns) - int(rec.batch.t_start_ns) + 10_000_000)
+        from models.batch import SensorBatch
+
+        b = SensorBatch(**{key: (v + shift if key.endswith("_t_ns") else v) for key, v in base._kwargs().items()})
+        out.append(encode_batch(b, encoding, "<f4"))  # type: ignore[arg-type]
+    return out
+
+
+class _Server:
+    def __init__(self, database_url: str, schema: str | None) -> None:
+        self.port = _free_port()
+        env = {**os.environ, "PEDNAV_DATABASE_URL": database_url, "PEDNAV_MIGRATE_ON_STARTUP": "true"}
+        if schema:
+            env["PEDNAV_DB_SCHEMA"] = schema
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "server.app:app_from_env", "--factory", "--host", "127.0.0.1",
+             "--port", str(self.port), "--workers", "1", "--log-level", "warning", "--no-access-log"],
+            env=env,
+        )
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def wait(self, timeout: float = 60.0) -> None:
+        import httpx
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.2)
+        raise RuntimeError("server did not start")
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+async def _device(client: Any, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
+                  lat: list[float], stats: dict[str, int]) -> None:
+    import httpx
+
+    headers = {"Authorization": f"Bearer {token}"}
+    for k, (body, ctype) in enumerate(bodies):
+        due = t0 + phase + k
+        now = time.perf_counter()
+        if now < due:
+            await asyncio.sleep(due - now)
+        elif now - due > 0.5:
+            stats["late_sends"] += 1
+        start = time.perf_counter()
+        for attempt in range(5):  # same sequence number on every retry
+            try:
+                r = await client.put(f"/v1/sessions/{sid}/batches/{k}", content=body,
+                                     headers={**headers, "content-type": ctype})
+            except httpx.TransportError:
+                stats["transport_errors"] += 1
+                await asyncio.sleep(0.05 * (attempt + 1))
+                continue
+            if r.status_code == 200:
+                lat.append(time.perf_counter() - start)
+                stats["acked"] += 1
+                if r.headers.get("x-pednav-replayed") == "true":
+                    stats["replayed"] += 1
+            else:
+                stats[f"http_{r.status_code}"] = stats.get(f"http_{r.status_code}", 0) + 1
+            break
+        else:
+            stats["gave_up"] += 1
+
+
+async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[bytes, str]]) -> dict[str, Any]:
+    import httpx
+
+    limits = httpx.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
+    async with httpx.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
+        h = {"Authorization": f"Bearer {token}"}
+        # warm-up session (engine JIT compilation), not measured
+        warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
+        for k, (body, ctype) in enumerate(bodies[: min(20, len(bodies))]):
+            await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body, headers={**h, "content-type": ctype})
+        sids = []
+        for _ in range(devices):
+            r = await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)
+            sids.append(r.json()["id"])
+        lat: list[float] = []
+        stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
+        t0 = time.perf_counter() + 0.5
+        await asyncio.gather(*[
+            _device(client, token, sid, bodies, t0, i / devices, lat, stats) for i, sid in enumerate(sids)
+        ])
+        wall = time.perf_counter() - t0
+        # verify against what the server stored
+        stored_total, lost, dup = 0, 0, 0
+        for sid in sids:
+            seqs = [b["seq"] for b in (await client.get(f"/v1/sessions/{sid}/batches", headers=h)).json()]
+            stored_total += len(seqs)
+            dup += len(seqs) - len(set(seqs))
+            lost += len(set(range(len(bodies))) - set(seqs))
+    a = np.array(lat) * 1e3
+    pct = {f"p{q}": float(np.percentile(a, q)) if len(a) else None for q in (50, 95, 99)}
+    return {
+        "requests_sent": devices * len(bodies),
+        "acked": stats["acked"],
+        "stored": stored_total,
+        "lost_batches": lost,
+        "duplicated_batches": dup,
+        "replayed_answers": stats["replayed"],
+        "late_sends": stats["late_sends"],
+        "transport_errors": stats["transport_errors"],
+        "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
+        "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
+        "throughput_rps": stats["acked"] / wall if wall > 0 else None,
+        "wall_s": wall,
+    }
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    import tempfile
+
+    from server.db import drop_schema, make_engine
+    from server.settings import Settings
+
+    seconds = max(1, int(round(args.seconds)))
+    bodies = _bodies(seconds, args.rate_hz, args.encoding)
+    schema = None
+    tmp = None
+    if args.database_url:
+        url = args.database_url
+        if url.startswith("postgresql"):
+            schema = f"bench_{uuid.uuid4().hex[:10]}"
+    else:
+        tmp = tempfile.TemporaryDirectory(prefix="pednav-load-")
+        url = f"sqlite:///{tmp.name}/load.db"
+    srv = _Server(url, schema)
+    try:
+        srv.wait()
+        settings = Settings(database_url=url, db_schema=schema)
+        eng = make_engine(settings)
+        from server import crud
+        from server.db import make_sessionmaker
+
+        with make_sessionmaker(eng)() as db:
+            _, token = crud.create_user(db, f"load-{uuid.uuid4().hex[:8]}")
+            db.commit()
+        eng.dispose()
+        res = asyncio.run(_run_async(srv.url, token, args.devices, bodies))
+    finally:
+        srv.stop()
+        if schema:
+            e = make_engine(Settings(database_url=url))
+            drop_schema(e, schema)
+            e.dispose()
+        if tmp is not None:
+            tmp.cleanup()
+    backend = "postgresql" if url.startswith("postgresql") else "sqlite"
+    return {
+        "devices": args.devices,
+        "seconds": seconds,
+        "rate_hz": args.rate_hz,
+        "encoding": args.encoding,
+        "body_bytes": len(bodies[0][0]),
+        "database": backend,
+        "server_workers": 1,
+        **res,
+    }
