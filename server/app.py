@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -60,6 +61,8 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.settings = settings
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
+    # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
+    app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite")
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)

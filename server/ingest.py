@@ -9,14 +9,16 @@ optimistic-concurrency version, so two workers can never both apply the same bat
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 from typing import Any, Protocol
 
+from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
@@ -92,13 +94,21 @@ class EngineHost:
 
     def restore(self, sess: TrackSession) -> EngineLike:
         """The session's engine at its stored version."""
-        hit = self._cache.get(sess.id)
-        if hit is not None and hit[0] == sess.version:
-            self._cache.move_to_end(sess.id)
+        return self.restore_at(sess.id, sess.version, lambda: sess.engine_state, sess.engine_mode, sess.profile_in)
+
+    def restore_at(
+        self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None
+    ) -> EngineLike:
+        """The engine of ``session_id`` at ``version``: the cached one when it is at that version, else
+        restored from ``load_state()`` (bytes or None for a session that never got a batch)."""
+        hit = self._cache.get(session_id)
+        if hit is not None and hit[0] == version:
+            self._cache.move_to_end(session_id)
             return hit[1]
-        if sess.engine_state is None:
-            return self.new(sess.engine_mode, sess.profile_in)
-        return self.engine_cls.from_bytes(sess.engine_state)
+        blob = load_state()
+        if blob is None:
+            return self.new(mode, profile)
+        return self.engine_cls.from_bytes(blob)
 
     def remember(self, session_id: int, version: int, engine: EngineLike) -> None:
         if self.cache_size <= 0:
@@ -153,8 +163,22 @@ def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:
 
 
 def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:
-    d = json_safe(upd.to_dict())
-    return {"session_id": session_id, "seq": seq, "next_seq": next_seq, **d}
+    """The answer to a batch (flat copies of the engine's frozen dataclasses; NaN -> None)."""
+    d = {
+        "session_id": session_id,
+        "seq": seq,
+        "next_seq": next_seq,
+        "positions": [dict(vars(p)) for p in upd.positions],
+        "events": [{"t_ns": int(e.t_ns), "kind": e.kind, "detail": dict(e.detail)} for e in upd.events],
+        "behaviour": upd.behaviour,
+        "mode": upd.mode,
+        "sensor_config": dict(vars(upd.sensor_config)),
+    }
+    try:
+        json.dumps(d, allow_nan=False)
+    except ValueError:
+        d = json_safe(d)
+    return d
 
 
 def _store_outputs(db: Session, sess: TrackSession, seq: int, upd: Any) -> None:
@@ -182,18 +206,28 @@ def _replayed(db: Session, sess: TrackSession, seq: int, h: str) -> dict[str, An
 def apply_batch(
     db: Session,
     host: EngineHost,
-    user: User,
+    user_id: int,
     session_id: int,
     seq: int,
     batch: SensorBatch,
     attempts: int = 5,
+    also: Callable[[Session], None] | None = None,
 ) -> tuple[dict[str, Any], bool] | None:
-    """Apply ``batch`` as number ``seq``; see :func:`_apply_once`. Retries when the database is busy
-    (SQLite: another worker wrote since this transaction began), after which the retry sees that worker's
-    result and answers as for a retried batch."""
+    """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session
+    of this user).
+
+    A retry of an applied sequence number with the same content returns the stored response
+    (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
+    content and closed sessions, and ``BatchError`` (from the engine's validation) for a bad batch; nothing is
+    stored then. Retries when the database is busy (SQLite: another worker wrote since this transaction
+    began); the retry then sees that worker's result and answers as for a retried batch. ``also(db)`` runs
+    inside the same write transaction (e.g. to advance the Sensor Logger watermark atomically).
+    """
+    raw = canonical_bytes(batch)
+    h = digest(raw)
     for i in range(attempts):
         try:
-            return _apply_once(db, host, user, session_id, seq, batch)
+            return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also)
         except OperationalError:
             db.rollback()
             host.forget(session_id)
@@ -203,66 +237,93 @@ def apply_batch(
     return None
 
 
+_TS = TrackSession.__table__
+_BATCHES = BatchRecord.__table__
+_POSITIONS = PositionRecord.__table__
+_EVENTS = EventRecord.__table__
+
+
+def _replayed_core(db: Session, session_id: int, seq: int, h: str, expected: int) -> dict[str, Any]:
+    row = db.execute(
+        select(_BATCHES.c.body_sha256, _BATCHES.c.response).where(_BATCHES.c.session_id == session_id, _BATCHES.c.seq == seq)
+    ).first()
+    db.rollback()
+    if row is None:
+        raise IngestConflict(f"sequence {seq} is in the past; expected {expected}", expected)
+    if row.body_sha256 != h:
+        raise IngestConflict(f"sequence {seq} was already used by a different batch; expected sequence {expected}", expected)
+    return dict(row.response)
+
+
 def _apply_once(
     db: Session,
     host: EngineHost,
-    user: User,
+    user_id: int,
     session_id: int,
     seq: int,
     batch: SensorBatch,
+    raw: bytes,
+    h: str,
+    also: Callable[[Session], None] | None,
 ) -> tuple[dict[str, Any], bool] | None:
-    """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session).
-
-    A retry of an applied sequence number with the same content returns the stored response
-    (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
-    content and closed sessions.
-    """
-    raw = canonical_bytes(batch)
-    h = digest(raw)
+    # Core statements on the hot path: one read transaction, the engine outside any transaction, one short
+    # write transaction whose version check makes concurrent workers unable to apply a batch twice.
     with host.lock(session_id):
-        sess = crud.get_session(db, user, session_id)
-        if sess is None:
+        row = db.execute(
+            select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in).where(
+                _TS.c.id == session_id, _TS.c.user_id == user_id
+            )
+        ).first()
+        if row is None:
             db.rollback()
             return None
-        if seq < sess.next_seq:
-            resp = _replayed(db, sess, seq, h)
+        if seq < row.next_seq:
+            return _replayed_core(db, session_id, seq, h, row.next_seq), True
+        if row.status != "open":
             db.rollback()
-            return resp, True
-        if sess.status != "open":
+            raise IngestConflict(f"session {session_id} is closed; no more batches accepted", row.next_seq)
+        if seq > row.next_seq:
             db.rollback()
-            raise IngestConflict(f"session {session_id} is closed; no more batches accepted", sess.next_seq)
-        if seq > sess.next_seq:
-            expected = sess.next_seq
-            db.rollback()
-            raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {expected}", expected)
-        engine = host.restore(sess)
-        host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
-        db.commit()  # end the read transaction: the engine runs outside any transaction
-        upd = engine.feed(batch)
-        next_seq = seq + 1
-        resp = _update_dict(sess.id, seq, next_seq, upd)
-        db.add(
-            BatchRecord(
-                session_id=sess.id, seq=seq, body_sha256=h, raw=raw, n_acc=len(batch.acc_t_ns),
-                n_gyr=len(batch.gyr_t_ns), n_mag=len(batch.mag_t_ns), response=resp,
-            )
+            raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {row.next_seq}", row.next_seq)
+        engine = host.restore_at(
+            session_id, row.version,
+            lambda: db.execute(select(_TS.c.engine_state).where(_TS.c.id == session_id)).scalar_one(),
+            row.engine_mode, row.profile_in,
         )
-        _store_outputs(db, sess, seq, upd)
-        sess.engine_state = engine.to_bytes()
-        sess.next_seq = next_seq
+        db.rollback()  # end the read transaction
+        host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
+        upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
+        next_seq = seq + 1
+        resp = _update_dict(session_id, seq, next_seq, upd)
+        state = engine.to_bytes()
         try:
-            # one short write transaction; the UPDATE of the session checks the version read above, so a
-            # concurrent worker that applied this batch first makes it fail instead of applying it twice
             with host.write_lock:
+                res = db.execute(
+                    update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
+                        version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=upd.behaviour,
+                        mode=upd.mode, sensor_config=resp["sensor_config"],
+                        n_positions=_TS.c.n_positions + len(upd.positions),
+                    )
+                )
+                if res.rowcount != 1:
+                    raise StaleDataError("session changed since it was read")
+                db.execute(insert(_BATCHES), [{
+                    "session_id": session_id, "seq": seq, "body_sha256": h, "raw": raw, "n_acc": len(batch.acc_t_ns),
+                    "n_gyr": len(batch.gyr_t_ns), "n_mag": len(batch.mag_t_ns), "response": resp, "received_at": utcnow(),
+                }])
+                if resp["positions"]:
+                    db.execute(insert(_POSITIONS), [{"session_id": session_id, "seq": seq, **p} for p in resp["positions"]])
+                if resp["events"]:
+                    db.execute(insert(_EVENTS), [{"session_id": session_id, "seq": seq, **e} for e in resp["events"]])
+                if also is not None:
+                    also(db)
                 db.commit()
         except (StaleDataError, IntegrityError):
             # another worker applied this sequence number first: answer as for a retry
             db.rollback()
-            sess = crud.get_session(db, user, session_id)
-            assert sess is not None
-            resp = _replayed(db, sess, seq, h)
-            return resp, True
-        host.remember(sess.id, sess.version, engine)
+            cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
+            return _replayed_core(db, session_id, seq, h, cur), True
+        host.remember(session_id, row.version + 1, engine)
         return resp, False
 
 

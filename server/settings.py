@@ -30,6 +30,8 @@ class Settings(BaseSettings):
         Run Alembic migrations to ``head`` when the app is created.
     engine_cache_size : int
         Engines kept in memory between batches (their state is still persisted after every batch).
+    ingest_threads : int
+        Worker threads of one process that handle batch uploads.
     sensorlogger_hold_s : float
         Sensor Logger pushes may arrive out of order: samples are held back this long [s] before being
         fed to the engine in time order.
@@ -45,6 +47,7 @@ class Settings(BaseSettings):
     migrate_on_startup: bool = True
     engine_cache_size: int = Field(default=512, ge=0)
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
+    ingest_threads: int = Field(default=4, ge=1, le=64)
 
     @field_validator("database_url")
     @classmethod

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.security import HTTPAuthorizationCredentials
-from starlette.concurrency import run_in_threadpool
+from sqlalchemy import select
 
 from models.batch import BatchError
 from server import crud
-from server.deps import CurrentUser, SessionDep, current_user
+from server.deps import CurrentUser, SessionDep
+from server.models import Token
+from server.security import hash_token
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
 from server.schemas import BatchResponse
@@ -38,14 +41,21 @@ def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes) ->
     request waits for a thread)."""
     app = request.app
     settings, host = app.state.settings, app.state.host
+    cred = _bearer_of(request)
+    token = cred.credentials if cred is not None else request.query_params.get("token")
+    if not token:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers={"WWW-Authenticate": "Bearer"})
     with app.state.sessionmaker() as db:
-        user = current_user(db, request, _bearer_of(request))
+        user_id = db.execute(
+            select(Token.user_id).where(Token.token_hash == hash_token(token), Token.revoked.is_(False))
+        ).scalar_one_or_none()
+        if user_id is None:
+            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers={"WWW-Authenticate": "Bearer"})
         if seq < 0:
             raise BatchError("seq", "must be >= 0")
         batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
-        batch.validate()
         try:
-            out = apply_batch(db, host, user, session_id, seq, batch)
+            out = apply_batch(db, host, user_id, session_id, seq, batch)
         except BatchError:
             db.rollback()
             raise
@@ -79,7 +89,8 @@ async def put_batch(session_id: int, seq: int, body: Annotated[bytes, Depends(_b
     gets 409 with ``expected_seq``. Samples are validated (units, order, finiteness): 422 names the field.
     The body is JSON or msgpack (``Content-Type``), see ``server/formats.py``.
     """
-    return await run_in_threadpool(_put_batch_sync, request, session_id, seq, body)
+    loop = asyncio.get_running_loop()
+    return await loop.run_in_executor(request.app.state.ingest_pool, _put_batch_sync, request, session_id, seq, body)
 
 
 @router.get("")

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, status
-from sqlalchemy import select
+from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
 
 from models.batch import BatchError, SensorBatch
@@ -103,10 +103,15 @@ def _feed_ready(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, h
     if batch.is_empty:
         return None
     batch.validate()
-    link.watermark_ns = horizon_ns
     sess = crud.get_session(db, user, link.session_id)
     assert sess is not None
-    out = apply_batch(db, host, user, link.session_id, sess.next_seq, batch)
+    link_id, next_seq = link.id, sess.next_seq
+    db.rollback()
+
+    def advance(tx: Any) -> None:  # in the batch's own write transaction: fed samples are never fed again
+        tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=horizon_ns))
+
+    out = apply_batch(db, host, user.id, link.session_id, next_seq, batch, also=advance)
     return out[0] if out else None
 
 
