@@ -63,7 +63,8 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.sessionmaker = make_sessionmaker(db_engine)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
-    app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite")
+    app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
+                                engine_processes=settings.engine_processes)
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 

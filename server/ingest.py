@@ -23,8 +23,9 @@ from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
 
-from models.batch import SensorBatch
+from models.batch import STREAMS, BatchError, SensorBatch
 from server import crud
+from server.engine_pool import EnginePool
 from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 
@@ -71,10 +72,20 @@ class EngineHost:
         The engine class (default :class:`energy.engine.Engine`).
     serialize_writes : bool
         Serialise this process's write transactions (SQLite).
+    engine_processes : int
+        Helper processes that run the engines of batch uploads (0 = in this process).
     """
 
-    def __init__(self, cache_size: int = 512, engine_cls: Any | None = None, serialize_writes: bool = False) -> None:
+    def __init__(
+        self,
+        cache_size: int = 512,
+        engine_cls: Any | None = None,
+        serialize_writes: bool = False,
+        engine_processes: int = 0,
+    ) -> None:
         self.cache_size = cache_size
+        # engines in helper processes (only for the default engine class: helpers import it themselves)
+        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size) if engine_processes > 0 and engine_cls is None else None
         # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
         # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
         self.write_lock: Any = threading.Lock() if serialize_writes else nullcontext()
@@ -175,7 +186,7 @@ def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str
         "sensor_config": dict(vars(upd.sensor_config)),
     }
     try:
-        json.dumps(d, allow_nan=False)
+        json.dumps(d, allow_nan=False)  # NaN/inf would be invalid JSON (and invalid in PostgreSQL's json)
     except ValueError:
         d = json_safe(d)
     return d
@@ -285,24 +296,39 @@ def _apply_once(
         if seq > row.next_seq:
             db.rollback()
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {row.next_seq}", row.next_seq)
-        engine = host.restore_at(
-            session_id, row.version,
-            lambda: db.execute(select(_TS.c.engine_state).where(_TS.c.id == session_id)).scalar_one(),
-            row.engine_mode, row.profile_in,
-        )
-        db.rollback()  # end the read transaction
-        host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
-        upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
+        def load_state() -> bytes | None:
+            return db.execute(select(_TS.c.engine_state).where(_TS.c.id == session_id)).scalar_one()
+
+        engine: EngineLike | None = None
+        if host.pool is not None:  # the engine runs in a helper process
+            db.rollback()
+            streams = {}
+            for name in STREAMS:
+                streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
+            out = host.pool.feed(session_id, row.version, None, seq, streams)
+            if out[0] == "miss":
+                blob = load_state()
+                db.rollback()
+                out = host.pool.feed(session_id, row.version, blob, seq, streams)
+            if out[0] == "batch_error":
+                raise BatchError(out[1], out[2])
+            _, resp, state, behaviour, mode = out
+        else:
+            engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
+            db.rollback()  # end the read transaction
+            host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
+            upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
+            resp = _update_dict(session_id, seq, seq + 1, upd)
+            state = engine.to_bytes()
+            behaviour, mode = upd.behaviour, upd.mode
         next_seq = seq + 1
-        resp = _update_dict(session_id, seq, next_seq, upd)
-        state = engine.to_bytes()
         try:
             with host.write_lock:
                 res = db.execute(
                     update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
-                        version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=upd.behaviour,
-                        mode=upd.mode, sensor_config=resp["sensor_config"],
-                        n_positions=_TS.c.n_positions + len(upd.positions),
+                        version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=behaviour,
+                        mode=mode, sensor_config=resp["sensor_config"],
+                        n_positions=_TS.c.n_positions + len(resp["positions"]),
                     )
                 )
                 if res.rowcount != 1:
@@ -323,7 +349,8 @@ def _apply_once(
             db.rollback()
             cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
             return _replayed_core(db, session_id, seq, h, cur), True
-        host.remember(session_id, row.version + 1, engine)
+        if engine is not None:
+            host.remember(session_id, row.version + 1, engine)
         return resp, False
 
 

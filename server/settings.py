@@ -30,6 +30,8 @@ class Settings(BaseSettings):
         Run Alembic migrations to ``head`` when the app is created.
     engine_cache_size : int
         Engines kept in memory between batches (their state is still persisted after every batch).
+    engine_processes : int
+        Helper processes per server process that run the navigation engines (0 = in the server process).
     ingest_threads : int
         Worker threads of one process that handle batch uploads.
     sensorlogger_hold_s : float
@@ -48,6 +50,7 @@ class Settings(BaseSettings):
     engine_cache_size: int = Field(default=512, ge=0)
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
     ingest_threads: int = Field(default=4, ge=1, le=64)
+    engine_processes: int = Field(default=1, ge=0, le=64)
 
     @field_validator("database_url")
     @classmethod

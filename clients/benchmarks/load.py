@@ -104,11 +104,55 @@ class _Server:
             self.proc.wait()
 
 
-async def _device(client: Any, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
-                  lat: list[float], stats: dict[str, int]) -> None:
-    import httpx
+class _Conn:
+    """A minimal keep-alive HTTP/1.1 client on asyncio streams (one per device): the load generator must cost
+    far less CPU than the server it measures, which a general-purpose async HTTP client does not."""
 
-    headers = {"Authorization": f"Bearer {token}"}
+    def __init__(self, host: str, port: int) -> None:
+        self.host, self.port = host, port
+        self.reader: asyncio.StreamReader | None = None
+        self.writer: asyncio.StreamWriter | None = None
+
+    async def _open(self) -> None:
+        self.reader, self.writer = await asyncio.open_connection(self.host, self.port)
+
+    async def request(self, method: str, path: str, body: bytes, headers: dict[str, str]) -> tuple[int, dict[str, str], bytes]:
+        if self.writer is None:
+            await self._open()
+        assert self.reader is not None and self.writer is not None
+        head = f"{method} {path} HTTP/1.1\r\nHost: {self.host}\r\nContent-Length: {len(body)}\r\n"
+        head += "".join(f"{k}: {v}\r\n" for k, v in headers.items()) + "\r\n"
+        try:
+            self.writer.write(head.encode() + body)
+            await self.writer.drain()
+            status_line = await self.reader.readline()
+            if not status_line:
+                raise ConnectionError("connection closed")
+            status = int(status_line.split()[1])
+            hdrs: dict[str, str] = {}
+            while True:
+                line = await self.reader.readline()
+                if line in (b"\r\n", b""):
+                    break
+                k, _, v = line.decode().partition(":")
+                hdrs[k.strip().lower()] = v.strip()
+            data = await self.reader.readexactly(int(hdrs.get("content-length", "0")))
+        except (ConnectionError, asyncio.IncompleteReadError, OSError):
+            self.close()
+            raise ConnectionError("transport error") from None
+        if hdrs.get("connection", "").lower() == "close":
+            self.close()
+        return status, hdrs, data
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+        self.reader = self.writer = None
+
+
+async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
+                  lat: list[float], stats: dict[str, int]) -> None:
+    conn = _Conn("127.0.0.1", port)
     for k, (body, ctype) in enumerate(bodies):
         due = t0 + phase + k
         now = time.perf_counter()
@@ -119,27 +163,31 @@ async def _device(client: Any, token: str, sid: int, bodies: list[tuple[bytes, s
         start = time.perf_counter()
         for attempt in range(5):  # same sequence number on every retry
             try:
-                r = await client.put(f"/v1/sessions/{sid}/batches/{k}", content=body,
-                                     headers={**headers, "content-type": ctype})
-            except httpx.TransportError:
+                status, hdrs, _ = await conn.request(
+                    "PUT", f"/v1/sessions/{sid}/batches/{k}", body,
+                    {"Authorization": f"Bearer {token}", "Content-Type": ctype},
+                )
+            except ConnectionError:
                 stats["transport_errors"] += 1
                 await asyncio.sleep(0.05 * (attempt + 1))
                 continue
-            if r.status_code == 200:
+            if status == 200:
                 lat.append(time.perf_counter() - start)
                 stats["acked"] += 1
-                if r.headers.get("x-pednav-replayed") == "true":
+                if hdrs.get("x-pednav-replayed") == "true":
                     stats["replayed"] += 1
             else:
-                stats[f"http_{r.status_code}"] = stats.get(f"http_{r.status_code}", 0) + 1
+                stats[f"http_{status}"] = stats.get(f"http_{status}", 0) + 1
             break
         else:
             stats["gave_up"] += 1
+    conn.close()
 
 
 async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[bytes, str]]) -> dict[str, Any]:
     import httpx
 
+    port = int(url.rsplit(":", 1)[1])
     limits = httpx.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
     async with httpx.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
         h = {"Authorization": f"Bearer {token}"}
@@ -155,7 +203,7 @@ async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[byte
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
         await asyncio.gather(*[
-            _device(client, token, sid, bodies, t0, i / devices, lat, stats) for i, sid in enumerate(sids)
+            _device(port, token, sid, bodies, t0, i / devices, lat, stats) for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
         # verify against what the server stored
