@@ -75,3 +75,30 @@ def test_two_workers_never_apply_the_same_batch_twice(settings, client, make_use
     for _, _, body in results:
         by_seq.setdefault(body["seq"], []).append(body)
     assert all(all(b == group[0] for b in group) for group in by_seq.values())
+
+
+def test_engine_helper_process_gives_identical_results(settings, client, make_user) -> None:  # type: ignore[no-untyped-def]
+    from clients.sdk import PednavClient
+    from clients.simulators import FootSensorSimulator
+    from clients.synth import synthesize
+
+    rec = synthesize("walk", seed=5)
+    _, tok = make_user()
+    _, tok2 = make_user()  # another user: closing the first session stores a calibration profile for its user
+    ref = FootSensorSimulator(rec).run(PednavClient(token=tok, http=client))  # engine in this process
+    prof = client.get("/v1/profiles/walk", headers=auth(tok))
+    assert prof.status_code == 200 and prof.json()["source"] == f"session:{ref.session_id}"  # learned at close
+    app2 = create_app(settings.model_copy(update={"engine_processes": 1, "migrate_on_startup": False}))
+    try:
+        assert app2.state.host.pool is not None
+        with TestClient(app2) as c2:
+            got = FootSensorSimulator(rec).run(PednavClient(token=tok2, http=c2))  # engine in a helper process
+        with app2.state.sessionmaker() as db:
+            assert db.get(TrackSession, ref.session_id).engine_state == db.get(TrackSession, got.session_id).engine_state
+    finally:
+        app2.state.host.pool.shutdown()
+        app2.state.db_engine.dispose()
+    assert len(got.positions) > 5
+    strip = lambda rs: [{k: v for k, v in r.items() if k != "session_id"} for r in rs]  # noqa: E731
+    assert strip(got.responses) == strip(ref.responses)
+    assert got.positions == ref.positions
