@@ -239,13 +239,17 @@ def apply_batch(
     for i in range(attempts):
         try:
             return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also)
-        except OperationalError:
+        except (OperationalError, _Raced):
             db.rollback()
             host.forget(session_id)
             if i == attempts - 1:
                 raise
             time.sleep(0.01 * (i + 1))
     return None
+
+
+class _Raced(Exception):
+    """Another worker committed this session between two reads; start over."""
 
 
 _TS = TrackSession.__table__
@@ -297,7 +301,12 @@ def _apply_once(
             db.rollback()
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {row.next_seq}", row.next_seq)
         def load_state() -> bytes | None:
-            return db.execute(select(_TS.c.engine_state).where(_TS.c.id == session_id)).scalar_one()
+            # version and state in ONE statement: separate SELECTs need not see the same commit (SQLite's
+            # driver runs SELECTs outside a transaction; PostgreSQL reads committed per statement)
+            cur = db.execute(select(_TS.c.version, _TS.c.engine_state).where(_TS.c.id == session_id)).one()
+            if cur.version != row.version:
+                raise _Raced()
+            return cur.engine_state
 
         engine: EngineLike | None = None
         if host.pool is not None:  # the engine runs in a helper process
