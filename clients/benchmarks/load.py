@@ -2,7 +2,8 @@
 
 Each device opens a session and sends one 1-s batch of 100 Hz 9-axis samples (accelerometer, gyroscope,
 magnetometer; compact msgpack body, float32 values) every second, waiting for each answer before the next
-batch (sequence numbers must follow each other). Send instants are spread evenly over the second. The
+batch (sequence numbers must follow each other). The samples are a synthetic walk (stand, walk, turn,
+walk, stand); device ``i`` starts ``i mod 60`` seconds into it, so the devices are not in lockstep. Send instants are spread evenly over the second. The
 benchmark starts the server itself (``uvicorn server.app:app_from_env --factory``, 1 worker) on a free port,
 warms it up (numba compilation of the engine) with one session that is not measured, then runs for
 ``--seconds``. It reports latency percentiles of the batch uploads, throughput, late sends (a device could
@@ -43,6 +44,9 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+_SPREAD_S = 60  # devices start at different points of the recording (independent people, not in lockstep)
 
 
 def _bodies(seconds: int, rate_hz: float, encoding: str) -> list[tuple[bytes, str]]:
@@ -202,8 +206,10 @@ async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[byte
         lat: list[float] = []
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
+        n = len(bodies) - _SPREAD_S
         await asyncio.gather(*[
-            _device(port, token, sid, bodies, t0, i / devices, lat, stats) for i, sid in enumerate(sids)
+            _device(port, token, sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats)
+            for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
         # verify against what the server stored
@@ -212,11 +218,11 @@ async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[byte
             seqs = [b["seq"] for b in (await client.get(f"/v1/sessions/{sid}/batches", headers=h)).json()]
             stored_total += len(seqs)
             dup += len(seqs) - len(set(seqs))
-            lost += len(set(range(len(bodies))) - set(seqs))
+            lost += len(set(range(n)) - set(seqs))
     a = np.array(lat) * 1e3
     pct = {f"p{q}": float(np.percentile(a, q)) if len(a) else None for q in (50, 95, 99)}
     return {
-        "requests_sent": devices * len(bodies),
+        "requests_sent": devices * n,
         "acked": stats["acked"],
         "stored": stored_total,
         "lost_batches": lost,
@@ -238,7 +244,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from server.settings import Settings
 
     seconds = max(1, int(round(args.seconds)))
-    bodies = _bodies(seconds, args.rate_hz, args.encoding)
+    bodies = _bodies(seconds + _SPREAD_S, args.rate_hz, args.encoding)
     schema = None
     tmp = None
     if args.database_url:
