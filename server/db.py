@@ -31,7 +31,7 @@ def make_engine(settings: Settings) -> Engine:
             cur.close()
 
         return eng
-    eng = create_engine(url, pool_size=20, max_overflow=40, pool_timeout=15, pool_pre_ping=True)
+    eng = create_engine(url, pool_size=20, max_overflow=40, pool_timeout=15, pool_recycle=1800)
     if settings.db_schema:
         schema = settings.db_schema
 

@@ -88,6 +88,7 @@ class EngineHost:
         self.pool: EnginePool | None = EnginePool(engine_processes, cache_size) if engine_processes > 0 and engine_cls is None else None
         # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
         # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
+        self.serialize_writes = serialize_writes
         self.write_lock: Any = threading.Lock() if serialize_writes else nullcontext()
         self._engine_cls = engine_cls
         self._cache: OrderedDict[int, tuple[int, EngineLike]] = OrderedDict()
@@ -308,23 +309,29 @@ def _apply_once(
                 raise _Raced()
             return cur.engine_state
 
+        def end_read() -> None:
+            # SQLite: a read transaction that later writes fails if another writer committed meanwhile, so
+            # end it before the engine runs; PostgreSQL: keep it (saves round trips; the version check guards)
+            if host.serialize_writes:
+                db.rollback()
+
         engine: EngineLike | None = None
         if host.pool is not None:  # the engine runs in a helper process
-            db.rollback()
+            end_read()
             streams = {}
             for name in STREAMS:
                 streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
             out = host.pool.feed(session_id, row.version, None, seq, streams)
             if out[0] == "miss":
                 blob = load_state()
-                db.rollback()
+                end_read()
                 out = host.pool.feed(session_id, row.version, blob, seq, streams)
             if out[0] == "batch_error":
                 raise BatchError(out[1], out[2])
             _, resp, state, behaviour, mode = out
         else:
             engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
-            db.rollback()  # end the read transaction
+            end_read()
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
             upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
             resp = _update_dict(session_id, seq, seq + 1, upd)
