@@ -1,0 +1,76 @@
+"""CLI contracts (DESIGN.md "Service contracts"): admin create-user, replay over HTTP == local, export, demo."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clients.cli import main
+
+
+def _run(capsys: pytest.CaptureFixture[str], argv: list[str]) -> tuple[int, str]:
+    rc = main(argv)
+    return rc, capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def live_server(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """A real uvicorn server (default settings: engines in a helper process) on a fresh SQLite file."""
+    from clients.commands.demo import LocalServer
+
+    db = tmp_path_factory.mktemp("cli") / "pednav.db"
+    with LocalServer(f"sqlite:///{db}") as srv:
+        yield srv, f"sqlite:///{db}"
+        if srv.app.state.host.pool is not None:
+            srv.app.state.host.pool.shutdown()
+
+
+def test_admin_create_user_json(capsys, live_server) -> None:  # type: ignore[no-untyped-def]
+    srv, url = live_server
+    rc, out = _run(capsys, ["admin", "create-user", "carol", "--json", "--database-url", url])
+    doc = json.loads(out)
+    assert rc == 0 and set(doc) == {"user_id", "token"} and doc["token"].startswith("pn_")
+    assert main(["admin", "create-user", "carol", "--json", "--database-url", url]) == 1  # exists
+    capsys.readouterr()
+
+
+def test_replay_over_http_equals_local_and_export(capsys, live_server, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    srv, url = live_server
+    _, out = _run(capsys, ["admin", "create-user", "dave", "--json", "--database-url", url])
+    token = json.loads(out)["token"]
+    rc1, local = _run(capsys, ["replay", "walk", "--json"])
+    rc2, remote = _run(capsys, ["replay", "walk", "--server", srv.url, "--token", token, "--batch-seconds", "1", "--json"])
+    assert rc1 == rc2 == 0
+    a, b = json.loads(local), json.loads(remote)
+    assert "session_id" in b and "session_id" not in a
+    pa, pb = np.array(a["positions"]), np.array(b["positions"])
+    assert pa.shape == pb.shape and pa.shape[0] > 5 and pa.shape[1] == 4
+    assert np.max(np.abs(pa - pb)) <= 1e-9
+    assert a["labels"] == b["labels"] and a["modes"] == b["modes"] and len(a["labels"]) == len(a["positions"])
+    rc, text = _run(capsys, ["export", str(b["session_id"]), "--server", srv.url, "--token", token, "--format", "csv"])
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert rc == 0 and len(rows) == len(pb)
+    assert np.allclose([[float(r["north"]), float(r["east"])] for r in rows], pb[:, 1:3], atol=1e-9)
+    assert main(["export", str(b["session_id"]), "--server", srv.url, "--token", "wrong"]) == 1
+    capsys.readouterr()
+
+
+def test_replay_unknown_input(capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main(["replay", "no-such-file-or-scenario", "--json"]) == 1
+    assert "not a synthetic scenario" in capsys.readouterr().err
+
+
+def test_demo_runs_and_writes_plot(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    plot = tmp_path / "demo.png"
+    rc, out = _run(capsys, ["demo", "--json", "--plot", str(plot), "--dir", str(tmp_path / "db")])
+    s = json.loads(out)
+    assert rc == 0 and plot.stat().st_size > 10_000
+    assert s["positions"] > 20 and s["distance_m"] > 0 and np.isfinite(s["final_error_m"])
+    assert set(s["time_in_mode_s"]) <= {"zupt", "pdr", "idle"} and 0 < s["gyro_duty_cycle"] < 1
+    assert s["energy"]["scheduler_mj"] > 0 and s["energy"]["always_on_mj"] > 0
+    assert s["geojson_points"] == s["positions"]
