@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -50,7 +52,16 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, trajectories, users
 
     settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        yield
+        # stop the engine helper processes with the server (they are spawned again if the app is reused)
+        if app.state.host.pool is not None:
+            app.state.host.pool.shutdown()
+
     app = FastAPI(
+        lifespan=lifespan,
         title="pednav",
         version="1",
         description="Energy-aware pedestrian navigation service: sessions, sensor batches, calibration profiles, trajectories.",

@@ -10,7 +10,9 @@ bytes), and the worker still commits state and outputs in one versioned write tr
 from __future__ import annotations
 
 import multiprocessing
+import os
 import threading
+import time
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
@@ -26,6 +28,15 @@ _CACHE_SIZE = 512
 def _init(cache_size: int) -> None:
     global _CACHE_SIZE
     _CACHE_SIZE = cache_size
+    parent = os.getppid()
+
+    def watch_parent() -> None:  # a helper never outlives its server process (e.g. after SIGKILL)
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch_parent, daemon=True, name="watch-parent").start()
 
 
 def _feed(
@@ -88,5 +99,5 @@ class EnginePool:
     def shutdown(self) -> None:
         if self._pools is not None:
             for p in self._pools:
-                p.shutdown(wait=False, cancel_futures=True)
+                p.shutdown(wait=True, cancel_futures=True)
             self._pools = None
