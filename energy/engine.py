@@ -199,7 +199,6 @@ class Engine:
         self.mode: EngineMode = mode
         self.config = config or EngineConfig()
         self.trace = Trace() if trace else None
-        self._keep_trace = trace
         self._t0_ns: int | None = None
         self._last_acc_t: int | None = None
         max_age = int(self.config.max_sample_age_s * 1e9)
