@@ -115,6 +115,8 @@ class TrackSession(Base):
     sensor_config: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     profile_in: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     n_positions: Mapped[int] = mapped_column(Integer, default=0)
+    reprocessed_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    reprocess_count: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     version: Mapped[int] = mapped_column(Integer, nullable=False, default=0)
 
     __mapper_args__ = {"version_id_col": version}

@@ -25,6 +25,8 @@ __all__ = [
     "GaitSummaryOut",
     "SensorLoggerItem",
     "SensorLoggerPush",
+    "ReprocessIn",
+    "ReprocessOut",
 ]
 
 DeviceKind = Literal["foot", "phone", "watch"]
@@ -95,6 +97,8 @@ class SessionOut(_Out):
     mode: str
     sensor_config: SensorConfigOut | None
     n_positions: int
+    reprocessed_at: datetime | None = None
+    reprocess_count: int = 0
 
 
 class PositionOut(BaseModel):
@@ -157,3 +161,29 @@ class SensorLoggerPush(BaseModel):
     sessionId: str  # noqa: N815
     deviceId: str = ""  # noqa: N815
     payload: list[SensorLoggerItem]
+
+
+class ReprocessIn(BaseModel):
+    """Options of a re-processing run (the body may be omitted)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    engine_mode: Literal["auto", "zupt", "pdr"] | None = Field(
+        default=None, description="engine mode of the re-run; default: the session's own")
+    dry_run: bool = Field(default=False, description="compute and compare only; store nothing")
+
+
+class ReprocessOut(BaseModel):
+    """Result of re-processing a session from its stored raw batches."""
+
+    session_id: int
+    engine: str = Field(description="engine class that produced the new trajectory")
+    engine_mode: str
+    batches: int = Field(description="stored batches fed, in sequence order")
+    positions_before: int
+    positions_after: int
+    events_after: int
+    identical: bool = Field(description="every stored position field equals the previous trajectory's")
+    max_shift_m: float | None = Field(description="largest 3-D displacement [m] when the positions have the same times")
+    stored: bool = Field(description="false for a dry run")
+    reprocess_count: int

@@ -9,7 +9,8 @@ from fastapi import APIRouter, HTTPException, Query, status
 from server import crud
 from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
 from server.ingest import close_session, engine_profile_in
-from server.schemas import SessionCreate, SessionOut
+from server.reprocess import ReprocessConflict, reprocess_session
+from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut
 
 __all__ = ["router"]
 
@@ -58,3 +59,24 @@ def close(session_id: int, db: SessionDep, user: CurrentUser, host: HostDep) -> 
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
     return sess
+
+
+@router.post("/{session_id}/reprocess", response_model=ReprocessOut)
+def reprocess(
+    session_id: int, db: SessionDep, user: CurrentUser, host: HostDep, body: ReprocessIn | None = None
+) -> Any:
+    """Re-process the session with the server's current engine from its stored raw batches (owner only).
+
+    The batches are fed in sequence order as they arrived (a closed session is flushed again); the new
+    positions, events and engine state replace the old ones atomically. With the engine unchanged the
+    trajectory is reproduced exactly (``identical: true``). 409 when the session received a batch meanwhile
+    or a stored batch is refused by the current engine; nothing is changed then. ``dry_run`` only compares.
+    """
+    opts = body or ReprocessIn()
+    try:
+        res = reprocess_session(db, host, user, session_id, opts.engine_mode, opts.dry_run)
+    except ReprocessConflict as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, exc.message) from None
+    if res is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    return ReprocessOut(**vars(res))
