@@ -3,7 +3,11 @@
 Uploads are sequenced: batch ``k`` of a session is ``PUT /v1/sessions/{id}/batches/{k}``. A failed request
 (connection error, timeout, 429/5xx) is retried with the *same* sequence number and body, which the server
 acknowledges again without applying it twice. :class:`BatchStream` adds offline buffering: batches that
-cannot be delivered stay queued in order and go out with the next successful send.
+cannot be delivered stay queued in order and go out with the next successful send. With ``spool_dir`` the
+queue lives on disk (:class:`Spool`, a small SQLite file): every batch is written there, durably, before it
+is sent and removed only when the server has acknowledged it, so a crash of the app loses nothing — after a
+restart ``api.stream(session_id, spool_dir=...)`` (or :meth:`PednavClient.resume`) sends the queued batches
+again with their original sequence numbers, and the server applies each exactly once.
 
 Wire formats (see ``server/formats.py`` for the server side): JSON or msgpack with packed little-endian
 arrays; ``float_dtype="<f4"`` is lossless for Android sensor values (float32) and ~5x smaller than JSON,
@@ -24,9 +28,13 @@ from __future__ import annotations
 
 import asyncio
 import json
+import sqlite3
+import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import httpx
@@ -44,6 +52,7 @@ __all__ = [
     "AsyncPednavClient",
     "BatchStream",
     "AsyncBatchStream",
+    "Spool",
 ]
 
 Encoding = Literal["msgpack", "json"]
@@ -120,6 +129,14 @@ def _raise_for(r: httpx.Response) -> None:
         exp = body.get("expected_seq") if isinstance(body, dict) else None
         raise SequenceConflict(r.status_code, detail, body, exp)
     raise ApiError(r.status_code, detail, body)
+
+
+def _retry_after(r: httpx.Response, cap_s: float = 30.0) -> float:
+    """Extra wait [s] a 429/503 asks for (``Retry-After`` in seconds; 0 when absent or unreadable)."""
+    try:
+        return min(max(float(r.headers.get("retry-after", "0")), 0.0), cap_s)
+    except ValueError:
+        return 0.0
 
 
 def _decode(r: httpx.Response) -> Any:
@@ -209,12 +226,19 @@ class PednavClient:
                 continue
             if r.status_code in _RETRY_STATUS:
                 last = ApiError(r.status_code, r.text)
+                if attempt < self.opts.retries:
+                    time.sleep(_retry_after(r))
                 continue
             return r
         raise Offline(f"{method} {path}: gave up after {self.opts.retries + 1} attempts: {last}")
 
     def _json(self, method: str, path: str, **kw: Any) -> Any:
         return _decode(self.request(method, path, **kw))
+
+    @property
+    def server_key(self) -> str:
+        """Identifies the server in a shared :class:`Spool` (its base URL)."""
+        return str(self.http.base_url).rstrip("/")
 
     # -------------------------------------------------------------- resources
     def me(self) -> dict[str, Any]:
@@ -283,32 +307,233 @@ class PednavClient:
     def profile_history(self, behaviour: str) -> list[dict[str, Any]]:
         return self._json("GET", f"/v1/profiles/{behaviour}/history")
 
-    def stream(self, session_id: int, next_seq: int = 0, max_buffer: int = 86_400) -> BatchStream:
-        """An upload stream with offline buffering for a session."""
-        return BatchStream(self, session_id, next_seq, max_buffer)
+    def reprocess(self, session_id: int, engine_mode: str | None = None, dry_run: bool = False) -> dict[str, Any]:
+        """Re-process a session with the server's current engine from its stored raw batches."""
+        return self._json("POST", f"/v1/sessions/{session_id}/reprocess", json={"engine_mode": engine_mode, "dry_run": dry_run})
+
+    def stream(
+        self, session_id: int, next_seq: int = 0, max_buffer: int = 86_400, spool_dir: str | Path | None = None
+    ) -> BatchStream:
+        """An upload stream with offline buffering for a session (on disk in ``spool_dir`` when given)."""
+        return BatchStream(self, session_id, next_seq, max_buffer, spool_dir)
+
+    def resume(self, spool_dir: str | Path) -> dict[int, list[dict[str, Any]]]:
+        """After a restart: send every batch still queued in ``spool_dir`` for this server, per session in
+        sequence order; returns the answers per session (sessions that are still unreachable stay queued)."""
+        with Spool(spool_dir) as sp:
+            sids = sp.sessions(self.server_key)
+        out: dict[int, list[dict[str, Any]]] = {}
+        for sid in sids:
+            with self.stream(sid, spool_dir=spool_dir) as st:
+                out[sid] = st.drain()
+        return out
+
+
+class Spool:
+    """A durable on-disk queue of uploads that the server has not acknowledged yet (one SQLite file,
+    ``pednav-spool.sqlite3``, in a directory of the app's choosing).
+
+    A batch is committed to the file (``synchronous=FULL``: on stable storage when the call returns) before
+    it is sent, and removed only after the server's answer; the next sequence number of each session is kept
+    in the same transaction. Several sessions and servers share one file (keyed by the server's base URL and
+    the session id). Usable from several threads.
+
+    Parameters
+    ----------
+    directory : str or Path
+        Created when missing.
+    """
+
+    FILENAME = "pednav-spool.sqlite3"
+
+    def __init__(self, directory: str | Path) -> None:
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        self.path = d / self.FILENAME
+        self._lock = threading.Lock()
+        self._db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False, timeout=30.0)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=FULL")
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS pending (server TEXT NOT NULL, session_id INTEGER NOT NULL, seq INTEGER NOT NULL,"
+            " body BLOB NOT NULL, ctype TEXT NOT NULL, PRIMARY KEY (server, session_id, seq))"
+        )
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS streams (server TEXT NOT NULL, session_id INTEGER NOT NULL,"
+            " next_seq INTEGER NOT NULL, PRIMARY KEY (server, session_id))"
+        )
+
+    def __enter__(self) -> Spool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def next_seq(self, server: str, session_id: int) -> int | None:
+        """The next sequence number recorded for a session (None when the spool never saw it)."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT next_seq FROM streams WHERE server=? AND session_id=?", (server, session_id)).fetchone()
+        return None if row is None else int(row[0])
+
+    def sessions(self, server: str) -> list[int]:
+        """Sessions of ``server`` with queued batches."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT DISTINCT session_id FROM pending WHERE server=? ORDER BY session_id", (server,)).fetchall()
+        return [int(r[0]) for r in rows]
+
+    def push(self, server: str, session_id: int, seq: int, body: bytes, ctype: str) -> None:
+        """Queue batch ``seq`` and record ``seq + 1`` as the session's next number (one durable commit)."""
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._db.execute("INSERT INTO pending VALUES (?, ?, ?, ?, ?)", (server, session_id, seq, body, ctype))
+                self._db.execute(
+                    "INSERT INTO streams VALUES (?, ?, ?) ON CONFLICT (server, session_id) DO UPDATE SET "
+                    "next_seq = max(next_seq, excluded.next_seq)", (server, session_id, seq + 1))
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+
+    def set_next_seq(self, server: str, session_id: int, next_seq: int) -> None:
+        with self._lock:
+            self._db.execute(
+                "INSERT INTO streams VALUES (?, ?, ?) ON CONFLICT (server, session_id) DO UPDATE SET "
+                "next_seq = max(next_seq, excluded.next_seq)", (server, session_id, next_seq))
+
+    def remove(self, server: str, session_id: int, seq: int) -> None:
+        """Forget an acknowledged batch."""
+        with self._lock:
+            self._db.execute("DELETE FROM pending WHERE server=? AND session_id=? AND seq=?", (server, session_id, seq))
+
+    def items(self, server: str, session_id: int) -> list[tuple[int, bytes, str]]:
+        """Queued batches of a session, oldest first, as ``(seq, body, content_type)``."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT seq, body, ctype FROM pending WHERE server=? AND session_id=? ORDER BY seq",
+                (server, session_id)).fetchall()
+        return [(int(a), bytes(b), str(c)) for a, b, c in rows]
+
+    def first(self, server: str, session_id: int) -> tuple[int, bytes, str] | None:
+        """The oldest queued batch of a session."""
+        with self._lock:
+            row = self._db.execute(
+                "SELECT seq, body, ctype FROM pending WHERE server=? AND session_id=? ORDER BY seq LIMIT 1",
+                (server, session_id)).fetchone()
+        return None if row is None else (int(row[0]), bytes(row[1]), str(row[2]))
+
+    def count(self, server: str, session_id: int) -> int:
+        with self._lock:
+            return int(self._db.execute(
+                "SELECT count(*) FROM pending WHERE server=? AND session_id=?", (server, session_id)).fetchone()[0])
+
+
+class _MemoryQueue:
+    """The in-memory pending queue (no spool)."""
+
+    def __init__(self) -> None:
+        self._q: deque[tuple[int, bytes, str]] = deque()
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def __iter__(self) -> Iterator[tuple[int, bytes, str]]:
+        return iter(list(self._q))
+
+    def first(self) -> tuple[int, bytes, str] | None:
+        return self._q[0] if self._q else None
+
+    def push(self, seq: int, body: bytes, ctype: str) -> None:
+        self._q.append((seq, body, ctype))
+
+    def remove(self, seq: int) -> None:
+        if self._q and self._q[0][0] == seq:
+            self._q.popleft()
+
+    def close(self) -> None:
+        pass
+
+
+class _SpoolQueue:
+    """The pending queue of one session in a :class:`Spool`."""
+
+    def __init__(self, spool: Spool, server: str, session_id: int, own: bool) -> None:
+        self.spool, self.server, self.session_id, self._own = spool, server, session_id, own
+
+    def __len__(self) -> int:
+        return self.spool.count(self.server, self.session_id)
+
+    def __iter__(self) -> Iterator[tuple[int, bytes, str]]:
+        return iter(self.spool.items(self.server, self.session_id))
+
+    def first(self) -> tuple[int, bytes, str] | None:
+        return self.spool.first(self.server, self.session_id)
+
+    def push(self, seq: int, body: bytes, ctype: str) -> None:
+        self.spool.push(self.server, self.session_id, seq, body, ctype)
+
+    def remove(self, seq: int) -> None:
+        self.spool.remove(self.server, self.session_id, seq)
+
+    def close(self) -> None:
+        if self._own:
+            self.spool.close()
+
+
+def _queue(server: str, session_id: int, next_seq: int, spool_dir: str | Path | Spool | None) -> tuple[Any, int]:
+    if spool_dir is None:
+        return _MemoryQueue(), next_seq
+    spool = spool_dir if isinstance(spool_dir, Spool) else Spool(spool_dir)
+    stored = spool.next_seq(server, session_id)
+    nxt = max(next_seq, stored if stored is not None else 0)
+    spool.set_next_seq(server, session_id, nxt)
+    return _SpoolQueue(spool, server, session_id, own=not isinstance(spool_dir, Spool)), nxt
 
 
 class BatchStream:
-    """Sequenced uploads with an in-order offline buffer.
+    """Sequenced uploads with an in-order offline buffer (in memory, or durable on disk with ``spool_dir``).
 
     Parameters
     ----------
     client : PednavClient
     session_id : int
     next_seq : int
-        Sequence number of the next batch (0 for a new session; ``session["next_seq"]`` to resume).
+        Sequence number of the next batch (0 for a new session; ``session["next_seq"]`` to resume). With a
+        spool the larger of this and the spool's own record is used, so batches queued before a crash keep
+        their numbers and new ones follow them.
     max_buffer : int
         Most batches kept while offline; beyond that :meth:`send` raises ``BufferError``.
+    spool_dir : str, Path or Spool, optional
+        Keep the queue in this directory's :class:`Spool`; batches queued there by an earlier run (crash)
+        are delivered first.
     """
 
-    def __init__(self, client: PednavClient, session_id: int, next_seq: int = 0, max_buffer: int = 86_400) -> None:
+    def __init__(
+        self, client: PednavClient, session_id: int, next_seq: int = 0, max_buffer: int = 86_400,
+        spool_dir: str | Path | Spool | None = None,
+    ) -> None:
         self.client = client
         self.session_id = session_id
-        self.next_seq = next_seq
         self.max_buffer = max_buffer
-        self.pending: deque[tuple[int, bytes, str]] = deque()
+        self.pending, self.next_seq = _queue(client.server_key, session_id, next_seq, spool_dir)
         self.last_response: dict[str, Any] | None = None
         self.bytes_sent = 0  # request body bytes queued so far
+
+    def __enter__(self) -> BatchStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the spool file (queued batches stay in it)."""
+        self.pending.close()
 
     @property
     def sensor_config(self) -> dict[str, Any] | None:
@@ -318,27 +543,27 @@ class BatchStream:
     def send(self, batch: SensorBatch) -> list[dict[str, Any]]:
         """Queue ``batch`` as the next sequence number and deliver what can be delivered.
 
-        Returns the answers received now (oldest first); an empty list means the server is unreachable and
-        the batch is buffered.
+        Returns the answers received now (oldest first, including those of batches queued earlier); an
+        empty list means the server is unreachable and the batch is buffered.
         """
         if len(self.pending) >= self.max_buffer:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)
         self.bytes_sent += len(body)
-        self.pending.append((self.next_seq, body, ctype))
+        self.pending.push(self.next_seq, body, ctype)  # durable before it is sent
         self.next_seq += 1
         return self.drain()
 
     def drain(self) -> list[dict[str, Any]]:
         """Deliver buffered batches in order until one fails in transit."""
         out: list[dict[str, Any]] = []
-        while self.pending:
-            seq, body, ctype = self.pending[0]
+        while (head := self.pending.first()) is not None:
+            seq, body, ctype = head
             try:
                 resp = self.client.upload_encoded(self.session_id, seq, body, ctype)
             except Offline:
                 break
-            self.pending.popleft()
+            self.pending.remove(seq)  # only after the server's answer
             self.last_response = resp
             out.append(resp)
         return out
@@ -387,9 +612,15 @@ class AsyncPednavClient:
                 continue
             if r.status_code in _RETRY_STATUS:
                 last = ApiError(r.status_code, r.text)
+                if attempt < self.opts.retries:
+                    await asyncio.sleep(_retry_after(r))
                 continue
             return r
         raise Offline(f"{method} {path}: gave up after {self.opts.retries + 1} attempts: {last}")
+
+    @property
+    def server_key(self) -> str:
+        return str(self.http.base_url).rstrip("/")
 
     async def _json(self, method: str, path: str, **kw: Any) -> Any:
         return _decode(await self.request(method, path, **kw))
@@ -427,21 +658,31 @@ class AsyncPednavClient:
         _raise_for(r)
         return r.text if format == "csv" else r.json()
 
-    def stream(self, session_id: int, next_seq: int = 0, max_buffer: int = 86_400) -> AsyncBatchStream:
-        return AsyncBatchStream(self, session_id, next_seq, max_buffer)
+    async def reprocess(self, session_id: int, engine_mode: str | None = None, dry_run: bool = False) -> dict[str, Any]:
+        return await self._json("POST", f"/v1/sessions/{session_id}/reprocess", json={"engine_mode": engine_mode, "dry_run": dry_run})
+
+    def stream(
+        self, session_id: int, next_seq: int = 0, max_buffer: int = 86_400, spool_dir: str | Path | None = None
+    ) -> AsyncBatchStream:
+        return AsyncBatchStream(self, session_id, next_seq, max_buffer, spool_dir)
 
 
 class AsyncBatchStream:
-    """Asynchronous twin of :class:`BatchStream`."""
+    """Asynchronous twin of :class:`BatchStream` (the spool's file operations are short and synchronous)."""
 
-    def __init__(self, client: AsyncPednavClient, session_id: int, next_seq: int = 0, max_buffer: int = 86_400) -> None:
+    def __init__(
+        self, client: AsyncPednavClient, session_id: int, next_seq: int = 0, max_buffer: int = 86_400,
+        spool_dir: str | Path | Spool | None = None,
+    ) -> None:
         self.client = client
         self.session_id = session_id
-        self.next_seq = next_seq
         self.max_buffer = max_buffer
-        self.pending: deque[tuple[int, bytes, str]] = deque()
+        self.pending, self.next_seq = _queue(client.server_key, session_id, next_seq, spool_dir)
         self.last_response: dict[str, Any] | None = None
         self.bytes_sent = 0  # request body bytes queued so far
+
+    def close(self) -> None:
+        self.pending.close()
 
     @property
     def sensor_config(self) -> dict[str, Any] | None:
@@ -452,19 +693,19 @@ class AsyncBatchStream:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)
         self.bytes_sent += len(body)
-        self.pending.append((self.next_seq, body, ctype))
+        self.pending.push(self.next_seq, body, ctype)
         self.next_seq += 1
         return await self.drain()
 
     async def drain(self) -> list[dict[str, Any]]:
         out: list[dict[str, Any]] = []
-        while self.pending:
-            seq, body, ctype = self.pending[0]
+        while (head := self.pending.first()) is not None:
+            seq, body, ctype = head
             try:
                 resp = await self.client.upload_encoded(self.session_id, seq, body, ctype)
             except Offline:
                 break
-            self.pending.popleft()
+            self.pending.remove(seq)
             self.last_response = resp
             out.append(resp)
         return out

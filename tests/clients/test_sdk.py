@@ -193,3 +193,124 @@ def test_api_streamed_equals_local_real_recording(client, make_user, vicon_dir: 
         pytest.skip(f"no recordings in {vicon_dir}")
     _, tok = make_user()
     _api_vs_local(client, tok, load(files[0]), "msgpack")
+
+
+# ---------------------------------------------------------------- durable offline buffer (spool)
+_CRASHING_DEVICE = r"""
+import os, signal, sys
+import httpx
+from clients.sdk import PednavClient
+from tests.server.conftest import still_batch
+
+class Down(httpx.BaseTransport):
+    def handle_request(self, request):
+        raise httpx.ConnectError("simulated: no network", request=request)
+
+sid, spool, t0 = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
+api = PednavClient(token="irrelevant", http=httpx.Client(transport=Down(), base_url="http://testserver"), retries=0)
+stream = api.stream(sid, next_seq=1, spool_dir=spool)
+for k in range(1, 4):
+    assert stream.send(still_batch(t0 + k * 10**9, seed=k)) == []
+print("queued", [seq for seq, _, _ in stream.pending], flush=True)
+os.kill(os.getpid(), signal.SIGKILL)  # crash: no close, no cleanup
+"""
+
+
+def test_spooled_batches_survive_a_crash_and_go_out_with_the_same_numbers(client, make_user, tmp_path) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    import signal
+    import subprocess
+    import sys
+
+    _, tok = make_user()
+    api = PednavClient(token=tok, http=client)
+    sid = api.start_session("phone")["id"]
+    assert api.upload(sid, 0, still_batch(T0))["next_seq"] == 1
+    spool = tmp_path / "spool"
+    proc = subprocess.run([sys.executable, "-c", _CRASHING_DEVICE, str(sid), str(spool), str(T0)],
+                          capture_output=True, text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert "queued [1, 2, 3]" in proc.stdout
+    assert api.session(sid)["next_seq"] == 1  # nothing reached the server
+    # the app starts again: the spool is found and delivered in order with the original sequence numbers
+    got = api.resume(spool)
+    assert [r["seq"] for r in got[sid]] == [1, 2, 3]
+    with api.stream(sid, next_seq=api.session(sid)["next_seq"], spool_dir=spool) as stream:
+        assert not stream.pending and stream.next_seq == 4
+        assert [r["seq"] for r in stream.send(still_batch(T0 + 4 * 10**9, seed=4))] == [4]
+    # exactly the batches the crashed app produced, each stored once
+    ref = PednavClient(token=tok, http=client)
+    rid = ref.start_session("phone")["id"]
+    for k in range(5):
+        last = ref.upload(rid, k, still_batch(T0 + k * 10**9, seed=k))
+    batches = api._json("GET", f"/v1/sessions/{sid}/batches")
+    assert [b["seq"] for b in batches] == [0, 1, 2, 3, 4]
+    assert [b["sha256"] for b in batches] == [b["sha256"] for b in ref._json("GET", f"/v1/sessions/{rid}/batches")]
+    assert api.session(sid)["sensor_config"] == last["sensor_config"]
+
+
+def test_spool_resends_a_batch_whose_answer_was_lost_before_the_crash(flaky_api, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    api, flaky = flaky_api
+    sid = api.start_session("watch")["id"]
+    stream = api.stream(sid, spool_dir=tmp_path)
+    assert [r["seq"] for r in stream.send(still_batch(T0))] == [0]
+    flaky.lose_response = api.opts.retries + 1  # the server applies batch 1, every answer is lost
+    assert stream.send(still_batch(T0 + 10**9, seed=1)) == []
+    assert [seq for seq, _, _ in stream.pending] == [1]
+    del stream  # crash: the queue object is gone, the file stays
+    again = api.stream(sid, spool_dir=tmp_path)
+    assert again.next_seq == 2 and len(again.pending) == 1
+    r = api.request("PUT", f"/v1/sessions/{sid}/batches/1", content=again.pending.first()[1],
+                    headers={"content-type": "application/msgpack"})
+    assert r.headers["x-pednav-replayed"] == "true"  # what resume sends is acknowledged, not applied again
+    assert [x["seq"] for x in again.drain()] == [1] and not again.pending
+    assert [b["seq"] for b in api._json("GET", f"/v1/sessions/{sid}/batches")] == [0, 1]
+    again.close()
+
+
+def test_spool_refusals_and_isolation(flaky_api, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from clients.sdk import Spool
+
+    api, flaky = flaky_api
+    a = api.start_session("foot")["id"]
+    b = api.start_session("foot")["id"]
+    flaky.down = True
+    sa = api.stream(a, spool_dir=tmp_path, max_buffer=2)
+    sb = api.stream(b, spool_dir=tmp_path)
+    sa.send(still_batch(T0))
+    sa.send(still_batch(T0 + 10**9, seed=1))
+    with pytest.raises(BufferError, match="buffer full"):
+        sa.send(still_batch(T0 + 2 * 10**9, seed=2))
+    sb.send(still_batch(T0))
+    assert sa.next_seq == 2 and len(sa.pending) == 2 and len(sb.pending) == 1  # the refused batch took no number
+    with Spool(tmp_path) as sp:
+        assert sp.sessions(api.server_key) == [a, b]
+        assert sp.sessions("http://another-server") == []  # queues are per server
+    flaky.down = False
+    got = api.resume(tmp_path)
+    assert {k: [r["seq"] for r in v] for k, v in got.items()} == {a: [0, 1], b: [0]}
+    sa.close(), sb.close()
+    with Spool(tmp_path) as sp:
+        assert sp.sessions(api.server_key) == []
+    with pytest.raises(SequenceConflict) as exc:  # a spool that disagrees with the server is not silently dropped
+        stale = api.stream(a, next_seq=5, spool_dir=tmp_path / "other")
+        stale.send(still_batch(T0 + 9 * 10**9))
+    assert exc.value.expected_seq == 2 and len(stale.pending) == 1
+    stale.close()
+
+
+def test_async_stream_with_spool(app, make_user, tmp_path) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    _, tok = make_user()
+
+    async def go() -> tuple[list[int], list[int]]:
+        http = httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test")
+        async with AsyncPednavClient(token=tok, http=http) as api:
+            sid = (await api.start_session("watch"))["id"]
+            stream = api.stream(sid, spool_dir=tmp_path)
+            seqs = [r["seq"] for k in range(3) for r in await stream.send(still_batch(T0 + k * 10**9, seed=k))]
+            left = [s for s, _, _ in stream.pending]
+            stream.close()
+        await http.aclose()
+        return seqs, left
+
+    seqs, left = asyncio.run(go())
+    assert seqs == [0, 1, 2] and left == []

@@ -143,8 +143,9 @@ def test_newer_engine_replaces_the_trajectory_and_dry_run_stores_nothing(setting
 def test_engine_mode_can_be_chosen(client, app, make_user) -> None:  # type: ignore[no-untyped-def]
     _, tok = make_user()
     sid = _still_session(client, tok, 3)
-    r = client.post(f"/v1/sessions/{sid}/reprocess", json={"engine_mode": "zupt"}, headers=auth(tok))
-    assert r.status_code == 200 and r.json()["engine_mode"] == "zupt"
+    from clients.sdk import PednavClient
+
+    assert PednavClient(token=tok, http=client).reprocess(sid, engine_mode="zupt")["engine_mode"] == "zupt"
     assert _put(client, tok, sid, 3).status_code == 200  # the session goes on with its new engine
     with app.state.sessionmaker() as db:
         assert db.get(TrackSession, sid).engine_mode == "zupt"
