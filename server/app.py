@@ -12,6 +12,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from models.batch import BatchError
+from server.auth import RateLimiter
 from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
 from server.ingest import EngineHost, IngestConflict
@@ -72,6 +73,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.settings = settings
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
+    app.state.limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from typing import Any
 
 from sqlalchemy import func, select
@@ -39,25 +39,40 @@ __all__ = [
 ]
 
 
-def create_user(db: Session, name: str, is_admin: bool = False) -> tuple[User, str]:
-    """Create a user and its first token; returns ``(user, token)`` (the token is shown only once)."""
+def create_user(db: Session, name: str, is_admin: bool = False, ttl_s: float | None = None) -> tuple[User, str]:
+    """Create a user and its first token; returns ``(user, token)`` (the token is shown only once).
+
+    ``ttl_s``: lifetime of the token [s]; None = never expires.
+    """
     user = User(name=name, is_admin=is_admin)
     db.add(user)
     db.flush()
-    token = issue_token(db, user, "initial")
+    token = issue_token(db, user, "initial", ttl_s)
     return user, token
 
 
-def issue_token(db: Session, user: User, label: str = "") -> str:
-    token = new_token()
-    db.add(Token(user_id=user.id, token_hash=hash_token(token), label=label))
-    db.flush()
+def issue_token(db: Session, user: User, label: str = "", ttl_s: float | None = None) -> str:
+    """Mint a token of ``user`` valid for ``ttl_s`` seconds (None = never expires); returns the secret."""
+    token, _ = issue_token_row(db, user, label, ttl_s)
     return token
 
 
+def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | None = None) -> tuple[str, Token]:
+    token = new_token()
+    expires = None if not ttl_s else datetime.now(timezone.utc) + timedelta(seconds=ttl_s)
+    row = Token(user_id=user.id, token_hash=hash_token(token), label=label, expires_at=expires)
+    db.add(row)
+    db.flush()
+    return token, row
+
+
 def user_by_token(db: Session, token: str) -> User | None:
+    """The owner of a valid (not revoked, not expired) token."""
     row = db.execute(
-        select(User).join(Token, Token.user_id == User.id).where(Token.token_hash == hash_token(token), Token.revoked.is_(False))
+        select(User).join(Token, Token.user_id == User.id).where(
+            Token.token_hash == hash_token(token), Token.revoked.is_(False),
+            (Token.expires_at.is_(None)) | (Token.expires_at > datetime.now(timezone.utc)),
+        )
     ).scalar_one_or_none()
     return row
 

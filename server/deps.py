@@ -9,7 +9,7 @@ from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from server import crud
+from server.auth import authenticate
 from server.ingest import EngineHost
 from server.models import User
 from server.settings import Settings
@@ -44,18 +44,21 @@ def current_user(
     request: Request,
     cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> User:
-    """The user owning the bearer token (``Authorization: Bearer ...``; ``?token=`` for Sensor Logger)."""
+    """The user owning the bearer token (``Authorization: Bearer ...``; ``?token=`` for Sensor Logger).
+
+    401 for a missing, invalid, revoked or expired token; 429 when the token exceeds its rate limit.
+    """
     token = cred.credentials if cred is not None else request.query_params.get("token")
-    if not token:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers={"WWW-Authenticate": "Bearer"})
-    user = crud.user_by_token(db, token)
-    if user is not None:
+    try:
+        user_id = authenticate(db, token, request.app.state.limiter)
+        user = db.get(User, user_id)
+        if user is None:
+            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid token", headers={"WWW-Authenticate": "Bearer"})
         db.expunge(user)  # keep the loaded row usable after the transaction ends
-    # end the read transaction now: the connection goes back to the pool before the next thread hop, so
-    # requests waiting for a worker thread never sit on pooled connections (that deadlocks under load)
-    db.rollback()
-    if user is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers={"WWW-Authenticate": "Bearer"})
+    finally:
+        # end the read transaction now: the connection goes back to the pool before the next thread hop, so
+        # requests waiting for a worker thread never sit on pooled connections (that deadlocks under load)
+        db.rollback()
     return user
 
 

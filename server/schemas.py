@@ -11,6 +11,7 @@ __all__ = [
     "DeviceKind",
     "UserCreate",
     "UserOut",
+    "TokenCreate",
     "TokenOut",
     "DeviceCreate",
     "DeviceOut",
@@ -48,9 +49,19 @@ class UserOut(_Out):
     created_at: datetime
 
 
+class TokenCreate(BaseModel):
+    """Options of a new token (the body may be omitted)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    label: str = Field(default="api", max_length=100)
+    ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s]; default: the server's token_ttl_s")
+
+
 class TokenOut(BaseModel):
     user_id: int
     token: str
+    expires_at: datetime | None = None
 
 
 class DeviceCreate(BaseModel):

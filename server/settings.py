@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy.engine import make_url
 
-__all__ = ["Settings"]
+__all__ = ["Settings", "SettingsError", "load_settings"]
 
 
 class Settings(BaseSettings):
@@ -37,6 +37,14 @@ class Settings(BaseSettings):
     sensorlogger_hold_s : float
         Sensor Logger pushes may arrive out of order: samples are held back this long [s] before being
         fed to the engine in time order.
+    token_ttl_s : int
+        Lifetime of newly minted tokens [s] (API and CLI); 0 = they never expire. Default 30 days.
+    token_max_ttl_s : int
+        Longest lifetime a client may ask for when minting a token [s].
+    rate_limit_per_s : float
+        Sustained requests per second allowed per token (per server process); 0 = no limit.
+    rate_limit_burst : int
+        Requests a token may make at once after being idle.
     """
 
     model_config = SettingsConfigDict(env_prefix="PEDNAV_", extra="ignore")
@@ -51,6 +59,20 @@ class Settings(BaseSettings):
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
     ingest_threads: int = Field(default=4, ge=1, le=64)
     engine_processes: int = Field(default=1, ge=0, le=64)
+    token_ttl_s: int = Field(default=30 * 86_400, ge=0)
+    token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
+    rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
+    rate_limit_burst: int = Field(default=200, ge=1)
+
+    @model_validator(mode="after")
+    def _check_limits(self) -> Settings:
+        if 0 < self.token_ttl_s < 60:
+            raise ValueError(f"PEDNAV_TOKEN_TTL_S={self.token_ttl_s}: use 0 (tokens never expire) or at least 60 s")
+        if self.token_ttl_s > self.token_max_ttl_s:
+            raise ValueError(
+                f"PEDNAV_TOKEN_TTL_S={self.token_ttl_s} exceeds PEDNAV_TOKEN_MAX_TTL_S={self.token_max_ttl_s}"
+            )
+        return self
 
     @field_validator("database_url")
     @classmethod
@@ -69,3 +91,22 @@ class Settings(BaseSettings):
         if v is not None and not v.replace("_", "").isalnum():
             raise ValueError("db_schema must be alphanumeric/underscore")
         return v
+
+
+class SettingsError(ValueError):
+    """Invalid ``PEDNAV_*`` configuration; the message names each variable and its problem."""
+
+
+def load_settings(**overrides: object) -> Settings:
+    """``Settings()`` from the environment (plus ``overrides``), failing with one readable message."""
+    from pydantic import ValidationError
+
+    try:
+        return Settings(**overrides)  # type: ignore[arg-type]
+    except ValidationError as exc:
+        parts = []
+        for e in exc.errors():
+            loc = ".".join(str(x) for x in e.get("loc", ()))
+            msg = str(e.get("msg", "")).removeprefix("Value error, ")
+            parts.append(f"PEDNAV_{loc.upper()}: {msg}" if loc else msg)
+        raise SettingsError("invalid configuration: " + "; ".join(parts)) from None

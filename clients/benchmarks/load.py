@@ -188,34 +188,38 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
     conn.close()
 
 
-async def _run_async(url: str, token: str, devices: int, bodies: list[tuple[bytes, str]]) -> dict[str, Any]:
+async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]]) -> dict[str, Any]:
     import httpx
 
     port = int(url.rsplit(":", 1)[1])
     limits = httpx.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
     async with httpx.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
+        token = tokens[-1]  # warm-up and set-up; every device has its own token (the per-token rate limit)
         h = {"Authorization": f"Bearer {token}"}
         # warm-up session (engine JIT compilation), not measured
         warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
         for k, (body, ctype) in enumerate(bodies[: min(20, len(bodies))]):
             await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body, headers={**h, "content-type": ctype})
         sids = []
-        for _ in range(devices):
-            r = await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)
+        for i in range(devices):
+            r = await client.post("/v1/sessions", json={"device_kind": "foot"}, headers={"Authorization": f"Bearer {tokens[i]}"})
+            r.raise_for_status()
             sids.append(r.json()["id"])
         lat: list[float] = []
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
         n = len(bodies) - _SPREAD_S
         await asyncio.gather(*[
-            _device(port, token, sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats)
+            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats)
             for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
         # verify against what the server stored
         stored_total, lost, dup = 0, 0, 0
-        for sid in sids:
-            seqs = [b["seq"] for b in (await client.get(f"/v1/sessions/{sid}/batches", headers=h)).json()]
+        for i, sid in enumerate(sids):
+            r = await client.get(f"/v1/sessions/{sid}/batches", headers={"Authorization": f"Bearer {tokens[i]}"})
+            r.raise_for_status()
+            seqs = [b["seq"] for b in r.json()]
             stored_total += len(seqs)
             dup += len(seqs) - len(set(seqs))
             lost += len(set(range(n)) - set(seqs))
@@ -263,10 +267,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from server.db import make_sessionmaker
 
         with make_sessionmaker(eng)() as db:
-            _, token = crud.create_user(db, f"load-{uuid.uuid4().hex[:8]}")
+            user, first = crud.create_user(db, f"load-{uuid.uuid4().hex[:8]}")
+            tokens = [crud.issue_token(db, user, f"device-{i}") for i in range(args.devices)] + [first]
             db.commit()
         eng.dispose()
-        res = asyncio.run(_run_async(srv.url, token, args.devices, bodies))
+        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies))
     finally:
         srv.stop()
         if schema:

@@ -11,11 +11,22 @@ __all__ = ["register"]
 
 
 def _settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    from server.settings import Settings
+    from server.settings import SettingsError, load_settings
 
     if args.database_url:
         os.environ["PEDNAV_DATABASE_URL"] = args.database_url
-    return Settings()
+    try:
+        return load_settings()
+    except SettingsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _ttl_arg(v: str) -> int:
+    n = int(v)
+    if n < 0 or 0 < n < 60:
+        raise argparse.ArgumentTypeError("must be 0 (never expires) or at least 60 s")
+    return n
 
 
 def _db(args: argparse.Namespace):  # type: ignore[no-untyped-def]
@@ -24,6 +35,22 @@ def _db(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     eng = make_engine(_settings(args))
     migrate(eng)
     return eng, make_sessionmaker(eng)
+
+
+def _ttl(args: argparse.Namespace) -> float | None:
+    """Token lifetime [s]: --ttl-s, else the server's PEDNAV_TOKEN_TTL_S; None = never expires."""
+    ttl = args.ttl_s if args.ttl_s is not None else _settings(args).token_ttl_s
+    return ttl or None
+
+
+def _expiry(db, token: str) -> str | None:  # type: ignore[no-untyped-def]
+    from sqlalchemy import select
+
+    from server.models import Token
+    from server.security import hash_token
+
+    exp = db.execute(select(Token.expires_at).where(Token.token_hash == hash_token(token))).scalar_one()
+    return None if exp is None else exp.isoformat(timespec="seconds")
 
 
 def _create_user(args: argparse.Namespace) -> int:
@@ -35,15 +62,16 @@ def _create_user(args: argparse.Namespace) -> int:
     try:
         with sm() as db:
             try:
-                user, token = crud.create_user(db, args.name, is_admin=args.admin)
+                user, token = crud.create_user(db, args.name, is_admin=args.admin, ttl_s=_ttl(args))
                 db.commit()
             except IntegrityError:
                 print(f"error: user {args.name!r} already exists (use 'pednav admin token {args.name}')", file=sys.stderr)
                 return 1
-        out = {"user_id": user.id, "token": token}
+            out = {"user_id": user.id, "token": token, "expires_at": _expiry(db, token)}
     finally:
         eng.dispose()
-    print(json.dumps(out) if args.json else f"user {args.name} (id {out['user_id']}), token: {token}")
+    print(json.dumps(out) if args.json else
+          f"user {args.name} (id {out['user_id']}), token: {token} (expires {out['expires_at'] or 'never'})")
     return 0
 
 
@@ -57,12 +85,12 @@ def _token(args: argparse.Namespace) -> int:
             if user is None:
                 print(f"error: no user {args.name!r}", file=sys.stderr)
                 return 1
-            token = crud.issue_token(db, user, "cli")
+            token = crud.issue_token(db, user, "cli", _ttl(args))
             db.commit()
-            out = {"user_id": user.id, "token": token}
+            out = {"user_id": user.id, "token": token, "expires_at": _expiry(db, token)}
     finally:
         eng.dispose()
-    print(json.dumps(out) if args.json else f"token for {args.name}: {token}")
+    print(json.dumps(out) if args.json else f"token for {args.name}: {token} (expires {out['expires_at'] or 'never'})")
     return 0
 
 
@@ -84,10 +112,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     c = asub.add_parser("create-user", help="create a user and print its first token")
     c.add_argument("name")
     c.add_argument("--admin", action="store_true", help="the user may create other users through the API")
+    c.add_argument("--ttl-s", type=_ttl_arg, default=None,
+                   help="token lifetime [s]; 0 = never expires (default PEDNAV_TOKEN_TTL_S, 30 days)")
     common(c)
     c.set_defaults(func=_create_user)
     t = asub.add_parser("token", help="issue another token for an existing user")
     t.add_argument("name")
+    t.add_argument("--ttl-s", type=_ttl_arg, default=None,
+                   help="token lifetime [s]; 0 = never expires (default PEDNAV_TOKEN_TTL_S, 30 days)")
     common(t)
     t.set_defaults(func=_token)
     m = asub.add_parser("migrate", help="upgrade the database schema to the latest version")

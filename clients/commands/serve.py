@@ -12,11 +12,17 @@ def _run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from server.db import make_engine, migrate
-    from server.settings import Settings
+    import sys
+
+    from server.settings import SettingsError, load_settings
 
     if args.database_url:
         os.environ["PEDNAV_DATABASE_URL"] = args.database_url
-    settings = Settings()  # validates PEDNAV_* now: a bad URL fails before anything starts
+    try:
+        settings = load_settings()  # validates PEDNAV_* now: a bad value fails before anything starts
+    except SettingsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     eng = make_engine(settings)
     migrate(eng)
     eng.dispose()

@@ -8,13 +8,11 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.security import HTTPAuthorizationCredentials
-from sqlalchemy import select
 
 from models.batch import BatchError
 from server import crud
+from server.auth import authenticate
 from server.deps import CurrentUser, SessionDep
-from server.models import Token
-from server.security import hash_token
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
 from server.schemas import BatchResponse
@@ -43,14 +41,8 @@ def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes) ->
     settings, host = app.state.settings, app.state.host
     cred = _bearer_of(request)
     token = cred.credentials if cred is not None else request.query_params.get("token")
-    if not token:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", headers={"WWW-Authenticate": "Bearer"})
     with app.state.sessionmaker() as db:
-        user_id = db.execute(
-            select(Token.user_id).where(Token.token_hash == hash_token(token), Token.revoked.is_(False))
-        ).scalar_one_or_none()
-        if user_id is None:
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid or revoked token", headers={"WWW-Authenticate": "Bearer"})
+        user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
         if seq < 0:
             raise BatchError("seq", "must be >= 0")
         batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)

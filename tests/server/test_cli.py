@@ -34,7 +34,8 @@ def test_admin_create_user_json(capsys, live_server) -> None:  # type: ignore[no
     srv, url = live_server
     rc, out = _run(capsys, ["admin", "create-user", "carol", "--json", "--database-url", url])
     doc = json.loads(out)
-    assert rc == 0 and set(doc) == {"user_id", "token"} and doc["token"].startswith("pn_")
+    assert rc == 0 and {"user_id", "token"} <= set(doc) and doc["token"].startswith("pn_")
+    assert doc["expires_at"] is not None  # default lifetime PEDNAV_TOKEN_TTL_S (30 days)
     assert main(["admin", "create-user", "carol", "--json", "--database-url", url]) == 1  # exists
     capsys.readouterr()
 

@@ -1,0 +1,112 @@
+"""Bearer-token authentication with expiry, and a per-token request rate limit.
+
+Every request with a token resolves it by its SHA-256 (one indexed SELECT): unknown, revoked and expired tokens
+get 401 with a message that says which (an expired token names its expiry time). A valid token then draws
+from its token bucket: ``rate_limit_per_s`` requests per second on average with bursts of ``rate_limit_burst``;
+an empty bucket gets 429 with ``Retry-After``. The buckets live in the server process, so with N worker
+processes a token may make up to N times the limit (the benchmarks and the default deployment use one).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from datetime import datetime, timezone
+
+from fastapi import HTTPException, status
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from server.models import Token
+from server.security import hash_token
+
+__all__ = ["RateLimiter", "authenticate"]
+
+_T = Token.__table__
+
+
+class RateLimiter:
+    """Token buckets keyed by token hash.
+
+    Parameters
+    ----------
+    rate_per_s : float
+        Sustained requests per second per token; 0 disables the limit.
+    burst : int
+        Bucket size: requests a token may make at once after being idle.
+    max_keys : int
+        Buckets kept; the least recently used full ones are dropped beyond this (a full bucket carries no
+        information).
+    """
+
+    def __init__(self, rate_per_s: float, burst: int, max_keys: int = 100_000) -> None:
+        self.rate = float(rate_per_s)
+        self.burst = float(burst)
+        self.max_keys = max_keys
+        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, last refill time)
+        self._lock = threading.Lock()
+
+    @property
+    def enabled(self) -> bool:
+        return self.rate > 0
+
+    def hit(self, key: str, now: float | None = None) -> float:
+        """Take one request from ``key``'s bucket; returns 0 when allowed, else the wait [s] until it would be."""
+        if not self.enabled:
+            return 0.0
+        t = time.monotonic() if now is None else now
+        with self._lock:
+            tokens, last = self._buckets.get(key, (self.burst, t))
+            tokens = min(self.burst, tokens + (t - last) * self.rate)
+            if tokens >= 1.0:
+                self._buckets[key] = (tokens - 1.0, t)
+                if len(self._buckets) > self.max_keys:
+                    self._prune(t)
+                return 0.0
+            self._buckets[key] = (tokens, t)
+            return (1.0 - tokens) / self.rate
+
+    def _prune(self, t: float) -> None:
+        full = [k for k, (tok, last) in self._buckets.items() if tok + (t - last) * self.rate >= self.burst]
+        for k in full:
+            del self._buckets[k]
+
+
+def _unauthorized(detail: str) -> HTTPException:
+    return HTTPException(status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"})
+
+
+def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) -> int:
+    """The user id of a valid token, after taking one request from its rate limit.
+
+    Raises
+    ------
+    HTTPException
+        401 missing / invalid / revoked / expired token; 429 rate limit exceeded (``Retry-After`` set).
+    """
+    if not token:
+        raise _unauthorized("missing bearer token (header 'Authorization: Bearer <token>')")
+    h = hash_token(token)
+    row = db.execute(select(_T.c.user_id, _T.c.revoked, _T.c.expires_at).where(_T.c.token_hash == h)).first()
+    if row is None:
+        raise _unauthorized("invalid token")
+    if row.revoked:
+        raise _unauthorized("token revoked")
+    if row.expires_at is not None:
+        exp = row.expires_at if row.expires_at.tzinfo else row.expires_at.replace(tzinfo=timezone.utc)
+        if exp <= datetime.now(timezone.utc):
+            raise _unauthorized(
+                f"token expired at {exp.isoformat(timespec='seconds')}; mint a new one (POST /v1/tokens with a valid "
+                "token, or 'pednav admin token NAME')"
+            )
+    if limiter is not None:
+        wait = limiter.hit(h)
+        if wait > 0:
+            raise HTTPException(
+                status.HTTP_429_TOO_MANY_REQUESTS,
+                f"rate limit exceeded: at most {limiter.rate:g} requests/s per token (bursts of {limiter.burst:g}); "
+                f"retry in {wait:.2f} s",
+                headers={"Retry-After": str(max(1, math.ceil(wait)))},
+            )
+    return int(row.user_id)

@@ -1,0 +1,163 @@
+"""Token expiry and the per-token rate limit: clear 401/429 messages, settings validated at start-up."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
+
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import update
+
+from server.app import create_app
+from server.auth import RateLimiter
+from server.formats import MSGPACK_TYPE, encode_msgpack
+from server.models import Token
+from server.security import hash_token
+from server.settings import Settings, SettingsError, load_settings
+from tests.server.conftest import auth, still_batch
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _expire(app, token: str, when: datetime) -> None:  # type: ignore[no-untyped-def]
+    with app.state.sessionmaker() as db:
+        db.execute(update(Token).where(Token.token_hash == hash_token(token)).values(expires_at=when))
+        db.commit()
+
+
+def test_minted_tokens_expire_after_their_lifetime(client, app, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    r = client.post("/v1/tokens", headers=auth(tok))
+    assert r.status_code == 201
+    exp = datetime.fromisoformat(r.json()["expires_at"])
+    expected = datetime.now(timezone.utc) + timedelta(seconds=settings.token_ttl_s)
+    assert abs((exp - expected).total_seconds()) < 60
+    short = client.post("/v1/tokens", json={"label": "watch", "ttl_s": 120}, headers=auth(tok)).json()
+    assert abs((datetime.fromisoformat(short["expires_at"]) - datetime.now(timezone.utc)).total_seconds() - 120) < 30
+    assert client.get("/v1/users/me", headers=auth(short["token"])).status_code == 200
+    _expire(app, short["token"], datetime.now(timezone.utc) - timedelta(seconds=1))
+    for method, path in (("get", "/v1/users/me"), ("get", "/v1/sessions")):
+        r = getattr(client, method)(path, headers=auth(short["token"]))
+        assert r.status_code == 401 and "expired at" in r.json()["detail"], r.text
+        assert r.headers["www-authenticate"] == "Bearer"
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200  # the user's other tokens still work
+
+
+def test_expired_token_cannot_upload_and_nothing_is_stored(client, app, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    dev = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()["token"]
+    sid = client.post("/v1/sessions", json={"device_kind": "phone"}, headers=auth(dev)).json()["id"]
+    put = lambda seq: client.put(  # noqa: E731
+        f"/v1/sessions/{sid}/batches/{seq}", content=encode_msgpack(still_batch(T0 + seq * 10**9)),
+        headers={**auth(dev), "content-type": MSGPACK_TYPE})
+    assert put(0).status_code == 200
+    _expire(app, dev, datetime.now(timezone.utc) - timedelta(seconds=1))
+    r = put(1)
+    assert r.status_code == 401 and "expired" in r.json()["detail"]
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()["next_seq"] == 1
+
+
+def test_token_refusals_say_which(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    r = client.get("/v1/users/me")
+    assert r.status_code == 401 and "missing bearer token" in r.json()["detail"]
+    r = client.get("/v1/users/me", headers=auth("pn_nonsense"))
+    assert r.status_code == 401 and r.json()["detail"] == "invalid token"
+    second = client.post("/v1/tokens", headers=auth(tok)).json()["token"]
+    client.delete("/v1/tokens/current", headers=auth(second))
+    r = client.put("/v1/sessions/1/batches/0", content=b"{}", headers=auth(second))
+    assert r.status_code == 401 and r.json()["detail"] == "token revoked"
+    r = client.post("/v1/tokens", json={"ttl_s": 10}, headers=auth(tok))
+    assert r.status_code == 422 and r.json()["field"] == "ttl_s"
+    r = client.post("/v1/tokens", json={"ttl_s": 10**10}, headers=auth(tok))
+    assert r.status_code == 422 and r.json()["detail"].startswith("ttl_s: at most")
+    r = client.post("/v1/tokens", json={"lifetime": 100}, headers=auth(tok))
+    assert r.status_code == 422 and r.json()["field"] == "lifetime"
+
+
+@pytest.fixture()
+def limited(settings):  # type: ignore[no-untyped-def]
+    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "rate_limit_per_s": 2.0, "rate_limit_burst": 3}))
+    with TestClient(a) as c:
+        yield a, c
+    a.state.db_engine.dispose()
+
+
+def test_rate_limit_is_per_token_with_429_and_retry_after(limited, make_user) -> None:  # type: ignore[no-untyped-def]
+    app, c = limited
+    _, tok = make_user()
+    _, other = make_user()
+    codes = [c.get("/v1/users/me", headers=auth(tok)).status_code for _ in range(3)]
+    assert codes == [200, 200, 200]  # the burst
+    r = c.get("/v1/users/me", headers=auth(tok))
+    assert r.status_code == 429 and "at most 2 requests/s per token" in r.json()["detail"]
+    assert int(r.headers["retry-after"]) >= 1
+    assert c.get("/v1/users/me", headers=auth(other)).status_code == 200  # another token is not affected
+    sid = c.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(other)).json()["id"]
+    c.get("/v1/users/me", headers=auth(other))
+    r = c.put(f"/v1/sessions/{sid}/batches/0", content=encode_msgpack(still_batch(T0)),
+              headers={**auth(other), "content-type": MSGPACK_TYPE})
+    assert r.status_code == 429  # uploads share the token's bucket; the refused batch is not stored
+    with app.state.sessionmaker() as db:
+        from server.models import TrackSession
+
+        assert db.get(TrackSession, sid).next_seq == 0
+
+
+def test_sdk_waits_out_a_429_and_the_batch_is_applied_once(limited, make_user) -> None:  # type: ignore[no-untyped-def]
+    from clients.sdk import PednavClient
+
+    _, tok = make_user()
+    _, c = limited
+    api = PednavClient(token=tok, http=c, retries=3, backoff_s=0.0)
+    sid = api.start_session("watch")["id"]
+    answers = [api.upload(sid, k, still_batch(T0 + k * 10**9, seed=k)) for k in range(4)]  # burst 3: one waits
+    assert [a["seq"] for a in answers] == [0, 1, 2, 3]
+    assert api.session(sid)["next_seq"] == 4
+
+
+def test_rate_limiter_refills_at_the_rate() -> None:
+    rl = RateLimiter(rate_per_s=10.0, burst=2)
+    assert rl.hit("a", now=0.0) == 0 and rl.hit("a", now=0.0) == 0
+    assert rl.hit("a", now=0.0) == pytest.approx(0.1)
+    assert rl.hit("a", now=0.05) == pytest.approx(0.05)
+    assert rl.hit("a", now=0.1) == 0.0
+    assert RateLimiter(0.0, 1).hit("a") == 0.0  # disabled
+
+
+@pytest.mark.parametrize("env, problem", [
+    ({"PEDNAV_TOKEN_TTL_S": "30"}, "PEDNAV_TOKEN_TTL_S"),  # 0 or >= 60
+    ({"PEDNAV_TOKEN_TTL_S": "-1"}, "PEDNAV_TOKEN_TTL_S"),
+    ({"PEDNAV_TOKEN_TTL_S": "7200", "PEDNAV_TOKEN_MAX_TTL_S": "3600"}, "exceeds PEDNAV_TOKEN_MAX_TTL_S"),
+    ({"PEDNAV_RATE_LIMIT_PER_S": "-5"}, "PEDNAV_RATE_LIMIT_PER_S"),
+    ({"PEDNAV_RATE_LIMIT_PER_S": "nan"}, "PEDNAV_RATE_LIMIT_PER_S"),
+    ({"PEDNAV_RATE_LIMIT_BURST": "0"}, "PEDNAV_RATE_LIMIT_BURST"),
+    ({"PEDNAV_RATE_LIMIT_BURST": "many"}, "PEDNAV_RATE_LIMIT_BURST"),
+])
+def test_bad_settings_fail_fast_naming_the_variable(monkeypatch, env, problem) -> None:  # type: ignore[no-untyped-def]
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    with pytest.raises(SettingsError, match=problem):
+        load_settings()
+
+
+def test_default_settings_are_valid() -> None:
+    s = Settings()
+    assert s.token_ttl_s == 30 * 86_400 and s.rate_limit_per_s > 0 and s.rate_limit_burst >= 1
+    assert Settings(token_ttl_s=0).token_ttl_s == 0  # never expires
+
+
+def test_admin_cli_token_lifetime(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from clients.cli import main
+
+    url = f"sqlite:///{tmp_path}/cli.db"
+    assert main(["admin", "create-user", "ann", "--json", "--database-url", url, "--ttl-s", "3600"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert abs((datetime.fromisoformat(out["expires_at"]) - datetime.now(timezone.utc)).total_seconds() - 3600) < 60
+    assert main(["admin", "token", "ann", "--json", "--database-url", url, "--ttl-s", "0"]) == 0
+    assert json.loads(capsys.readouterr().out)["expires_at"] is None
+    with pytest.raises(SystemExit):
+        main(["admin", "token", "ann", "--json", "--database-url", url, "--ttl-s", "5"])
+    assert "at least 60" in capsys.readouterr().err
