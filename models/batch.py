@@ -39,6 +39,10 @@ class BatchError(ValueError):
         self.field = field
         self.problem = problem
 
+    def __reduce__(self) -> tuple[type[BatchError], tuple[str, str]]:
+        # the default reduction calls cls(message) with ONE argument; rebuild from both (pickle, processes)
+        return (type(self), (self.field, self.problem))
+
 
 def _empty_t() -> np.ndarray:
     return np.zeros(0, dtype=np.int64)

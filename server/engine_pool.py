@@ -56,7 +56,7 @@ def _feed(
         engine = Engine.from_bytes(state)
     try:
         upd = engine.feed(SensorBatch(**streams))
-    except BatchError as exc:  # sent back as values: BatchError does not pickle with its two arguments
+    except BatchError as exc:  # sent back as plain values (the worker raises its own BatchError from them)
         return ("batch_error", exc.field, exc.problem)
     resp = _update_dict(session_id, seq, seq + 1, upd)
     blob = engine.to_bytes()
