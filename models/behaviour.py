@@ -31,6 +31,7 @@ __all__ = [
     "WindowFeatures",
     "window_features",
     "classify_window",
+    "decide_window",
     "BehaviourRecognizer",
     "label_recording",
 ]
@@ -104,13 +105,13 @@ def _stride_period(x: np.ndarray, fs: float) -> tuple[float, float]:
         return float("nan"), 0.0
     ac = ac / ac[0] * n / (n - np.arange(n))  # unbiased, normalised
     seg = ac[lo : hi + 1]
-    peaks = [i for i in range(1, seg.size - 1) if seg[i] >= seg[i - 1] and seg[i] > seg[i + 1]]
-    if not peaks:
+    peaks = np.flatnonzero((seg[1:-1] >= seg[:-2]) & (seg[1:-1] > seg[2:])) + 1
+    if peaks.size == 0:
         return float("nan"), 0.0
-    best = max(seg[i] for i in peaks)
+    best = float(seg[peaks].max())
     if best <= 0:
         return float("nan"), 0.0
-    k = next(i for i in peaks if seg[i] >= 0.8 * best)  # first strong peak: the stride, not its multiples
+    k = int(peaks[np.argmax(seg[peaks] >= 0.8 * best)])  # first strong peak: the stride, not its multiples
     # Parabolic refinement of the peak lag (keeps 25 Hz and 200 Hz estimates comparable).
     y0, y1, y2 = seg[k - 1], seg[k], seg[k + 1]
     den = y0 - 2 * y1 + y2
@@ -124,14 +125,14 @@ def _gait_stance_fraction(t: np.ndarray, rest: np.ndarray) -> float:
     Rests longer than ``MAX_STANCE_S`` are standing, not stance phases of a gait, and are left out of both
     numerator and denominator, so a window that straddles a start or a stop measures the gait's duty factor.
     """
-    keep = np.ones(rest.size, dtype=bool)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
-    for a, b in zip(edges[::2], edges[1::2]):
-        if t[b - 1] - t[a] > MAX_STANCE_S:
-            keep[a:b] = False
-    if np.count_nonzero(keep) < 0.25 * rest.size or np.count_nonzero(keep) < 3:
+    a, b = edges[::2], edges[1::2]
+    long_ = (t[b - 1] - t[a]) > MAX_STANCE_S
+    n_long = int(np.sum(b[long_] - a[long_]))  # samples of rests that are standing, not stance phases
+    n_keep = rest.size - n_long
+    if n_keep < 0.25 * rest.size or n_keep < 3:
         return 1.0
-    return float(np.mean(rest[keep]))
+    return float((np.count_nonzero(rest) - n_long) / n_keep)
 
 
 def window_features(t_s: np.ndarray, acc_norm: np.ndarray) -> WindowFeatures:
@@ -170,6 +171,65 @@ def classify_window(f: WindowFeatures) -> str:
     if std < OTHER_MAX_STD and (f.periodicity < OTHER_MAX_PERIODICITY or f.stance_fraction >= OTHER_MIN_STANCE):
         return "other"
     return "walk"
+
+
+def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFeatures]:
+    """Label one window computing only the features the rule set needs (same label as
+    ``classify_window(window_features(t_s, acc_norm))``).
+
+    The rules of :func:`classify_window` are tested in order and each feature is computed when a rule first
+    needs it: a standing window costs one standard deviation over the last ``STILL_WINDOW_S``; the stride
+    autocorrelation (the most expensive feature, an FFT of twice the window) is computed only for windows
+    between the run and walk stance limits or of low energy. This is what keeps the recogniser cheap in
+    Gait-DR and while standing, where it runs at the low accelerometer rate.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (N,)
+        Sample times [s], increasing.
+    acc_norm : ndarray, shape (N,)
+        Specific-force magnitude ``|a|`` [m/s^2].
+
+    Returns
+    -------
+    label : str
+    features : WindowFeatures
+        The features of the window; those the decision did not need are ``nan``.
+    """
+    x = np.asarray(acc_norm, dtype=np.float64)
+    t = np.asarray(t_s, dtype=np.float64)
+    nan = float("nan")
+    i_still = int(np.searchsorted(t, t[-1] - STILL_WINDOW_S, side="left"))
+    recent = x[i_still:]
+    still = float(recent.std()) if recent.size > 1 else 0.0
+    if still < STILL_STD:
+        return "stand", WindowFeatures(nan, nan, nan, still, nan, nan, nan)
+    dc = float(x.mean())
+    var = float(x.var())
+    energy = var + (dc - G) ** 2  # = mean((|a| - g)^2); not used by the rules, kept for the caller
+    i_st = int(np.searchsorted(t, t[-1] - STANCE_WINDOW_S, side="left"))
+    stance = _gait_stance_fraction(t[i_st:], np.abs(x[i_st:] - G) < STANCE_TOL)
+    std = float(np.sqrt(var))
+
+    def period() -> tuple[float, float]:
+        fs = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else float("nan")
+        return _stride_period(x - dc, fs) if np.isfinite(fs) else (float("nan"), 0.0)
+
+    if stance <= RUN_STANCE:
+        return "run", WindowFeatures(dc, var, energy, still, stance, nan, nan)
+    per, perio = nan, nan
+    if stance < JOG_STANCE:
+        per, perio = period()
+        if np.isfinite(per) and per <= JOG_PERIOD_S:
+            return "run", WindowFeatures(dc, var, energy, still, stance, per, perio)
+    if std < OTHER_MAX_STD:
+        if stance >= OTHER_MIN_STANCE:
+            return "other", WindowFeatures(dc, var, energy, still, stance, per, perio)
+        if np.isnan(perio):
+            per, perio = period()
+        if perio < OTHER_MAX_PERIODICITY:
+            return "other", WindowFeatures(dc, var, energy, still, stance, per, perio)
+    return "walk", WindowFeatures(dc, var, energy, still, stance, per, perio)
 
 
 class BehaviourRecognizer:
@@ -221,10 +281,11 @@ class BehaviourRecognizer:
             td = self._t0 + self._k * HOP_S
             if self._t[-1] < td:
                 break
-            m = (self._t >= td - WINDOW_S) & (self._t < td)
-            if np.count_nonzero(m) >= 8 and td - self._t0 >= min(WINDOW_S, 1.0):
-                self.features = window_features(self._t[m], self._n[m])
-                self._vote(classify_window(self.features))
+            i0 = int(np.searchsorted(self._t, td - WINDOW_S, side="left"))
+            i1 = int(np.searchsorted(self._t, td, side="left"))
+            if i1 - i0 >= 8 and td - self._t0 >= min(WINDOW_S, 1.0):
+                label, self.features = decide_window(self._t[i0:i1], self._n[i0:i1])
+                self._vote(label)
             out.append((td, self.label))
             self._k += 1
         keep = self._t >= self._t0 + self._k * HOP_S - WINDOW_S

@@ -11,7 +11,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clients.synth import synthesize
-from models.behaviour import LABELS, BehaviourRecognizer, label_recording
+from models.behaviour import (
+    HOP_S,
+    LABELS,
+    WINDOW_S,
+    BehaviourRecognizer,
+    classify_window,
+    decide_window,
+    label_recording,
+    window_features,
+)
 
 MAX_DELAY_S = 2.0  # issue 4: synthetic transitions detected within 2 s
 MAX_RUN_FRACTION_WALKING = 0.10  # gdin walking recordings: at most brief fast stretches labelled run
@@ -89,6 +98,23 @@ def test_synthetic_labels_match_truth(demo):
     idx = np.clip(np.round(np.array([d[0] for d in dec]) * 200).astype(int) - 1, 0, len(truth) - 1)
     ok = np.mean([truth[i] == lab for i, (_, lab) in zip(idx, dec)])
     assert ok >= 0.9
+
+
+@pytest.mark.parametrize("scenario", ["demo", "mixed-day"])
+@pytest.mark.parametrize("factor", [1, 8])
+def test_lazy_decision_equals_the_full_rule_set(scenario, factor):
+    """decide_window computes only the features it needs but must give classify_window's label."""
+    r = synthesize(scenario, seed=1)
+    t, a = r.batch.acc_t_ns[::factor] / 1e9, r.batch.acc[::factor]
+    n = np.linalg.norm(a, axis=1)
+    labels = set()
+    for td in np.arange(t[0] + WINDOW_S, t[-1], HOP_S):
+        m = (t >= td - WINDOW_S) & (t < td)
+        lab, f = decide_window(t[m], n[m])
+        assert lab == classify_window(window_features(t[m], n[m])), f"window ending {td:.2f} s"
+        assert f.still_std == window_features(t[m], n[m]).still_std
+        labels.add(lab)
+    assert {"stand", "walk"} <= labels  # the comparison covered more than one branch
 
 
 def test_labels_are_known():
