@@ -156,9 +156,17 @@ class ProfileOut(BaseModel):
 
 
 class GaitSummaryOut(BaseModel):
-    """Per session gait figures of one user, oldest first (heading deviation: 004 Section 4.2)."""
+    """Per session gait figures of one user, oldest first (heading deviation: 004 Section 4.2).
+
+    Each session: ``session_id``, ``started``, ``device_kind``, ``steps``, ``distance_m``,
+    ``mean_step_length_m``, ``cadence_steps_per_min``, ``heading_deviation_rad`` / ``heading_deviation_var``
+    (latest estimate, null when none) and ``heading_deviation`` (its estimates over time).
+    """
 
     sessions: list[dict[str, Any]]
+    heading_deviation_over_time: list[dict[str, Any]] = Field(
+        default_factory=list, description="every estimate of the user, oldest session first: session_id, t_ns, "
+        "event, behaviour, heading_deviation_rad, heading_deviation_var")
 
 
 class SensorLoggerItem(BaseModel):

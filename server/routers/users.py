@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from fastapi import APIRouter
@@ -20,9 +21,31 @@ def me(user: CurrentUser) -> Any:
     return user
 
 
+def _finite(v: Any) -> float | None:
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        return float(v)
+    return None
+
+
+def _deviation_series(db: SessionDep, sess: Any) -> list[dict[str, Any]]:
+    """Heading-deviation estimates of a session, oldest first: the engine's heading-deviation filter
+    (004 Section 4.2, KF II) reports one in the detail of its calibration events (``heading_deviation_rad``,
+    ``heading_deviation_var``); events without a finite value are skipped (NaN is stored as null)."""
+    out = []
+    for e in crud.events_of(db, sess.id):
+        detail = e.detail or {}
+        rad = _finite(detail.get("heading_deviation_rad"))
+        if rad is None:
+            continue
+        out.append({"session_id": sess.id, "t_ns": int(e.t_ns), "event": e.kind, "behaviour": detail.get("behaviour"),
+                    "heading_deviation_rad": rad, "heading_deviation_var": _finite(detail.get("heading_deviation_var"))})
+    return out
+
+
 def _session_gait(db: SessionDep, sess: Any) -> dict[str, Any]:
     pos = crud.positions_of(db, sess.id)
     moving = [p for p in pos if p.behaviour in ("walk", "run") and p.step_length_m > 0]
+    series = _deviation_series(db, sess)
     out: dict[str, Any] = {
         "session_id": sess.id,
         "started": sess.created_at.isoformat(),
@@ -31,7 +54,10 @@ def _session_gait(db: SessionDep, sess: Any) -> dict[str, Any]:
         "distance_m": float(sum(p.step_length_m for p in moving)),
         "mean_step_length_m": None,
         "cadence_steps_per_min": None,
-        "heading_deviation_rad": None,
+        # the session's latest estimate (None when the engine reported none)
+        "heading_deviation_rad": series[-1]["heading_deviation_rad"] if series else None,
+        "heading_deviation_var": series[-1]["heading_deviation_var"] if series else None,
+        "heading_deviation": [{k: v for k, v in d.items() if k != "session_id"} for d in series],
     }
     if moving:
         out["mean_step_length_m"] = out["distance_m"] / len(moving)
@@ -39,15 +65,14 @@ def _session_gait(db: SessionDep, sess: Any) -> dict[str, Any]:
         span_s = (moving[-1].t_ns - moving[0].t_ns) / 1e9
         if span_s > 0:
             out["cadence_steps_per_min"] = 60.0 * (len(moving) - 1) / span_s
-    # the engine's heading-deviation filter (004 Section 4.2, KF II) reports its estimate in events
-    for e in reversed(crud.events_of(db, sess.id)):
-        if "heading_deviation_rad" in e.detail:
-            out["heading_deviation_rad"] = float(e.detail["heading_deviation_rad"])
-            break
     return out
 
 
 @router.get("/me/gait-summary", response_model=GaitSummaryOut)
 def gait_summary(db: SessionDep, user: CurrentUser) -> GaitSummaryOut:
-    """Per session: steps, distance, mean step length, cadence and heading deviation, oldest first."""
-    return GaitSummaryOut(sessions=[_session_gait(db, s) for s in crud.list_sessions(db, user, limit=10_000)])
+    """Per session, oldest first: steps, distance, mean step length, cadence and the heading deviation (latest
+    estimate and its history); plus every heading-deviation estimate of the user over time (rehabilitation
+    monitoring, 004 Section 4.2)."""
+    sessions = [_session_gait(db, s) for s in crud.list_sessions(db, user, limit=10_000)]
+    over_time = [{"session_id": s["session_id"], **d} for s in sessions for d in s["heading_deviation"]]
+    return GaitSummaryOut(sessions=sessions, heading_deviation_over_time=over_time)
