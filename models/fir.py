@@ -179,6 +179,31 @@ class Decimator:
         self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
         return t_centre[keep].copy(), y[keep]
 
+    def flush(self) -> tuple[np.ndarray, np.ndarray]:
+        """End of the stream: the outputs still held back by the filter's latency.
+
+        The filter is fed ``delay`` copies of the last input (the mirror of the replicated start), so the
+        output reaches the last input's time. Call once, after the last :meth:`process`.
+
+        Returns
+        -------
+        t_out_ns : ndarray of int64, shape (M,)
+            Times [ns] of the remaining output samples.
+        y : ndarray, shape (M, C)
+            Their filtered values.
+        """
+        delay = int(self._fir.delay_samples)
+        hist = self._fir._hist
+        if delay == 0 or self._count == 0 or hist is None:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.channels))
+        y = self._fir.process(np.repeat(hist[-1:], delay, axis=0))
+        t_c = self._t_hist  # times of the last `delay` inputs: the outputs are centred on them
+        c = np.arange(self._count - delay, self._count)  # their input indices
+        keep = (c >= 0) & ((c % self.factor) == 0)  # the same grid as process() keeps
+        self._count += delay
+        self._t_hist = self._t_hist[:0]
+        return t_c[keep].copy(), y[keep]
+
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
         return {"rate_in_hz": self.rate_in_hz, "rate_out_hz": self.rate_out_hz, "channels": self.channels,

@@ -73,3 +73,15 @@ def test_decimator_is_chunk_invariant_and_survives_state_round_trip(cuts: list[i
         ys.append(b)
     assert np.array_equal(np.concatenate(ts), t_ref)
     assert np.allclose(np.concatenate(ys), y_ref, rtol=0, atol=1e-12)
+
+
+def test_decimator_flush_reaches_the_last_input_on_the_same_grid() -> None:
+    t = (np.arange(1003) * 5_000_000).astype(np.int64)
+    x = np.c_[np.sin(np.arange(1003) / 30.0), np.cos(np.arange(1003) / 17.0), np.ones(1003)]
+    d = Decimator(200.0, 25.0)
+    t1, y1 = d.process(t, x)
+    t2, y2 = d.flush()
+    tt = np.r_[t1, t2]
+    assert np.all(np.diff(tt) == 40_000_000) and tt[0] == 0
+    assert t[-1] - tt[-1] < 40_000_000  # nothing held back any more
+    assert np.allclose(np.r_[y1, y2][:, 2], 1.0)
