@@ -125,6 +125,9 @@ class StepSegmenter:
     long_stance_s : float
         A quiet stretch longer than this [s] (standing) becomes a candidate without waiting for its end, so
         the last stance before a rest is reported while the person stands.
+    max_latency_s : float
+        Hard bound on (newest filtered sample time) - (onset) when a step is emitted [s]: competitors still
+        open at that point are decided on the samples available (see :attr:`latency_s`).
     """
 
     def __init__(self, rate_hz: float, window_s: float = 0.12, stance_threshold: float = 1.5,
@@ -133,7 +136,8 @@ class StepSegmenter:
                  swing_frac: float = 0.45, min_swing_s: float = 0.25, context_s: float = 0.3,
                  level_s: float = 1.5, rel_threshold: float = 0.35, k_duration: float = 50.0,
                  duration_cap_s: float = 0.3, k_quiet: float = 2.0, period_min_s: float = 0.5,
-                 period_max_s: float = 1.5, default_period_s: float = 1.0, long_stance_s: float = 1.0) -> None:
+                 period_max_s: float = 1.5, default_period_s: float = 1.0, long_stance_s: float = 0.6,
+                 max_latency_s: float = 1.0) -> None:
         self.rate_hz = float(rate_hz)
         self.window_s = float(window_s)
         self.stance_threshold = float(stance_threshold)
@@ -155,6 +159,7 @@ class StepSegmenter:
         self.period_max_s = float(period_max_s)
         self.default_period_s = float(default_period_s)
         self.long_stance_s = float(long_stance_s)
+        self.max_latency_s = float(max_latency_s)
         n = int(round(self.fir_length_s * self.rate_hz))
         n += n % 2 == 0
         n = max(n, 3)
@@ -274,6 +279,28 @@ class StepSegmenter:
         self._n_events += 1
         out.append(ev)
 
+    def _force(self, t_now: float, out: list[StepEvent]) -> None:
+        """Latency bound reached for the pending candidate: decide its competitors on what is available."""
+        p = self._pend
+        assert p is not None
+        w1 = self._w - 1
+        lim = p[0] + max(self.min_period_s, self.refractory_frac * self._period())
+        early = [c for c in self._await if self._t(int(c[_I_FIRST]) - w1) < lim]
+        self._await = [c for c in self._await if self._t(int(c[_I_FIRST]) - w1) >= lim]
+        r = self._run
+        if r is not None and not r[_EMIT] and self._t(int(r[_I_FIRST]) - w1) < lim:
+            early.append(r[:_EMIT])
+            r[_EMIT] = 1.0
+        for c in early:
+            self._select(c, out)
+        if self._pend is not None and t_now - self._pend[0] >= self.max_latency_s:
+            self._confirm(out)
+
+    @property
+    def latency_s(self) -> float:
+        """Bound on (input time when a step is emitted) - (its onset) [s]: ``max_latency_s`` + filter delay."""
+        return self.max_latency_s + self._delay / self.rate_hz
+
     def _end_run(self, r: list[float]) -> None:
         """A quiet stretch ended: it becomes a candidate, or (already a candidate) its selected stance ends now."""
         if not r[_EMIT]:
@@ -382,7 +409,9 @@ class StepSegmenter:
             q[k0:] = np.sqrt(var + (np.sqrt(np.einsum("ij,ij->i", mu_k, mu_k)) - G0) ** 2)
             mu[k0:] = mu_k
         thr = self.stance_threshold
-        n_long = max(2, int(round(self.long_stance_s * self.rate_hz)))
+        # a long stretch is decided within the latency bound: onset + window + n_long + look-ahead <= bound
+        n_long = max(2, min(int(round(self.long_stance_s * self.rate_hz)),
+                            int((self.max_latency_s - self.context_s) * self.rate_hz) - w))
         ql = q.tolist()
         mul = [tuple(r) for r in mu.tolist()]
         w1 = w - 1
@@ -420,6 +449,8 @@ class StepSegmenter:
                 self._select(self._await.pop(0), events)
             if self._pend is not None and i - w1 >= b0:
                 self._try_confirm(float(bt[i - w1 - b0]), events)
+            if self._pend is not None and float(bt[i - b0]) - self._pend[0] >= self.max_latency_s:
+                self._force(float(bt[i - b0]), events)
         self._count += n
         keep = max(w - 1, 0)
         self._win = win[max(win.shape[0] - keep, 0):].copy()
@@ -442,7 +473,7 @@ class StepSegmenter:
     _PARAMS = ("rate_hz", "window_s", "stance_threshold", "swing_min", "refractory_frac", "min_period_s",
                "max_period_s", "fir_cutoff_hz", "fir_length_s", "swing_frac", "min_swing_s", "context_s",
                "level_s", "rel_threshold", "k_duration", "duration_cap_s", "k_quiet", "period_min_s",
-               "period_max_s", "default_period_s", "long_stance_s")
+               "period_max_s", "default_period_s", "long_stance_s", "max_latency_s")
 
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""

@@ -63,6 +63,20 @@ def test_gyroscope_does_not_change_events() -> None:
     assert StepSegmenter(50.0).feed(t, acc) == StepSegmenter(50.0).feed(t, acc, gyr)
 
 
+@pytest.mark.parametrize("rate", [25.0, 200.0])
+@pytest.mark.parametrize("period", [0.8, 1.5])
+def test_latency_bound_and_last_stance_reported_while_standing(rate: float, period: float) -> None:
+    t, acc = synthetic_foot(rate, strides=12, period=period, stance=0.35 * period, rest=2.0)
+    seg = StepSegmenter(rate)
+    got = []
+    for k in range(t.size):  # one sample at a time: the input time at which each step comes out
+        for e in seg.feed(t[k:k + 1], acc[k:k + 1]):
+            got.append((e, t[k]))
+    assert len(got) == 12  # the last one too, without flush (the foot stands still afterwards)
+    lat = [tk - e.t_s for e, tk in got]
+    assert max(lat) <= seg.latency_s + 1e-9
+
+
 # Real recordings (exp 31-43 have a footprint per stride), fast walks (34, 35, 43) included: one configuration
 # for every recording and rate, nothing read from the truth. The stream is flushed at the end (the last stance
 # of a recording is its last stride).
