@@ -179,5 +179,104 @@ def test_gdin_walks_not_run(gdin_dir):
         if frac > MAX_RUN_FRACTION_WALKING:
             failing.append(r.name)
     # Known gap (strict: the test fails when it disappears, so the list is kept honest): exp21 gets run labels
-    # for 5 s (24-29 s, 10.1 % of its decisions); its GCP segments do not show a faster stretch there.
+    # for 5 s (24.0-29.0 s, 10.1 % of its decisions). Its GCPs are too sparse to show speed there, but the
+    # ZUPT-KF strides (gdin loop closure 0.4 %) put its fastest stretch exactly there: 22.9-26.7 s at
+    # 1.64-1.72 m/s and 0.87-0.94 s per stride vs 1.0-1.3 s elsewhere (recording mean 1.21 m/s); the labels
+    # outlast it by 2.3 s (window + hysteresis). Its window features (|a|-stance 0.35-0.38, period 0.9 s,
+    # median |a| 13.5 m/s^2) are those of the VICON slow-jog run trials 11-44-47 (dataset-repo label) and
+    # 18-00-40 (stance 0.25-0.39, period 1.0 s): dropping the jog rule clears exp21 but costs VICON walk/run
+    # 98.4 -> 94.9 % (200 Hz) and 98.0 -> 94.3 % (25 Hz), measured 2026-11-22.
     assert sorted(failing) == KNOWN_GDIN_RUN_GAPS
+
+
+@pytest.mark.slow
+def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir):
+    """Where gdin has a footprint per stride (exp 31-43), run decisions must fall in fast stretches: a truth
+    stride of >= 1.5 m/s (the speed the walking test above calls fast) overlapping the decision's window.
+    Measured 2026-11-22: exp34 63/67, exp35 81/81, exp43 106/110; no run decision on the other recordings."""
+    from clients.importers import list_recordings, load
+    from models.behaviour import WINDOW_S
+
+    n_run = n_fast = 0
+    for p in list_recordings(gdin_dir):
+        r = load(p)
+        extra = r.truth.extra if r.truth else {}
+        if "stride_t_ns" not in extra:
+            continue
+        t0 = r.batch.acc_t_ns[0]
+        ts = (np.asarray(extra["stride_t_ns"]) - t0) / 1e9
+        xy = np.asarray(extra["stride_gcp_xy"], dtype=float)
+        v = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.diff(ts)
+        runs = fast = 0
+        for td, lab in label_recording((r.batch.acc_t_ns - t0) / 1e9, r.batch.acc):
+            if lab != "run":
+                continue
+            m = (ts[1:] >= td - WINDOW_S) & (ts[:-1] <= td)
+            runs += 1
+            fast += bool(m.any() and v[m].max() >= 1.5)
+        if v.max() < 1.5:
+            assert runs == 0, f"{r.name}: run labels although no stride reaches 1.5 m/s"
+        n_run, n_fast = n_run + runs, n_fast + fast
+    print(f"gdin run decisions in fast stretches: {n_fast}/{n_run}")
+    assert n_run and n_fast / n_run >= 0.9
+
+
+# ------------------------------------------------------------------ transition latency, measured more widely
+def _latencies(scenarios, factor):
+    """Delay [s] from each synthetic behaviour change to the first decision carrying the new label."""
+    out = {}
+    for sc, seed in scenarios:
+        r = synthesize(sc, seed=seed)
+        dec = label_recording(r.batch.acc_t_ns[::factor] / 1e9, r.batch.acc[::factor])
+        td = np.array([d[0] for d in dec])
+        labels = np.array([d[1] for d in dec])
+        prev = None
+        for t0, t1, lab in r.truth.extra["segments"]:
+            if t1 - t0 < 3.0:
+                continue
+            if prev is not None and lab != prev:
+                hit = np.flatnonzero((td >= t0) & (labels == lab))
+                out.setdefault(f"{prev}->{lab}", []).append(float(td[hit[0]] - t0) if hit.size else float("inf"))
+            prev = lab
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 2026-11-22 on demo and mixed-day seeds 0-5: walk->run takes up to 2.31 s at 200 Hz (3 of 6 "
+    "over 2 s, median 1.91 s) and 2.50 s at 25 Hz (4 of 6); run->walk 2.27 s and stand->walk 2.17 s once each. "
+    "The stance-fraction window (2.75 s) plus the hysteresis (0.5 s) is the cause; shorter windows or less "
+    "hysteresis trade it against VICON walk/run accuracy (97.3 % / 96.5 %) and stand->run latency",
+)
+@pytest.mark.parametrize("factor", [1, 8])
+def test_every_synthetic_transition_within_2s_over_seeds(factor):
+    scen = [(sc, seed) for sc in ("demo", "mixed-day") for seed in range(6)]
+    lat = _latencies(scen, factor)
+    summary = {k: (len(v), round(max(v), 2), round(float(np.median(v)), 2)) for k, v in sorted(lat.items())}
+    print(f"200/{factor} Hz transition latency (n, max s, median s): {summary}")
+    assert max(max(v) for v in lat.values()) <= MAX_DELAY_S
+
+
+@pytest.mark.slow
+def test_transition_latency_through_the_engine():
+    """The engine's behaviour events while the device follows its sensor commands (25 Hz in Gait-DR and
+    standing): measured and printed; every transition must at least be recognised within 3 s."""
+    from energy.device import replay
+    from energy.engine import Engine
+
+    worst = 0.0
+    rows = []
+    for sc, seed in [("demo", 0), ("demo", 1), ("mixed-day", 0)]:
+        r = synthesize(sc, seed=seed)
+        res = replay(Engine(mode="auto"), r.batch)
+        ev = [(e.t_ns / 1e9, e.detail["to"]) for u in res.updates for e in u.events if e.kind == "behaviour"]
+        te = np.array([t for t, _ in ev])
+        le = np.array([lab for _, lab in ev])
+        for t0, lab in _transitions(r.truth.extra["segments"]):
+            hit = np.flatnonzero((te >= t0) & (le == lab))
+            d = float(te[hit[0]] - t0) if hit.size else float("inf")
+            rows.append(f"{sc}/{seed} {lab}@{t0:.1f}s {d:.2f}s")
+            worst = max(worst, d)
+    print("engine-loop transition latency:", "; ".join(rows), f"; worst {worst:.2f} s")
+    assert worst <= 3.0
