@@ -42,6 +42,7 @@ __all__ = [
     "account",
     "SAMPLE_BYTES",
     "REQUEST_OVERHEAD_BYTES",
+    "cost_class",
 ]
 
 SENSORS: tuple[str, ...] = ("acc", "gyr", "mag")
@@ -67,6 +68,9 @@ class SensorPower:
         Power-down current [uA].
     source : str
         Datasheet name and table/page.
+    verified : str
+        What of ``source`` was checked against the datasheet text, and what was not (``"not checked"`` when
+        the profile does not say).
     """
 
     part: str
@@ -74,6 +78,7 @@ class SensorPower:
     current_ua: tuple[float, ...]
     off_current_ua: float
     source: str
+    verified: str = "not checked"
 
     def current(self, rate_hz: float) -> float:
         """Supply current [uA] at ``rate_hz`` (0 = off); linear in the table, clamped at its ends."""
@@ -146,6 +151,18 @@ class PowerProfile:
     compute: ComputeCosts
 
 
+def cost_class(gyro_on: bool, behaviour: str) -> str:
+    """Navigation cost class of a batch from the state the device and engine were in for it.
+
+    ``zupt``: gyroscope on (ZUPT-KF at the full rate: initialisation or examination); ``idle``: gyroscope
+    off while the engine's behaviour is ``stand``; ``pdr``: gyroscope off otherwise (Gait-DR, de-sampled).
+    The behaviour is the one the engine reported together with the configuration the batch was recorded with.
+    """
+    if gyro_on:
+        return "zupt"
+    return "idle" if behaviour == "stand" else "pdr"
+
+
 @dataclass(frozen=True)
 class Interval:
     """A stretch of time with one sensor configuration.
@@ -205,11 +222,12 @@ class Timeline:
         """Build the timeline of a replay (``energy.device.replay``).
 
         Intervals come from ``res.configs`` (batch start [ns], configuration used for that batch), the last
-        one ending at ``t_end_ns``. Samples per mode: from ``res.trace.mode`` when the trace covers every
-        sample sent; otherwise per batch, ``acc rate x duration`` attributed to the mode the engine reported
-        for that batch (``res.updates[i].mode``) and scaled so the total equals the samples actually sent.
-        Steps per mode from ``res.positions``; bytes from ``res.samples_sent`` (``SAMPLE_BYTES +
-        TIMESTAMP_BYTES`` per sample, ``REQUEST_OVERHEAD_BYTES`` per request).
+        one ending at ``t_end_ns``. Samples per cost class (:func:`cost_class`: the batch's configuration and
+        the behaviour the engine reported with it, so standing counts as ``idle`` whatever navigation mode is
+        nominally active): ``acc rate x duration`` per batch, scaled so the total equals the accelerometer
+        samples actually sent. Steps per mode from ``res.positions``; bytes from ``res.samples_sent``
+        (``SAMPLE_BYTES + TIMESTAMP_BYTES`` per sample, ``REQUEST_OVERHEAD_BYTES`` per request).
+        :func:`energy.simulate.run_engine` counts the samples and bytes of every batch exactly instead.
         """
         cfgs = list(res.configs)
         intervals = []
@@ -219,16 +237,12 @@ class Timeline:
             if t1 <= t0:
                 continue
             intervals.append(Interval(t0 / 1e9, t1 / 1e9, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz))
-            mode = res.updates[i].mode if i < len(res.updates) else "idle"
-            est[mode] = est.get(mode, 0.0) + (t1 - t0) / 1e9 * c.acc_rate_hz
+            behaviour = res.updates[i - 1].behaviour if 0 < i <= len(res.updates) else "stand"
+            k = cost_class(bool(c.gyro_on), str(behaviour))
+            est[k] = est.get(k, 0.0) + (t1 - t0) / 1e9 * c.acc_rate_hz
         n_acc = int(res.samples_sent.get("acc", 0))
-        tr = res.trace
-        if tr is not None and len(tr.t_ns) == n_acc:
-            modes, counts = np.unique(np.asarray(tr.mode).astype(str), return_counts=True)
-            samples = {str(m): int(k) for m, k in zip(modes, counts)}
-        else:
-            total = sum(est.values()) or 1.0
-            samples = {m: int(round(v * n_acc / total)) for m, v in est.items()}
+        total = sum(est.values()) or 1.0
+        samples = {m: int(round(v * n_acc / total)) for m, v in est.items()}
         steps: dict[str, int] = {}
         for p in res.positions:
             steps[p.mode] = steps.get(p.mode, 0) + 1
@@ -335,6 +349,7 @@ def load_profile(name_or_path: str | Path, compute: ComputeCosts | None = None) 
             current_ua=tuple(i for _, i in table),
             off_current_ua=float(sd["off_current_ua"]),
             source=sd["source"],
+            verified=str((sd.get("verified") or {}).get("status", "not checked")),
         )
     pr, ra = d["processor"], d["radio"]
     for key, sub in (("processor", pr), ("radio", ra)):

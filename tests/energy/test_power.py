@@ -117,3 +117,44 @@ def test_stored_compute_costs_have_provenance():
     c = load_compute_costs()
     assert c.measured["date"] and c.measured["machine"] and c.measured["command"]
     assert c.us_per_sample.get("zupt", 0) > 0
+
+
+@pytest.mark.parametrize("name", ["foot-004", "foot-lsm9ds1", "phone-bmi270"])
+def test_every_sensor_says_what_was_verified(name):
+    """Each sensor figure carries its verification status (what was checked against the datasheet text)."""
+    p = load_profile(name, COSTS)
+    for s in ("acc", "gyr", "mag"):
+        assert p.sensors[s].verified != "not checked", f"{name} {s}: no verification status"
+
+
+def test_lis3dh_table_matches_the_datasheet():
+    """LIS3DH DocID17530 Rev 2, Table 12, normal mode (checked against the datasheet text, 2026-11-22)."""
+    p = load_profile("foot-004", COSTS)
+    table = {1: 2, 10: 4, 25: 6, 50: 11, 100: 20, 200: 38, 400: 73, 1344: 185}
+    for odr, ua in table.items():
+        assert p.sensors["acc"].current(float(odr)) == pytest.approx(ua)
+    assert p.sensors["acc"].verified.startswith("verified")
+
+
+def test_cost_class_counts_standing_as_idle():
+    from energy.power import cost_class
+
+    assert cost_class(True, "stand") == "zupt"
+    assert cost_class(False, "stand") == "idle"
+    assert cost_class(False, "walk") == "pdr"
+
+
+@pytest.mark.slow
+def test_timeline_from_replay_puts_standing_in_idle():
+    """A replayed day: standing batches (gyroscope off, behaviour stand) are charged as idle, and the
+    accelerometer samples of all classes add up to those sent."""
+    pytest.importorskip("energy.engine")
+    from clients.synth import synthesize
+    from energy.device import replay
+    from energy.engine import Engine
+
+    r = synthesize("demo", seed=0)
+    res = replay(Engine(mode="auto"), r.batch)
+    tl = Timeline.from_replay(res, int(r.batch.t_end_ns))
+    assert tl.samples_by_mode.get("idle", 0) > 0
+    assert abs(sum(tl.samples_by_mode.values()) - res.samples_sent["acc"]) <= len(tl.samples_by_mode)
