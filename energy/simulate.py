@@ -5,6 +5,19 @@ sensor configuration: gyroscope samples dropped when it is off, accelerometer de
 lowered). Each replay becomes a :class:`energy.power.Timeline` and is accounted on a device profile. The
 baseline is ``Engine(mode="zupt")`` at 200 Hz with all sensors on (004's ZUPT-KF).
 
+Computation is measured, not assumed (004 Table 9): every ``Engine.feed`` of both runs is timed with the
+thread's CPU clock (``time.thread_time_ns``, insensitive to other processes on a shared machine) by
+:class:`MeteredEngine`, and attributed to the cost class of the sensor configuration the device used for that
+batch: ``zupt`` (gyroscope on, ZUPT-KF at the full rate), ``pdr`` (gyroscope off, Gait-DR at the de-sampled
+rate) or ``idle`` (standing: the lowest accelerometer rate). The compute energy of a run is its own measured
+CPU time per class, scaled to the target processor. ``compute_reduction_pct`` is the 004 Table 9 figure: the
+scheduler's measured computation per step vs the baseline's, both measured in the same process run.
+:func:`component_meter` additionally splits the time by engine component (behaviour recognition, ZUPT-KF,
+Gait-DR stream, calibration, dead reckoning, input checks) so the report says where the computation goes.
+
+Radio: the bytes of every uploaded batch as encoded by ``encode`` (the CLI passes the SDK's msgpack float32
+encoder, i.e. the bytes the project's client really sends), plus one request per batch.
+
 Position error: the positions (one per stance/step) are compared with the synthetic truth at the same
 instants, after the one rotation about the origin that best matches the estimate's first 10 m to the
 truth (the estimate's initial heading is arbitrary without a compass fix); same procedure for both engines.
@@ -12,34 +25,259 @@ truth (the estimate's initial heading is arbitrary without a compass fix); same 
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import os
 import platform
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from datetime import date
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
-from energy.power import EnergyReport, PowerProfile, Timeline, account
+from energy.power import (
+    REQUEST_OVERHEAD_BYTES,
+    SAMPLE_BYTES,
+    TIMESTAMP_BYTES,
+    ComputeCosts,
+    EnergyReport,
+    Interval,
+    PowerProfile,
+    Timeline,
+    account,
+    cost_class,
+)
 
 if TYPE_CHECKING:
     from energy.device import ReplayResult
     from models.batch import SensorBatch
 
-__all__ = ["RunResult", "position_errors", "run_engine", "simulate", "measure_compute_costs"]
+__all__ = [
+    "RunResult",
+    "BatchRecord",
+    "MeteredEngine",
+    "component_meter",
+    "model_bytes",
+    "cost_class",
+    "position_errors",
+    "run_engine",
+    "simulate",
+    "measure_compute_costs",
+]
+
+COST_CLASSES: tuple[str, ...] = ("zupt", "pdr", "idle")
+Encoder = Callable[["SensorBatch"], int]
+
+
+def model_bytes(batch: SensorBatch) -> int:
+    """Upload size [bytes] of a batch in the default byte model of :mod:`energy.power`.
+
+    ``SAMPLE_BYTES + TIMESTAMP_BYTES`` per sample of every stream plus ``REQUEST_OVERHEAD_BYTES`` per request.
+    """
+    from models.batch import STREAMS
+
+    n = sum(len(batch.stream(s)[0]) for s in STREAMS)
+    return n * (SAMPLE_BYTES + TIMESTAMP_BYTES) + REQUEST_OVERHEAD_BYTES
+
+
+@dataclass
+class BatchRecord:
+    """What one ``Engine.feed`` (or the final ``flush``) cost.
+
+    Attributes
+    ----------
+    t0_ns : int
+        Time of the batch's first accelerometer sample [ns] (-1 for an empty batch or the flush).
+    cls : str
+        Cost class (:func:`cost_class`).
+    n_acc : int
+        Accelerometer samples in the batch.
+    n_samples : int
+        Samples of all streams in the batch.
+    nbytes : int
+        Upload size of the batch [bytes] (0 for the flush, which uploads nothing).
+    cpu_ns : int
+        Thread CPU time spent inside the call [ns].
+    """
+
+    t0_ns: int
+    cls: str
+    n_acc: int
+    n_samples: int
+    nbytes: int
+    cpu_ns: int
+
+
+class _ComponentMeter:
+    """Exclusive thread-CPU time per (engine component, cost class); see :func:`component_meter`."""
+
+    def __init__(self) -> None:
+        self.cls = "zupt"
+        self.ns: dict[tuple[str, str], int] = {}
+        self._stack: list[list[int]] = []  # [start, time spent in nested metered calls]
+
+    def wrap(self, name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*args: Any, **kw: Any) -> Any:
+            frame = [time.thread_time_ns(), 0]
+            self._stack.append(frame)
+            try:
+                return fn(*args, **kw)
+            finally:
+                self._stack.pop()
+                total = time.thread_time_ns() - frame[0]
+                key = (name, self.cls)
+                self.ns[key] = self.ns.get(key, 0) + total - frame[1]
+                if self._stack:
+                    self._stack[-1][1] += total
+
+        return timed
+
+
+_COMPONENTS: tuple[tuple[str, str, str, str], ...] = (
+    # (component, module, class, method)
+    ("behaviour", "models.behaviour", "BehaviourRecognizer", "process"),
+    ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "process"),
+    ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "flush"),
+    ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "reset"),
+    ("gait_stream", "energy.gait_dr", "GaitPipeline", "feed"),
+    ("gait_calibration", "energy.gait_dr", "GaitPipeline", "learn"),
+    ("gait_calibration", "energy.gait_dr", "GaitPipeline", "ready"),
+    ("gait_calibration", "energy.gait_dr", "GaitPipeline", "fit"),
+    ("gait_reckon", "energy.gait_dr", "GaitPipeline", "reckon"),
+    ("compass_fit", "models.compass", "MagCalibrator", "fit"),
+    ("input_checks", "models.batch", "SensorBatch", "validate"),
+    ("stream_pairing", "energy.engine", "_StreamPairing", "push"),
+    ("stream_pairing", "energy.engine", "_StreamPairing", "pair"),
+)
+
+
+@contextlib.contextmanager
+def component_meter() -> Iterator[_ComponentMeter]:
+    """Time the engine's components while the block runs (measurement only; originals restored on exit).
+
+    Wraps the methods listed in ``_COMPONENTS`` with an exclusive thread-CPU timer (time in a nested metered
+    call is counted once, in the inner component). Whatever ``Engine.feed`` spends outside them (scheduler,
+    label history, events and positions) is the ``engine_other`` remainder computed by :func:`run_engine`.
+    """
+    import importlib
+
+    meter = _ComponentMeter()
+    saved = []
+    for comp, mod, cls, meth in _COMPONENTS:
+        klass = getattr(importlib.import_module(mod), cls, None)
+        orig = None if klass is None else klass.__dict__.get(meth)
+        if orig is None:  # the engine no longer has this method: nothing to time
+            continue
+        saved.append((klass, meth, orig))
+        setattr(klass, meth, meter.wrap(comp, orig))
+    try:
+        yield meter
+    finally:
+        for klass, meth, orig in reversed(saved):
+            setattr(klass, meth, orig)
+
+
+class MeteredEngine:
+    """An engine as :func:`energy.device.replay` sees it, with every call metered.
+
+    Parameters
+    ----------
+    engine : energy.engine.Engine
+        The engine to drive.
+    encode : callable, optional
+        ``batch -> bytes uploaded`` (default :func:`model_bytes`).
+    meter : _ComponentMeter, optional
+        Told the cost class of each batch so component times are split by class.
+
+    Notes
+    -----
+    The cost class of a batch (:func:`cost_class`) comes from the configuration the device used for it, i.e.
+    the engine's ``sensor_config`` just before ``feed`` (``replay`` reads it, emits the batch with it, then
+    feeds), and the behaviour the engine reported with that configuration (the previous update's).
+    """
+
+    def __init__(self, engine: Any, encode: Encoder | None = None, meter: _ComponentMeter | None = None) -> None:
+        self.engine = engine
+        self.encode = encode or model_bytes
+        self.meter = meter
+        self.records: list[BatchRecord] = []
+        self._behaviour = "stand"  # an engine starts standing
+
+    @property
+    def sensor_config(self) -> Any:
+        return self.engine.sensor_config
+
+    @property
+    def trace(self) -> Any:
+        return self.engine.trace
+
+    def _run(self, fn: Callable[[], Any], cls: str, t0: int, n_acc: int, n_samples: int, nbytes: int) -> Any:
+        if self.meter is not None:
+            self.meter.cls = cls
+        c0 = time.thread_time_ns()
+        out = fn()
+        self.records.append(BatchRecord(t0, cls, n_acc, n_samples, nbytes, time.thread_time_ns() - c0))
+        return out
+
+    def feed(self, batch: SensorBatch) -> Any:
+        from models.batch import STREAMS
+
+        cls = cost_class(self.engine.sensor_config.gyro_on, self._behaviour)
+        n = sum(len(batch.stream(s)[0]) for s in STREAMS)
+        t0 = int(batch.acc_t_ns[0]) if len(batch) else -1
+        upd = self._run(lambda: self.engine.feed(batch), cls, t0, len(batch), n, int(self.encode(batch)))
+        self._behaviour = str(upd.behaviour)
+        return upd
+
+    def flush(self) -> Any:
+        cls = self.records[-1].cls if self.records else "zupt"
+        return self._run(self.engine.flush, cls, -1, 0, 0, 0)
+
+    def cpu_us_by_class(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for r in self.records:
+            out[r.cls] = out.get(r.cls, 0.0) + r.cpu_ns / 1e3
+        return out
+
+    def samples_by_class(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for r in self.records:
+            if r.n_acc:
+                out[r.cls] = out.get(r.cls, 0) + r.n_acc
+        return out
 
 ALIGN_RADIUS_M = 10.0  # m, the part of the path used to fit the heading alignment
 
 
 @dataclass
 class RunResult:
-    """One engine over one recording: replay, timeline, energy and errors."""
+    """One engine over one recording: replay, timeline, energy, errors and measured computation.
+
+    Attributes
+    ----------
+    cpu_us_by_class : dict of str to float
+        Thread CPU time inside the engine per cost class [us], this run.
+    samples_by_class : dict of str to int
+        Accelerometer samples per cost class.
+    component_us : dict of str to dict of str to float
+        ``{component: {cost class: us}}`` (empty unless metered by components).
+    records : list of BatchRecord
+        One per ``feed`` and the final ``flush``.
+    interval_classes : list of str
+        Cost class of each interval of ``timeline.intervals``.
+    """
 
     mode: str
     replay: ReplayResult
     timeline: Timeline
     energy: EnergyReport
     errors: dict[str, float]
+    cpu_us_by_class: dict[str, float] = field(default_factory=dict)
+    samples_by_class: dict[str, int] = field(default_factory=dict)
+    component_us: dict[str, dict[str, float]] = field(default_factory=dict)
+    records: list[BatchRecord] = field(default_factory=list)
+    interval_classes: list[str] = field(default_factory=list)
 
 
 def position_errors(t_ns: np.ndarray, est_ne: np.ndarray, truth_t_ns: np.ndarray, truth_ne: np.ndarray) -> dict[str, float]:
@@ -89,18 +327,120 @@ def run_engine(
     truth_t_ns: np.ndarray,
     truth_pos: np.ndarray,
     batch_seconds: float = 1.0,
+    measure: bool = True,
+    encode: Encoder | None = None,
+    components: bool = False,
 ) -> RunResult:
-    """Replay ``batch`` through a fresh ``Engine(mode=mode)`` and account its energy on ``profile``."""
+    """Replay ``batch`` through a fresh ``Engine(mode=mode)`` and account its energy on ``profile``.
+
+    Parameters
+    ----------
+    mode : {"auto", "zupt", "pdr"}
+    batch : SensorBatch
+        Native-rate recording.
+    profile : PowerProfile
+        Device profile; its ``compute`` costs are used only when ``measure`` is False.
+    truth_t_ns, truth_pos : ndarray
+        Truth times [ns] and NED positions [m].
+    batch_seconds : float
+        Upload batch duration [s].
+    measure : bool
+        Account the computation this run actually took (thread CPU time per cost class, see the module
+        docstring). False: use the stored per-sample costs of ``profile.compute`` (deterministic).
+    encode : callable, optional
+        ``batch -> uploaded bytes`` (default :func:`model_bytes`).
+    components : bool
+        Also split the CPU time by engine component (:func:`component_meter`).
+    """
     from energy.device import replay
     from energy.engine import Engine
 
-    res = replay(Engine(mode=mode, trace=True), batch, batch_seconds=batch_seconds)
-    tl = Timeline.from_replay(res, t_end_ns=int(batch.t_end_ns or 0))
-    rep = account(tl, profile)
+    ctx = component_meter() if components else contextlib.nullcontext()
+    with ctx as meter:
+        eng = MeteredEngine(Engine(mode=mode), encode, meter)
+        res = replay(eng, batch, batch_seconds=batch_seconds)  # type: ignore[arg-type]
+    t_end = int(batch.t_end_ns or 0)
+    intervals, classes = [], []
+    for i, (t0, c) in enumerate(res.configs):
+        t1 = res.configs[i + 1][0] if i + 1 < len(res.configs) else t_end
+        if t1 > t0:
+            intervals.append(Interval(t0 / 1e9, t1 / 1e9, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz))
+            classes.append(eng.records[i].cls)  # one record per feed, in the order of res.configs
+    steps: dict[str, int] = {}
+    for p in res.positions:
+        steps[p.mode] = steps.get(p.mode, 0) + 1
+    samples = eng.samples_by_class()
+    cpu = eng.cpu_us_by_class()
+    nbytes = sum(r.nbytes for r in eng.records)
+    tl = Timeline(intervals, samples, steps, nbytes, int(res.batches))
+    if measure:
+        # Each class's measured CPU time spread over its samples: account() then charges exactly the time taken
+        # (the flush, which carries no samples, is in the time of the class of the last batch).
+        costs = ComputeCosts(
+            us_per_sample={k: cpu.get(k, 0.0) / max(samples.get(k, 0), 1) for k in set(cpu) | set(samples)},
+            us_per_step={},
+            measured={"date": date.today().isoformat(), "machine": _machine(), "command": "this run (thread CPU time)"},
+        )
+        rep = account(tl, dataclasses.replace(profile, compute=costs))
+    else:
+        rep = account(tl, profile)
     t = np.array([p.t_ns for p in res.positions], dtype=np.int64)
     ne = np.array([[p.north, p.east] for p in res.positions], dtype=float).reshape(-1, 2)
     errs = position_errors(t, ne, truth_t_ns, truth_pos[:, :2])
-    return RunResult(mode, res, tl, rep, errs)
+    comp: dict[str, dict[str, float]] = {}
+    if meter is not None:
+        for (name, k), ns in meter.ns.items():
+            comp.setdefault(name, {})[k] = comp.get(name, {}).get(k, 0.0) + ns / 1e3
+        for k, us in cpu.items():
+            inside = sum(v.get(k, 0.0) for v in comp.values())
+            comp.setdefault("engine_other", {})[k] = us - inside
+    return RunResult(mode, res, tl, rep, errs, cpu, samples, comp, eng.records, classes)
+
+
+def _warm_up(batch: SensorBatch, batch_seconds: float, seconds: float = 120.0) -> None:
+    """Run both engines over the first ``seconds`` of ``batch`` so one-off costs (numba compilation of the
+    ZUPT-KF kernel, imports, caches) are not charged to the measured run as if they were per-sample work."""
+    from energy.device import replay
+    from energy.engine import Engine
+
+    t0 = int(batch.t_start_ns or 0)
+    piece = batch.time_slice(t0, t0 + int(seconds * 1e9))
+    if len(piece):
+        for mode in ("zupt", "auto"):
+            replay(Engine(mode=mode), piece, batch_seconds=batch_seconds)
+
+
+def _machine() -> str:
+    return f"{platform.machine()} {platform.processor() or platform.platform()}, {os.cpu_count()} cpus, python {platform.python_version()}"
+
+
+def energy_by_class(r: RunResult, profile: PowerProfile) -> dict[str, dict[str, float]]:
+    """Split a run's energy [mJ] by cost class (``zupt``, ``pdr``, ``idle``) and component.
+
+    Sensors: the intervals of each class (:func:`cost_class` of the interval's batch);
+    computation: the class's measured CPU time (or its stored per-sample cost); radio: the bytes and requests
+    of the class's batches. Also ``time_s`` per class. The classes add up to the run's totals.
+    """
+    v = profile.supply_v
+    out: dict[str, dict[str, float]] = {}
+
+    def row(k: str) -> dict[str, float]:
+        return out.setdefault(k, {"time_s": 0.0, "acc": 0.0, "gyr": 0.0, "mag": 0.0, "compute": 0.0, "radio": 0.0})
+
+    for iv, k in zip(r.timeline.intervals, r.interval_classes):
+        d = row(k)
+        d["time_s"] += iv.t1_s - iv.t0_s
+        for sname in ("acc", "gyr", "mag"):
+            d[sname] += (iv.t1_s - iv.t0_s) * profile.sensors[sname].current(iv.rate(sname)) * v / 1000.0
+    for k, us in r.energy.compute_us_by_mode.items():
+        row(k)["compute"] += us * 1e-6 * profile.processor.slowdown_vs_bench * profile.processor.active_mw
+    for rec in r.records:
+        d = row(rec.cls)
+        is_request = rec.t0_ns != -1 or rec.nbytes > 0  # the flush uploads nothing
+        d["radio"] += (rec.nbytes * profile.radio.uj_per_byte + (profile.radio.uj_per_request if is_request else 0.0)) / 1000.0
+    for d in out.values():
+        d["total"] = d["acc"] + d["gyr"] + d["mag"] + d["compute"] + d["radio"]
+    return out
 
 
 def simulate(
@@ -110,6 +450,9 @@ def simulate(
     truth_pos: np.ndarray,
     truth_steps: int,
     batch_seconds: float = 1.0,
+    measure: bool = True,
+    encode: Encoder | None = None,
+    components: bool = True,
 ) -> dict[str, Any]:
     """Scheduler (``auto``) vs always-on baseline (``zupt``) on one recording with truth.
 
@@ -127,19 +470,34 @@ def simulate(
         Number of true strides (denominator of the compute per step).
     batch_seconds : float
         Upload batch duration [s].
+    measure : bool
+        Charge the computation measured in this run (default); False uses the stored costs of
+        ``profile.compute`` (deterministic, for tests).
+    encode : callable, optional
+        ``batch -> uploaded bytes`` (default :func:`model_bytes`).
+    components : bool
+        Split the measured CPU time by engine component.
 
     Returns
     -------
     dict
-        The core of ``pednav energy simulate --json`` (DESIGN.md): per-run energy components [mJ],
-        ``energy_ratio`` (scheduler/baseline), ``gyro_on_fraction``, ``compute_reduction_pct`` (compute per
-        step), position errors of both and the targets with pass/fail.
+        The core of ``pednav energy simulate --json`` (DESIGN.md): per-run energy components [mJ] in total and
+        per cost class, ``energy_ratio`` (scheduler/baseline), ``gyro_on_fraction``, ``compute_reduction_pct``
+        (computation per true step, scheduler vs baseline, 004 Table 9), the per-step cost of each mode,
+        the computation per engine component, position errors of both and the targets with pass/fail.
     """
-    runs = {m: run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds) for m in ("auto", "zupt")}
+    if measure:
+        _warm_up(batch, batch_seconds)
+    runs = {
+        m: run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components)
+        for m in ("auto", "zupt")
+    }
     sched, base = runs["auto"], runs["zupt"]
+    steps = max(int(truth_steps), 1)
 
     def run_doc(r: RunResult) -> dict[str, Any]:
         e = r.energy
+        us = float(sum(e.compute_us_by_mode.values()))
         return {
             "mode": r.mode,
             "energy_mj": {
@@ -151,10 +509,17 @@ def simulate(
                 "radio": e.components_mj["radio"],
                 "total": e.total_mj,
             },
+            "energy_by_class_mj": energy_by_class(r, profile),
             "mean_power_mw": e.total_mj / e.duration_s if e.duration_s > 0 else None,
-            "compute_us_bench": float(sum(e.compute_us_by_mode.values())),
-            "compute_us_per_step": float(sum(e.compute_us_by_mode.values())) / max(truth_steps, 1),
-            "samples_by_mode": dict(r.timeline.samples_by_mode),
+            "compute_source": "measured in this run (thread CPU time)" if measure else "stored costs (energy/profiles/compute_costs.json)",
+            "compute_us_bench": us,
+            "compute_us_per_step": us / steps,
+            "compute_us_by_class": dict(e.compute_us_by_mode),
+            "compute_us_per_sample_by_class": {
+                k: v / r.timeline.samples_by_mode[k] for k, v in e.compute_us_by_mode.items() if r.timeline.samples_by_mode.get(k)
+            },
+            "compute_us_by_component": {c: dict(v) for c, v in sorted(r.component_us.items())},
+            "samples_by_class": dict(r.timeline.samples_by_mode),
             "steps_by_mode": dict(r.timeline.steps_by_mode),
             "bytes_sent": r.timeline.bytes_sent,
             "requests": r.timeline.requests,
@@ -165,19 +530,33 @@ def simulate(
         }
 
     ratio = sched.energy.total_mj / base.energy.total_mj
-    cr = 100.0 * (1.0 - sum(sched.energy.compute_us_by_mode.values()) / sum(base.energy.compute_us_by_mode.values()))
+    us_s = sum(sched.energy.compute_us_by_mode.values())
+    us_b = sum(base.energy.compute_us_by_mode.values())
+    cr = 100.0 * (1.0 - us_s / us_b)
+    # Mode against mode (004 Table 5): Gait-DR's computation per Gait-DR step in the scheduler run vs the
+    # ZUPT-KF's per stride at 200 Hz in the baseline run (same process, same recording).
+    pdr_steps = sched.timeline.steps_by_mode.get("pdr", 0)
+    pdr_us_step = sched.energy.compute_us_by_mode.get("pdr", 0.0) / pdr_steps if pdr_steps else float("nan")
+    zupt_us_step = us_b / steps
+    mode_cr = 100.0 * (1.0 - pdr_us_step / zupt_us_step) if pdr_steps else float("nan")
     err_ratio = sched.errors["mean_m"] / base.errors["mean_m"] if base.errors["mean_m"] > 0 else float("inf")
     return {
         "duration_s": float((int(batch.t_end_ns or 0) - int(batch.t_start_ns or 0)) / 1e9),
         "truth_steps": int(truth_steps),
         "truth_path_m": float(np.sum(np.linalg.norm(np.diff(truth_pos[:, :2], axis=0), axis=1))),
         "profile": profile.name,
-        "compute_costs_measured": dict(profile.compute.measured),
+        "compute_costs_measured": (
+            {"date": date.today().isoformat(), "machine": _machine(), "how": "thread CPU time of every Engine.feed, this run"}
+            if measure
+            else dict(profile.compute.measured)
+        ),
         "scheduler": run_doc(sched),
         "baseline": run_doc(base),
         "energy_ratio": ratio,
         "gyro_on_fraction": float(sched.replay.gyro_on_fraction),
         "compute_reduction_pct": cr,
+        "compute_per_step_us": {"scheduler": us_s / steps, "baseline_zupt_200hz": us_b / steps},
+        "mode_cost_per_step_us": {"gait_dr": pdr_us_step, "zupt_kf_200hz": zupt_us_step, "reduction_pct": mode_cr},
         "position_error_m": {"scheduler": sched.errors["mean_m"], "baseline": base.errors["mean_m"], "ratio": err_ratio},
         "targets": {
             "energy_ratio_le_0.25": bool(ratio <= 0.25),
@@ -187,53 +566,38 @@ def simulate(
     }
 
 
-def measure_compute_costs(day: SensorBatch, walk: SensorBatch, repeats: int = 3, batch_seconds: float = 1.0) -> dict[str, Any]:
-    """Measure per-mode engine cost on this machine, in the ``compute_costs.json`` form.
+def measure_compute_costs(day: SensorBatch, repeats: int = 3, batch_seconds: float = 1.0) -> dict[str, Any]:
+    """Measure per-class engine cost on this machine, in the ``compute_costs.json`` form.
 
-    The replay loop of :func:`energy.device.replay` is re-run with a timer around each ``Engine.feed``; each
-    batch's time and accelerometer samples are attributed to the mode the engine reported for that batch.
-    ``zupt`` comes from ``Engine("zupt")`` on ``walk``; ``pdr`` and ``idle`` from ``Engine("auto")`` on
-    ``day`` (a mixed scenario). Per mode: total time / total samples, best of ``repeats``. Per-step costs
-    are folded into the per-sample figures (0 here).
+    Replays ``day`` (a mixed scenario) through ``Engine("zupt")`` (the always-on baseline) and
+    ``Engine("auto")`` (the scheduler) with :class:`MeteredEngine`: thread CPU time of every ``feed``,
+    attributed to the cost class of the batch's sensor configuration. ``zupt`` is the baseline's cost
+    per accelerometer sample, ``pdr`` and ``idle`` the scheduler's. Best (lowest) of ``repeats`` runs.
+    Per-step costs are folded into the per-sample figures (0 here).
     """
-    import time
-
-    from energy.device import DeviceEmulator
+    from energy.device import replay
     from energy.engine import Engine
 
-    def per_mode(mode: str, b: SensorBatch) -> dict[str, tuple[float, int]]:
-        eng = Engine(mode=mode)
-        dev = DeviceEmulator(b)
-        t0, t_end = int(b.t_start_ns or 0), int(b.t_end_ns or 0)
-        step = int(round(batch_seconds * 1e9))
-        acc: dict[str, tuple[float, int]] = {}
-        while t0 <= t_end:
-            t1 = min(t0 + step, t_end + 1)
-            batch = dev.emit(t0, t1, eng.sensor_config)
-            c0 = time.perf_counter()
-            upd = eng.feed(batch)
-            dt = time.perf_counter() - c0
-            s, n = acc.get(upd.mode, (0.0, 0))
-            acc[upd.mode] = (s + dt, n + len(batch))
-            t0 = t1
-        return acc
-
+    _warm_up(day, batch_seconds)
     best: dict[str, float] = {}
     for _ in range(repeats):
-        for mode, b in (("zupt", walk), ("auto", day)):
-            for m, (s, n) in per_mode(mode, b).items():
-                if n and (mode == "zupt") == (m == "zupt"):
-                    best[m] = min(best.get(m, float("inf")), s / n * 1e6)
+        for mode, classes in (("zupt", ("zupt",)), ("auto", ("pdr", "idle"))):
+            eng = MeteredEngine(Engine(mode=mode))
+            replay(eng, day, batch_seconds=batch_seconds)  # type: ignore[arg-type]
+            cpu, n = eng.cpu_us_by_class(), eng.samples_by_class()
+            for k in classes:
+                if n.get(k):
+                    best[k] = min(best.get(k, float("inf")), cpu.get(k, 0.0) / n[k])
     return {
-        # None = the engine never reported that mode during the measurement (accounting refuses to guess).
-        "us_per_sample": {m: (round(best[m], 3) if m in best else None) for m in ("zupt", "pdr", "idle")},
+        # None = the engine never ran in that class during the measurement (accounting refuses to guess).
+        "us_per_sample": {m: (round(best[m], 3) if m in best else None) for m in COST_CLASSES},
         "us_per_step": {"zupt": 0.0, "pdr": 0.0, "idle": 0.0},
         "measured": {
             "date": date.today().isoformat(),
-            "machine": f"{platform.machine()} {platform.processor() or platform.platform()}, {os.cpu_count()} cpus, python {platform.python_version()}",
-            "command": "pednav energy simulate --measure-costs (energy.simulate.measure_compute_costs: synthetic 'walk' "
-            "for zupt, 'mixed-day' under the scheduler for pdr and idle, seed 0, 1 s batches, best of 3)",
-            "note": "wall-clock per accelerometer sample inside Engine.feed, attributed per batch to the mode the "
-            "engine reported; includes per-batch overhead; per-step costs folded into the per-sample figures",
+            "machine": _machine(),
+            "command": "pednav energy simulate --measure-costs (energy.simulate.measure_compute_costs: synthetic "
+            "'mixed-day' seed 0, Engine('zupt') for zupt, Engine('auto') for pdr and idle, 1 s batches, best of 3)",
+            "note": "thread CPU time per accelerometer sample inside Engine.feed, attributed per batch to the cost "
+            "class of the sensor configuration the batch was recorded with; per-step costs folded into the per-sample figures",
         },
     }

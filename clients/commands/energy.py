@@ -16,7 +16,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from energy.simulate import measure_compute_costs, simulate
 
     if args.measure_costs:
-        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch, synthesize("walk", seed=0).batch)
+        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch)
         out = Path(__file__).resolve().parent.parent.parent / "energy" / "profiles" / "compute_costs.json"
         out.write_text(json.dumps(costs, indent=2) + "\n")
         print(f"wrote {out}", file=sys.stderr)
@@ -25,7 +25,13 @@ def _simulate(args: argparse.Namespace) -> int:
     truth = rec.truth
     assert truth is not None and truth.t_ns is not None and truth.positions is not None
     doc = {"scenario": args.scenario, "seed": args.seed}
-    doc.update(simulate(profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds))
+    doc["radio_bytes"] = "SDK msgpack upload body, float32 values (clients.sdk.encode_batch), one request per batch"
+    doc.update(
+        simulate(
+            profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds,
+            measure=not args.stored_costs, encode=_upload_bytes,
+        )
+    )
     if args.plot:
         _plot(args.plot, rec, profile, args.batch_seconds)
     if args.json:
@@ -44,7 +50,27 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"{r[0]:<26}{r[1]:>12}{r[2]:>12}")
     print(f"energy ratio {doc['energy_ratio']:.3f}   compute reduction {doc['compute_reduction_pct']:.1f} %   "
           f"error ratio {doc['position_error_m']['ratio']:.2f}")
+    m = doc["mode_cost_per_step_us"]
+    print(f"per step: Gait-DR {m['gait_dr']:.0f} us vs ZUPT-KF at 200 Hz {m['zupt_kf_200hz']:.0f} us "
+          f"({m['reduction_pct']:.1f} % less), {doc['scheduler']['compute_source']}")
+    print("scheduler energy by class [mJ]:")
+    for k, d in sorted(doc["scheduler"]["energy_by_class_mj"].items()):
+        print(f"  {k:<6} {d['time_s']:7.1f} s  acc {d['acc']:7.1f}  gyr {d['gyr']:8.1f}  mag {d['mag']:6.1f}  "
+              f"compute {d['compute']:7.1f}  radio {d['radio']:6.1f}  total {d['total']:8.1f}")
+    for run in ("scheduler", "baseline"):
+        comp = doc[run]["compute_us_by_component"]
+        if comp:
+            tot = sum(sum(v.values()) for v in comp.values()) or 1.0
+            parts = sorted(((sum(v.values()), c) for c, v in comp.items()), reverse=True)
+            print(f"{run} CPU by component: " + ", ".join(f"{c} {100 * x / tot:.0f} %" for x, c in parts))
     return 0
+
+
+def _upload_bytes(batch: object) -> int:
+    """Bytes of one upload as the SDK sends it (msgpack body, float32 values)."""
+    from clients.sdk import encode_batch
+
+    return len(encode_batch(batch, "msgpack", "<f4")[0])  # type: ignore[arg-type]
 
 
 def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None:
@@ -96,6 +122,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--profile", default="foot-004", help="device power profile (energy/profiles/NAME.json) or a path")
     s.add_argument("--batch-seconds", type=float, default=1.0, help="upload batch duration [s]")
     s.add_argument("--plot", metavar="PNG", help="write mode/behaviour/gyroscope timelines of the scheduler")
+    s.add_argument(
+        "--stored-costs",
+        action="store_true",
+        help="charge computation from energy/profiles/compute_costs.json (deterministic) instead of measuring this run",
+    )
     s.add_argument(
         "--measure-costs",
         action="store_true",

@@ -34,7 +34,25 @@ def demo_doc():
     r = synthesize("demo", seed=0)
     p = load_profile("foot-004")
     args = (p, r.batch, r.truth.t_ns, r.truth.positions, len(r.truth.extra["step_t_s"]))
-    return simulate(*args), simulate(*args)
+    # Stored per-sample costs: the accounting is deterministic (measured CPU time is not).
+    return simulate(*args, measure=False), simulate(*args, measure=False)
+
+
+UPLOAD_BYTES = 1000  # a fake encoder: every upload is this long
+
+
+@pytest.fixture(scope="module")
+def measured_doc():
+    pytest.importorskip("energy.engine")
+    from clients.synth import synthesize
+    from energy.power import load_profile
+    from energy.simulate import simulate
+
+    r = synthesize("demo", seed=0)
+    p = load_profile("foot-004")
+    doc = simulate(p, r.batch, r.truth.t_ns, r.truth.positions, len(r.truth.extra["step_t_s"]),
+                   encode=lambda b: UPLOAD_BYTES)
+    return doc, p
 
 
 @pytest.mark.slow
@@ -61,3 +79,65 @@ def test_scheduler_saves_energy(demo_doc):
     a, _ = demo_doc
     assert a["energy_ratio"] < 1.0
     assert a["gyro_on_fraction"] < a["baseline"]["gyro_on_fraction"]
+
+
+def test_cost_class_is_the_one_of_energy_power():
+    import energy.power
+    import energy.simulate
+
+    assert energy.simulate.cost_class is energy.power.cost_class  # one definition for simulation and accounting
+
+
+def test_component_meter_restores_the_engine():
+    from energy.simulate import _COMPONENTS, component_meter
+    import importlib
+
+    def methods():
+        return [getattr(getattr(importlib.import_module(m), c, None), "__dict__", {}).get(f) for _, m, c, f in _COMPONENTS]
+
+    before = methods()
+    with component_meter():
+        assert methods() != before
+    assert methods() == before
+
+
+@pytest.mark.slow
+def test_measured_compute_is_the_cpu_time_the_run_took(measured_doc):
+    """Compute energy = this run's CPU time x slowdown x active power; classes and components add up."""
+    doc, p = measured_doc
+    for run in ("scheduler", "baseline"):
+        r = doc[run]
+        us = sum(r["compute_us_by_class"].values())
+        assert us > 0 and r["compute_source"].startswith("measured")
+        assert r["energy_mj"]["compute"] == pytest.approx(us * 1e-6 * p.processor.slowdown_vs_bench * p.processor.active_mw, rel=1e-9)
+        comp = r["compute_us_by_component"]
+        for k, v in r["compute_us_by_class"].items():
+            assert sum(c.get(k, 0.0) for c in comp.values()) == pytest.approx(v, rel=1e-9)
+        by = r["energy_by_class_mj"]
+        for key in ("acc", "gyr", "mag", "compute", "radio", "total"):
+            assert sum(d[key] for d in by.values()) == pytest.approx(r["energy_mj"][key], rel=1e-9)
+        assert sum(d["time_s"] for d in by.values()) == pytest.approx(doc["duration_s"], abs=1.01)
+    base = doc["baseline"]
+    assert set(base["compute_us_by_class"]) == {"zupt"}  # always on: never idle, never Gait-DR
+    sched = doc["scheduler"]
+    assert sched["energy_by_class_mj"].get("idle", {}).get("gyr", 0.0) < 0.01 * sched["energy_mj"]["gyr"]  # gyro off when standing
+
+
+@pytest.mark.slow
+def test_radio_is_the_bytes_uploaded(measured_doc):
+    doc, p = measured_doc
+    for run in ("scheduler", "baseline"):
+        r = doc[run]
+        assert r["bytes_sent"] == UPLOAD_BYTES * r["requests"]
+        assert r["energy_mj"]["radio"] == pytest.approx(r["requests"] * (UPLOAD_BYTES * p.radio.uj_per_byte + p.radio.uj_per_request) / 1e3)
+
+
+def test_default_byte_model_counts_every_stream_sample():
+    from energy.power import REQUEST_OVERHEAD_BYTES, SAMPLE_BYTES, TIMESTAMP_BYTES
+    from energy.simulate import model_bytes
+    from models.batch import SensorBatch
+
+    t = np.arange(25, dtype=np.int64) * 40_000_000
+    acc = np.tile([0.0, 0.0, 9.81], (25, 1))
+    b = SensorBatch(acc_t_ns=t, acc=acc, mag_t_ns=t[::5], mag=np.tile([20.0, 0.0, 40.0], (5, 1)))
+    assert model_bytes(b) == 30 * (SAMPLE_BYTES + TIMESTAMP_BYTES) + REQUEST_OVERHEAD_BYTES
