@@ -170,10 +170,14 @@ class StepLengthCalibrator:
         User height [m] (``"height_freq"``).
     sigma_floor : float
         Lower bound on sigma_d [m] so a tiny calibration set cannot make the examination hair-trigger.
+    band_prior_scale : float
+        A band's model is fitted with the behaviour's pooled fit as prior mean and ``band_prior_scale`` times
+        the generic prior standard deviations (hierarchical shrinkage: a band with few, nearly collinear
+        steps stays close to the pooled model instead of extrapolating on its own). ``inf`` = independent.
     """
 
     def __init__(self, model: str = "eq15", band_hz: float = 0.2, min_pairs: int = 8, height_m: float = 1.75,
-                 sigma_floor: float = 0.03) -> None:
+                 sigma_floor: float = 0.03, band_prior_scale: float = 0.5) -> None:
         if model not in MODELS:
             raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
         self.model = model
@@ -181,6 +185,7 @@ class StepLengthCalibrator:
         self.min_pairs = int(min_pairs)
         self.height_m = float(height_m)
         self.sigma_floor = float(sigma_floor)
+        self.band_prior_scale = float(band_prior_scale)
         self._pairs: dict[str, list[list[float]]] = {}  # behaviour -> [[f, mean, max, min, d_kf], ...]
         self._fits: dict[str, dict] = {}  # key -> {"coef": [...], "sigma_d": s, "n": n}
 
@@ -214,12 +219,17 @@ class StepLengthCalibrator:
             sel = bands == b
             if sel.sum() >= self.min_pairs:
                 groups[f"{behaviour}/{b}"] = sel
-        for key, sel in groups.items():
+        pooled = None
+        for key, sel in groups.items():  # the pooled fit comes first (dict order)
             r = rows[sel]
             if len(r) == 0:
                 continue
             x = np.array([regressors(model, StepFeatures(*q[:4]), self.height_m) for q in r])
-            coef = robust_fit(x, r[:, 4], m, sd)
+            if pooled is None or not np.isfinite(self.band_prior_scale):
+                coef = robust_fit(x, r[:, 4], m, sd)
+                pooled = coef if pooled is None else pooled
+            else:
+                coef = robust_fit(x, r[:, 4], pooled, self.band_prior_scale * sd)
             sig = sigma_d(r[:, 4], x @ coef)  # 004 Table 3
             out[key] = {"coef": coef.tolist(), "sigma_d": max(sig, self.sigma_floor) if np.isfinite(sig)
                         else float("nan"), "n": int(len(r))}
@@ -245,15 +255,43 @@ class StepLengthCalibrator:
 
     def examine(self, d_kf: float, d_sl: float, behaviour: str = "walk", f_s: float | None = None) -> bool:
         """004 Table 3 examination: True (model still valid) when ``|d_KF - d_SL| <= 3 sigma_d``."""
+        return self.examination(d_kf, d_sl, behaviour, f_s)[0]
+
+    def examination(self, d_kf: float, d_sl: float, behaviour: str = "walk",
+                    f_s: float | None = None) -> tuple[bool, float, float]:
+        """004 Table 3 examination with its numbers, for the scheduler's decision and for logging.
+
+        Parameters
+        ----------
+        d_kf : float
+            ZUPT-KF step distance [m].
+        d_sl : float
+            Step-length model prediction for the same step [m].
+        behaviour : str
+            Behaviour whose model is examined.
+        f_s : float, optional
+            Step frequency [Hz]: selects the walking-pattern band's model (pooled model otherwise).
+
+        Returns
+        -------
+        passed : bool
+            ``|d_KF - d_SL| <= 3 sigma_d`` (False when no fitted model exists).
+        z : float
+            ``(d_KF - d_SL) / sigma_d`` (NaN without a fitted model).
+        sigma : float
+            sigma_d used [m] (NaN without a fitted model).
+        """
         e = self._entry(behaviour, f_s) if f_s is not None else self._fits.get(behaviour)
         if e is None or not np.isfinite(e["sigma_d"]):
-            return False
-        return abs(float(d_kf) - float(d_sl)) <= 3.0 * float(e["sigma_d"])
+            return False, float("nan"), float("nan")
+        sig = float(e["sigma_d"])
+        z = (float(d_kf) - float(d_sl)) / sig
+        return abs(z) <= 3.0, z, sig
 
     def get_state(self) -> dict:
         """Plain-data state (this is the per-user calibration profile content)."""
         return {"model": self.model, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
-                "height_m": self.height_m, "sigma_floor": self.sigma_floor,
+                "height_m": self.height_m, "sigma_floor": self.sigma_floor, "band_prior_scale": self.band_prior_scale,
                 "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
                 "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                          for k, v in self._fits.items()}}
@@ -262,7 +300,7 @@ class StepLengthCalibrator:
     def from_state(cls, d: dict) -> StepLengthCalibrator:
         """Rebuild from :meth:`get_state` output."""
         obj = cls(d["model"], float(d["band_hz"]), int(d["min_pairs"]), float(d["height_m"]),
-                  float(d["sigma_floor"]))
+                  float(d["sigma_floor"]), float(d.get("band_prior_scale", math.inf)))  # older profiles: independent bands
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
         obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                      for k, v in d["fits"].items()}

@@ -55,3 +55,24 @@ def test_state_round_trip() -> None:
     back.update(0.11, 1.0)
     assert back.get_state()["x"].tolist() == kf.get_state()["x"].tolist()
     assert back.converged == kf.converged
+
+
+def test_adaptive_r_learns_the_spread_and_keeps_the_estimate_stable() -> None:
+    rng = np.random.default_rng(11)
+    dev = math.radians(-20.0)
+    kf = HeadingDeviationKF(adapt_r=0.1)
+    fixed = HeadingDeviationKF(adapt_r=0.0)
+    hist, hist_fixed = [], []
+    for _ in range(300):
+        z = wrap_angle(dev + rng.normal(scale=math.radians(10.0)))  # a noisy walker: 10 deg per stride
+        kf.update(z, 1.0)
+        fixed.update(z, 1.0)
+        hist.append(kf.deviation)
+        hist_fixed.append(fixed.deviation)
+    assert math.degrees(math.sqrt(kf.r_var)) == pytest.approx(10.0, rel=0.35)
+    late, late_fixed = np.array(hist[100:]), np.array(hist_fixed[100:])
+    assert np.max(np.abs(late - dev)) < math.radians(2.0)
+    assert np.ptp(late) < np.ptp(late_fixed)  # the fixed-R filter follows the noise more
+    assert fixed.n_rejected > kf.n_rejected  # and gates good strides out as "turns"
+    back = HeadingDeviationKF.from_state(loads(dumps(kf.get_state())))
+    assert back.r_var == kf.r_var and back.adapt_r == kf.adapt_r

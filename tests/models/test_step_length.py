@@ -107,3 +107,37 @@ def test_state_round_trip() -> None:
     x = StepFeatures(0.9, 12.0, 40.0, 5.0)
     assert back.predict("walk", x) == cal.predict("walk", x)
     assert back.get_state() == cal.get_state()
+
+
+def test_examination_reports_z_and_sigma_and_agrees_with_examine() -> None:
+    rng = np.random.default_rng(9)
+    cal = StepLengthCalibrator("eq15")
+    assert cal.examination(1.0, 1.0)[0] is False  # no model yet
+    coef = np.array([0.1, 0.0, 1.2, 0.002])
+    for x in _features(rng, 40, 0.85, 0.95):
+        cal.add("walk", x, float(regressors("eq15", x) @ coef + rng.normal(scale=0.03)))
+    cal.fit("walk")
+    x = _features(rng, 1, 0.85, 0.95)[0]
+    d_sl = cal.predict("walk", x)[0]
+    for d_kf in (d_sl, d_sl + 0.05, d_sl + 0.5):
+        ok, z, sig = cal.examination(d_kf, d_sl, "walk", x.f_s)
+        assert ok == cal.examine(d_kf, d_sl, "walk", x.f_s)
+        assert z == pytest.approx((d_kf - d_sl) / sig) and sig >= cal.sigma_floor
+
+
+def test_band_models_shrink_towards_the_pooled_model() -> None:
+    rng = np.random.default_rng(4)
+    coef = np.array([0.1, 0.0, 1.2, 0.002])
+    xs = _features(rng, 60, 0.70, 1.30)
+    d = [float(regressors("eq15", x) @ coef + rng.normal(scale=0.03)) for x in xs]
+    out = {}
+    for scale in (0.1, np.inf):
+        cal = StepLengthCalibrator("eq15", band_prior_scale=scale)
+        for x, y in zip(xs, d):
+            cal.add("walk", x, y)
+        fits = cal.fit("walk")
+        pooled = np.array(fits["walk"]["coef"])
+        out[scale] = max(np.abs(np.array(v["coef"]) - pooled).max() for k, v in fits.items() if "/" in k)
+        back = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
+        assert back.band_prior_scale == cal.band_prior_scale
+    assert out[0.1] < out[np.inf]
