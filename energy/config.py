@@ -20,7 +20,8 @@ class EngineConfig:
     pdr_rate_hz : float
         Accelerometer/magnetometer rate requested in Gait-DR (004 Section 4.3) [Hz].
     stand_rate_hz : float
-        Lowest accelerometer rate that still wakes on motion while standing [Hz].
+        Accelerometer rate while standing with the gyroscope off [Hz]: the lowest rate at which the step
+        segmentation still counts the steps taken before the device hears that the person walks again.
     mag_rate_hz : float
         Magnetometer rate while the ZUPT-KF runs [Hz].
     l0_m : float
@@ -29,15 +30,18 @@ class EngineConfig:
         Interval between step-length model examinations in Gait-DR (004 Table 1/3, T0) [s].
     max_sample_age_s : float
         A gyroscope/magnetometer sample older than this is not paired with an accelerometer sample [s].
+    exam_timeout_s : float
+        An examination with no ZUPT-KF stride after this long is given up [s].
     """
 
     full_rate_hz: float = 200.0
     pdr_rate_hz: float = 25.0
-    stand_rate_hz: float = 12.5
+    stand_rate_hz: float = 25.0
     mag_rate_hz: float = 50.0
     l0_m: float = 40.0
     t0_s: float = 30.0
     max_sample_age_s: float = 0.05
+    exam_timeout_s: float = 10.0
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -9,7 +9,7 @@ serialises to bytes (:meth:`Engine.to_bytes`) through the safe codec of :mod:`en
 
 from __future__ import annotations
 
-import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -17,26 +17,27 @@ import numpy as np
 
 from energy import codec
 from energy.config import EngineConfig
-from energy.gait_dr import GaitPipeline
+from energy.gait_dr import PAIR_TOL_S, GaitPipeline
 from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
-from models.zupt_nav import NavOutput, ZuptNavigator
+from models.zupt_nav import NavOutput, Stance, ZuptNavigator
 
 __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-exported from energy.config
 
 EngineMode = Literal["zupt", "pdr", "auto"]
 _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
-_STATE_VERSION = 1
-_GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples (gyro was off) re-seats the ZUPT-KF
+_STATE_VERSION = 2
+_GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
+_STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
 
 
 @dataclass
 class Trace:
-    """Per processed accelerometer sample output, kept only when the engine was built with ``trace=True``.
+    """Per processed accelerometer sample (and per Gait-DR step) output, kept only with ``trace=True``.
 
     Attributes
     ----------
@@ -45,6 +46,7 @@ class Trace:
         NED position [m].
     behaviour : ndarray of str, shape (n,)
     mode : ndarray of str, shape (n,)
+        ``zupt`` (ZUPT-KF sample), ``pdr`` (gyroscope off, Gait-DR) or ``idle`` (standing, gyroscope off).
     gyro_on : ndarray of bool, shape (n,)
         Whether a gyroscope sample was paired with the accelerometer sample.
     """
@@ -63,9 +65,14 @@ class Trace:
             self._mode.append(mode)
             self._gyro.append(gyro_on)
 
-    @staticmethod
-    def _cat(parts: list[np.ndarray], empty: np.ndarray) -> np.ndarray:
-        return np.concatenate(parts) if parts else empty
+    def _cat(self, parts: list[np.ndarray], empty: np.ndarray) -> np.ndarray:
+        if not parts:
+            return empty
+        return np.concatenate(parts)[self._order()]
+
+    def _order(self) -> np.ndarray:
+        """Rows are appended as each pipeline finalises them; read out in time order."""
+        return np.argsort(np.concatenate(self._t), kind="stable")
 
     @property
     def t_ns(self) -> np.ndarray:
@@ -73,7 +80,15 @@ class Trace:
 
     @property
     def pos(self) -> np.ndarray:
-        return self._cat(self._pos, np.zeros((0, 3)))
+        """NED position [m]; rows without a position of their own (gyroscope off, before the first stance of a
+        ZUPT-KF segment) hold the last known one."""
+        p = self._cat(self._pos, np.zeros((0, 3)))
+        ok = ~np.isnan(p[:, 0])
+        idx = np.where(ok, np.arange(len(p)), -1)
+        np.maximum.accumulate(idx, out=idx)
+        out = np.zeros_like(p)
+        out[idx >= 0] = p[idx[idx >= 0]]
+        return out
 
     @property
     def behaviour(self) -> np.ndarray:
@@ -92,17 +107,20 @@ class _StreamPairing:
     """Pairs gyroscope/magnetometer samples with accelerometer samples by causal zero-order hold.
 
     For an accelerometer sample at ``t`` the paired value is the latest sample of the stream at or before ``t``,
-    if it is at most ``max_age_ns`` old; otherwise the row is NaN (stream off or gap). Only samples at or before
-    ``t`` are used, so the pairing does not depend on where the batches were cut.
+    if it is at most ``max_age_ns`` old; otherwise the row is NaN (stream off or gap). The engine pairs a sample
+    only once every stream is complete up to it (:meth:`complete_until`; devices deliver each stream with its
+    own lag), so the pairing does not depend on where the batches were cut.
     """
 
     def __init__(self, max_age_ns: int) -> None:
         self.max_age_ns = int(max_age_ns)
         self.t = np.zeros(0, dtype=np.int64)
         self.v = np.zeros((0, 3))
+        self.newest: int | None = None  # newest sample time received [ns]
 
     def push(self, t: np.ndarray, v: np.ndarray) -> None:
         if len(t):
+            self.newest = int(t[-1]) if self.newest is None else max(self.newest, int(t[-1]))
             if len(self.t) and t[0] <= self.t[-1]:
                 keep = t > self.t[-1]
                 t, v = t[keep], v[keep]
@@ -122,14 +140,21 @@ class _StreamPairing:
         self.t, self.v = self.t[last:], self.v[last:]
         return out
 
+    def complete_until(self, newest_acc_ns: int, wait_ns: int) -> int:
+        """Accelerometer samples up to this time [ns] can be paired for good: the stream has reached them, or
+        it has been silent for ``wait_ns`` behind the accelerometer (off, or a gap)."""
+        reached = self.newest if self.newest is not None else np.iinfo(np.int64).min
+        return max(reached, newest_acc_ns - wait_ns)
+
     def get_state(self) -> dict[str, Any]:
-        return {"max_age_ns": self.max_age_ns, "t": self.t, "v": self.v}
+        return {"max_age_ns": self.max_age_ns, "t": self.t, "v": self.v, "newest": self.newest}
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> _StreamPairing:
         obj = cls(d["max_age_ns"])
         obj.t = np.asarray(d["t"], dtype=np.int64)
         obj.v = np.asarray(d["v"], dtype=np.float64).reshape(-1, 3)
+        obj.newest = None if d["newest"] is None else int(d["newest"])
         return obj
 
 
@@ -171,8 +196,25 @@ class _LabelHistory:
         return obj
 
 
+def _stance_row(st: Stance) -> list[float]:
+    return [st.t_start_s, st.t_end_s, *map(float, st.position), st.heading, *map(float, st.delta), st.peak_speed,
+            float(st.samples), float(st.mag_used)]
+
+
+def _stance_from_row(r: list[float]) -> Stance:
+    return Stance(float(r[0]), float(r[1]), np.asarray(r[2:5], dtype=float), float(r[5]), np.asarray(r[6:9], dtype=float),
+                  float(r[9]), int(r[10]), bool(r[11]))
+
+
 class Engine:
     """One navigation session: feed batches, get positions, events and the next sensor configuration.
+
+    Where the gyroscope is on, the ZUPT-KF navigates; where it is off, Gait-DR does. Each ZUPT-KF segment
+    (a run of gyroscope samples) takes over at its first stance from where Gait-DR had put the foot, and
+    Gait-DR restarts from the segment's last stance. The scheduler decides which sensors the device should use
+    (004 Tables 1-3); the engine follows whatever data actually arrive. Both halves are worked through in
+    data-time order, waiting where needed for the step segmentation's look-ahead
+    (:attr:`energy.gait_dr.GaitPipeline.horizon`), so the output does not depend on how batches are cut.
 
     Parameters
     ----------
@@ -202,14 +244,36 @@ class Engine:
         self._t0_ns: int | None = None
         self._last_acc_t: int | None = None
         max_age = int(self.config.max_sample_age_s * 1e9)
+        self._acc_t = np.zeros(0, dtype=np.int64)  # accelerometer samples waiting for the other streams
+        self._acc_v = np.zeros((0, 3))
         self._gyr = _StreamPairing(max_age)
         self._mag = _StreamPairing(max_age)
-        self._sched = Scheduler(mode, self.config, Profile.from_dict(profile) if profile else Profile())
+        prof = Profile.from_dict(profile) if profile else Profile()
+        self._sched = Scheduler(mode, self.config, prof)
         self._nav = ZuptNavigator()
         self._behaviour = BehaviourRecognizer()
         self._labels = _LabelHistory()
         self._gait = GaitPipeline(self.config.pdr_rate_hz) if mode != "zupt" else None
-        self._last_gyr_s = -np.inf
+        if self._gait is not None:
+            for b, cal in prof.behaviours.items():
+                if cal.calibrated:
+                    self._gait.load_calibration(b, cal.step_model, cal.heading_deviation_rad, cal.heading_deviation_var)
+        # ZUPT-KF segments: ingest side
+        self._last_gyr_s = -math.inf
+        self._seg_open = False
+        # work queue in data-time order: ("start", t) | ("samples", t, acc, gyr, mag) | ("stance", Stance)
+        # | ("trace", t, pos) | ("end",) | ("handover",)
+        self._ops: list[tuple] = []
+        # processing side
+        self._in_seg = False
+        self._seg_t = -math.inf  # start of the current segment [s]
+        self._seg_first = True  # the segment's first stance (the hand-over stance) is still to come
+        self._offset = np.zeros(3)  # ZUPT-KF frame of this segment -> session frame [m]
+        self._pos: np.ndarray | None = None  # last output position [m NED]
+        self._head = math.nan  # sensor heading at the last output [rad]
+        self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
+        # behaviour decisions reach the scheduler in data-time order with the stances and steps
+        self._labels_pending: list[tuple[float, str]] = []
 
     # ------------------------------------------------------------------ contract
     @property
@@ -241,15 +305,28 @@ class Engine:
         if self._t0_ns is None:
             self._t0_ns = int(t_acc[0])
         self._last_acc_t = int(t_acc[-1])
-        gyr = self._gyr.pair(t_acc)
-        mag = self._mag.pair(t_acc)
-        return self._process(t_acc, acc, gyr, mag, final=False)
+        self._acc_t = np.concatenate([self._acc_t, t_acc])
+        self._acc_v = np.concatenate([self._acc_v, acc])
+        wait = int(_STREAM_WAIT_S * 1e9)
+        limit = min(self._gyr.complete_until(self._last_acc_t, wait), self._mag.complete_until(self._last_acc_t, wait))
+        return self._pair_and_process(int(np.searchsorted(self._acc_t, limit, side="right")), final=False)
 
     def flush(self) -> Update:
         """End of the session: process what the detectors' look-ahead still holds."""
-        return self._process(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), final=True)
+        return self._pair_and_process(len(self._acc_t), final=True)
+
+    def _pair_and_process(self, n: int, final: bool) -> Update:
+        """Pair and process the first ``n`` waiting accelerometer samples."""
+        t_acc, acc = self._acc_t[:n], self._acc_v[:n]
+        self._acc_t, self._acc_v = self._acc_t[n:], self._acc_v[n:]
+        if n == 0 and not final:
+            return self._update([], [])
+        return self._process(t_acc, acc, self._gyr.pair(t_acc), self._mag.pair(t_acc), final=final)
 
     # ------------------------------------------------------------------ processing
+    def _ns(self, t_s: float) -> int:
+        return (self._t0_ns or 0) + int(round(t_s * 1e9))
+
     def _process(self, t_acc: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, final: bool) -> Update:
         events: list[Event] = []
         positions: list[Position] = []
@@ -257,89 +334,256 @@ class Engine:
         t_s = (t_acc - t0) / 1e9
         for td, label in self._behaviour.process(t_s, acc):
             self._labels.add(td, label)
-            events += self._sched.on_behaviour(label, td, t0 + int(round(td * 1e9)))
-        gait = self._gait
-        if gait is not None and len(t_s):
-            gait.feed(t_s, acc, mag)
-        t_switch = np.inf
-        if self._sched.working == "zupt":
-            has_gyr = ~np.isnan(gyr[:, 0])
-            if final:
-                out = self._nav.flush()
-            else:
-                ts, a_, g_, m_ = t_s[has_gyr], acc[has_gyr], gyr[has_gyr], mag[has_gyr]
-                gaps = np.flatnonzero(np.diff(np.r_[self._last_gyr_s, ts]) > _GYRO_GAP_S)
-                parts = []
-                for lo, hi in zip(np.r_[0, gaps], np.r_[gaps, len(ts)]):
-                    if hi <= lo:
-                        continue
-                    if lo in gaps and self._nav.initialised:
-                        self._nav.reset(self._nav.position, self._nav.heading)  # gyro was off (standing): re-seat
-                    mm = m_[lo:hi]
-                    parts.append(self._nav.process(ts[lo:hi], a_[lo:hi], g_[lo:hi], mm if np.any(~np.isnan(mm[:, 0])) else None))
-                if len(ts):
-                    self._last_gyr_s = float(ts[-1])
-                out = NavOutput.concatenate(parts)
-            for st in out.stances:
-                label = self._labels.at(st.t_end_s)
-                d = st.step_length
-                t_ns = t0 + int(round(st.t_end_s * 1e9))
-                p = st.position
-                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
-                events += self._sched.on_zupt_distance(d, t_ns)
-                if gait is None:
-                    continue
-                gait.learn(st, label)
-                if self._sched.ready_for_pdr() and gait.ready(label):
-                    fits = gait.fit(label)
-                    self._store_calibration(label, fits)
-                    gait.start(np.asarray(p, dtype=float), float(st.heading), st.t_end_s)
-                    events += self._sched.on_calibrated(st.t_end_s, t_ns)
-                    t_switch = st.t_end_s
-                    break
-            if self.trace is not None and len(out.t_s):
-                keep = out.t_s <= t_switch
-                n = int(np.count_nonzero(keep))
-                self.trace.append(
-                    t0 + np.round(out.t_s[keep] * 1e9).astype(np.int64), out.pos[keep], self._labels.at_many(out.t_s[keep]),
-                    np.full(n, "zupt"), np.ones(n, dtype=bool),
-                )
-        if gait is not None and self._sched.working == "pdr":
-            steps = gait.reckon(self._labels.at)
-            for step, ev in steps:
-                t_ns = t0 + int(round(step.t_s * 1e9))
-                pos = step.position
-                positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
-            if self.trace is not None and steps:
-                self.trace.append(
-                    np.array([t0 + int(round(s.t_s * 1e9)) for s, _ in steps], dtype=np.int64),
-                    np.array([s.position for s, _ in steps]), np.array([s.behaviour for s, _ in steps]),
-                    np.full(len(steps), "pdr"), np.zeros(len(steps), dtype=bool),
-                )
+            self._labels_pending.append((td, label))
+        if self._gait is not None and len(t_s):
+            self._gait.feed(t_s, acc, mag)
+        self._ingest(t_s, acc, gyr, mag, final)
+        self._drain(final, positions, events)
         if len(t_s):
             self._labels.prune(float(t_s[-1]) - _LABEL_KEEP_S)
         return self._update(positions, events)
 
-    def _store_calibration(self, behaviour: str, fits: dict) -> None:
+    def _ingest(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, final: bool) -> None:
+        """Cut the gyroscope samples into ZUPT-KF segments and queue them."""
+        has = ~np.isnan(gyr[:, 0])
+        idx = np.flatnonzero(has)
+        if len(idx):
+            ts = t_s[idx]
+            gaps = np.flatnonzero(np.diff(np.r_[self._last_gyr_s, ts]) > _GYRO_GAP_S)
+            for lo, hi in zip(np.r_[0, gaps], np.r_[gaps, len(ts)]):
+                if hi <= lo:
+                    continue
+                if lo in gaps or not self._seg_open:
+                    if self._seg_open:
+                        self._ops.append(("end",))
+                    self._ops.append(("start", float(ts[lo])))
+                    self._seg_open = True
+                sel = idx[lo:hi]
+                m = mag[sel]
+                self._ops.append(("samples", ts[lo:hi], acc[sel], gyr[sel], m if np.any(~np.isnan(m[:, 0])) else None))
+            self._last_gyr_s = float(ts[-1])
+        if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > _GYRO_GAP_S)):
+            self._ops.append(("end",))
+            self._seg_open = False
+        if self.trace is not None and np.any(~has):
+            tt = t_s[~has]
+            lab = self._labels.at_many(tt)
+            self.trace.append(np.array([self._ns(x) for x in tt], dtype=np.int64), np.full((len(tt), 3), np.nan), lab,
+                              np.where(lab == "stand", "idle", "pdr"), np.zeros(len(tt), dtype=bool))
+
+    def _horizon(self, final: bool) -> float:
+        return math.inf if (final or self._gait is None) else self._gait.horizon
+
+    def _drain(self, final: bool, positions: list[Position], events: list[Event]) -> None:
+        """Work through the queue as far as the step segmentation's look-ahead allows."""
+        gait, nav = self._gait, self._nav
+        horizon = self._horizon(final)
+        while self._ops:
+            op = self._ops[0]
+            kind = op[0]
+            if kind == "start":
+                t_b = op[1]
+                if gait is not None and gait.active:
+                    if horizon < t_b:
+                        break
+                    self._reckon(t_b, positions, events)
+                    self._head = gait.heading
+                self._apply_labels(t_b, events)
+                self._seg_t = t_b
+                if nav.initialised:
+                    nav.restart(nav.position, self._head if math.isfinite(self._head) else nav.heading)
+                self._in_seg, self._seg_first = True, True
+                self._ops.pop(0)
+            elif kind == "samples":
+                out = nav.process(op[1], op[2], op[3], op[4])
+                if len(out.t_s):
+                    self._nav_t = float(out.t_s[-1])
+                self._ops[0:1] = self._nav_ops(out)
+            elif kind == "end":
+                self._ops[0:1] = self._nav_ops(nav.flush()) + [("handover",)]
+            elif kind == "trace":
+                self._trace_nav(op[1], op[2])
+                self._ops.pop(0)
+            elif kind == "stance":
+                st: Stance = op[1]
+                if horizon < st.t_start_s + PAIR_TOL_S:
+                    break
+                self._stance(st, positions, events)
+                self._ops.pop(0)
+            elif kind == "handover":
+                if gait is not None and not self._seg_first and self._pos is not None:
+                    gait.start(self._pos, self._head)  # Gait-DR continues from the segment's last stance
+                self._in_seg = False
+                self._ops.pop(0)
+        if gait is not None and not self._in_seg:
+            limit = horizon
+            if self._ops and self._ops[0][0] == "start":
+                limit = min(limit, self._ops[0][1])
+            self._reckon(limit, positions, events)
+        self._apply_labels(self._processed_through(horizon), events)
+
+    def _processed_through(self, horizon: float) -> float:
+        """Data time before which every stance and step has been worked through [s]."""
+        t = horizon
+        if self._ops:
+            op = self._ops[0]
+            first = {"start": lambda: op[1], "samples": lambda: float(op[1][0]), "stance": lambda: op[1].t_start_s}
+            t = min(t, first.get(op[0], lambda: t)())
+        elif self._in_seg:
+            t = min(t, self._seg_t if self._seg_first else self._nav_t)
+        return t
+
+    def _apply_labels(self, upto_s: float, events: list[Event]) -> None:
+        """Hand the scheduler the behaviour decisions up to ``upto_s`` [s]."""
+        while self._labels_pending and self._labels_pending[0][0] <= upto_s:
+            td, label = self._labels_pending.pop(0)
+            events += self._sched.on_behaviour(label, td, self._ns(td))
+
+    def _nav_ops(self, out: NavOutput) -> list[tuple]:
+        """ZUPT-KF output as queue entries: per-sample trace pieces and stances, in time order."""
+        ops: list[tuple] = []
+        keep_trace = self.trace is not None
+        lo = 0
+        for st in out.stances:
+            if keep_trace:
+                hi = int(np.searchsorted(out.t_s, st.t_end_s, side="right"))
+                if hi > lo:
+                    ops.append(("trace", out.t_s[lo:hi], out.pos[lo:hi]))
+                lo = max(lo, hi)
+            ops.append(("stance", st))
+        if keep_trace and lo < len(out.t_s):
+            ops.append(("trace", out.t_s[lo:], out.pos[lo:]))
+        return ops
+
+    def _trace_nav(self, t: np.ndarray, pos: np.ndarray) -> None:
+        assert self.trace is not None
+        p = np.full_like(pos, np.nan) if self._seg_first else pos + self._offset
+        self.trace.append(np.array([self._ns(x) for x in t], dtype=np.int64), p, self._labels.at_many(t),
+                          np.full(len(t), "zupt"), np.ones(len(t), dtype=bool))
+
+    def _stance(self, st: Stance, positions: list[Position], events: list[Event]) -> None:
+        """One ZUPT-KF stance, in data-time order."""
+        gait, sched = self._gait, self._sched
+        self._apply_labels(st.t_end_s, events)
+        label = self._labels.at(st.t_end_s)
+        t_ns = self._ns(st.t_end_s)
+        if self._seg_first:
+            # hand-over stance: Gait-DR walks the foot up to here, the ZUPT-KF continues from it
+            self._seg_first = False
+            dr_steps = []
+            if gait is not None:
+                dr_steps = self._reckon(st.t_start_s + PAIR_TOL_S, positions, events) if gait.active else []
+                gait.take_pair(st.t_start_s)
+            if self._pos is not None:
+                self._offset = self._pos - st.position
+            self._head = st.heading
+            if not dr_steps:
+                p = st.position + self._offset
+                self._pos = p
+                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", 0.0, True))
+            return
+        p = st.position + self._offset
+        d = st.step_length
+        self._pos, self._head = p, float(st.heading)
+        positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
+        events += sched.on_zupt_distance(d, t_ns)
+        if gait is None:
+            sched.nav_ready = True
+            return
+        e = gait.take_pair(st.t_start_s)
+        if e is None:
+            return
+        if sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest:
+            b = label if label in ("walk", "run") else "walk"
+            d_sl, _ = gait.step_length(e, b)
+            passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
+            events += sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns)
+        gait.learn(st, e, label)
+        sched.compass_ready = gait.compass_ready()
+        sched.nav_ready = gait.bootstrapped()
+        if sched.ready_for_pdr() and gait.ready(label):
+            fits = gait.fit(label)
+            cal = self._store_calibration(label, fits)
+            events += sched.on_calibrated(st.t_end_s, t_ns, {
+                "heading_deviation_rad": cal.heading_deviation_rad,
+                "heading_deviation_var": cal.heading_deviation_var,
+                "sigma_d_m": cal.sigma_d_m,
+                "n_steps": cal.n_steps,
+            })
+
+    def _reckon(self, before_s: float, positions: list[Position], events: list[Event]) -> list:
+        """Gait-DR steps with onset before ``before_s`` [s]."""
+        gait = self._gait
+        assert gait is not None
+        steps = gait.reckon(before_s, self._labels.at)
+        for step, _ in steps:
+            self._apply_labels(step.t_s, events)
+            t_ns = self._ns(step.t_s)
+            pos = step.position
+            positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
+            events += self._sched.tick(step.t_s, t_ns)
+            if self.trace is not None:
+                self.trace.append(np.array([t_ns], dtype=np.int64), np.array([pos]), np.array([step.behaviour]),
+                                  np.array(["pdr"]), np.zeros(1, dtype=bool))
+        if steps:
+            self._pos = np.asarray(steps[-1][0].position, dtype=float)
+            self._head = gait.heading
+        return steps
+
+    def _store_calibration(self, behaviour: str, fits: dict) -> BehaviourCalibration:
         """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
         b = behaviour if behaviour in ("walk", "run") else "walk"
         gait = self._gait
         assert gait is not None
         pooled = fits.get(b, {})
         kf = gait.kf2[b]
-        self._sched.profile.behaviours[b] = BehaviourCalibration(
-            step_model={"calibrator": gait.cal.get_state()},
+        cal = BehaviourCalibration(
+            step_model=gait.calibration_state(),
             sigma_d_m=float(pooled.get("sigma_d", float("nan"))),
             heading_deviation_rad=kf.deviation,
             heading_deviation_var=kf.variance,
             n_steps=int(pooled.get("n", 0)),
             calibrated=True,
         )
+        self._sched.profile.behaviours[b] = cal
+        return cal
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
-        return Update(positions, events, self.sensor_config, self._sched.behaviour, self._sched.working)
+        mode = "idle" if self._sched.idle() else self._sched.working
+        return Update(positions, events, self.sensor_config, self._sched.behaviour, mode)
 
     # ------------------------------------------------------------------ state
+    def _ops_state(self) -> list[list[Any]]:
+        out: list[list[Any]] = []
+        for op in self._ops:
+            k = op[0]
+            if k == "samples":
+                out.append([k, op[1], op[2], op[3], op[4]])
+            elif k == "stance":
+                out.append([k, _stance_row(op[1])])
+            elif k == "start":
+                out.append([k, op[1]])
+            elif k in ("end", "handover"):
+                out.append([k])
+            # "trace" entries are not state (the trace is not serialised)
+        return out
+
+    @staticmethod
+    def _ops_from_state(rows: list[list[Any]]) -> list[tuple]:
+        ops: list[tuple] = []
+        for r in rows:
+            k = r[0]
+            if k == "samples":
+                ops.append((k, np.asarray(r[1], dtype=float), np.asarray(r[2], dtype=float).reshape(-1, 3),
+                            np.asarray(r[3], dtype=float).reshape(-1, 3), None if r[4] is None else np.asarray(r[4], dtype=float).reshape(-1, 3)))
+            elif k == "stance":
+                ops.append((k, _stance_from_row(r[1])))
+            elif k == "start":
+                ops.append((k, float(r[1])))
+            else:
+                ops.append((k,))
+        return ops
+
     def get_state(self) -> dict[str, Any]:
         return {
             "version": _STATE_VERSION,
@@ -347,6 +591,8 @@ class Engine:
             "config": self.config.to_dict(),
             "t0_ns": self._t0_ns,
             "last_acc_t": self._last_acc_t,
+            "acc_t": self._acc_t,
+            "acc_v": self._acc_v,
             "gyr": self._gyr.get_state(),
             "mag": self._mag.get_state(),
             "sched": self._sched.get_state(),
@@ -355,6 +601,16 @@ class Engine:
             "labels": self._labels.get_state(),
             "gait": None if self._gait is None else self._gait.get_state(),
             "last_gyr_s": self._last_gyr_s,
+            "seg_open": self._seg_open,
+            "ops": self._ops_state(),
+            "in_seg": self._in_seg,
+            "seg_first": self._seg_first,
+            "offset": self._offset,
+            "pos": self._pos,
+            "head": self._head,
+            "seg_t": self._seg_t,
+            "nav_t": self._nav_t,
+            "labels_pending": [[t, lab] for t, lab in self._labels_pending],
         }
 
     @classmethod
@@ -364,6 +620,8 @@ class Engine:
         obj = cls(mode=d["mode"], config=EngineConfig.from_dict(d["config"]), trace=trace)
         obj._t0_ns = d["t0_ns"]
         obj._last_acc_t = d["last_acc_t"]
+        obj._acc_t = np.asarray(d["acc_t"], dtype=np.int64)
+        obj._acc_v = np.asarray(d["acc_v"], dtype=np.float64).reshape(-1, 3)
         obj._gyr = _StreamPairing.from_state(d["gyr"])
         obj._mag = _StreamPairing.from_state(d["mag"])
         obj._sched = Scheduler.from_state(d["sched"])
@@ -372,6 +630,16 @@ class Engine:
         obj._labels = _LabelHistory.from_state(d["labels"])
         obj._gait = None if d["gait"] is None else GaitPipeline.from_state(d["gait"])
         obj._last_gyr_s = float(d["last_gyr_s"])
+        obj._seg_open = bool(d["seg_open"])
+        obj._ops = cls._ops_from_state(d["ops"])
+        obj._in_seg = bool(d["in_seg"])
+        obj._seg_first = bool(d["seg_first"])
+        obj._offset = np.asarray(d["offset"], dtype=float).reshape(3)
+        obj._pos = None if d["pos"] is None else np.asarray(d["pos"], dtype=float).reshape(3)
+        obj._head = float(d["head"])
+        obj._seg_t = float(d["seg_t"])
+        obj._nav_t = float(d["nav_t"])
+        obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]
         return obj
 
     def to_bytes(self) -> bytes:

@@ -11,6 +11,7 @@ where the field is disturbed or absent.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -23,13 +24,21 @@ from models.step_length import StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
 
-__all__ = ["GaitPipeline"]
+__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S"]
 
-_PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance closer than this are the same stance
+PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
+SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
 _MAG_WINDOW_S = 0.12  # field averaged over this quiet window before a stance onset [s]
 _MAG_KEEP_S = 2.0  # low-rate field samples kept (>> the segmenter's look-ahead) [s]
 _MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
+_RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step model
+_BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
+
+
+def _behaviour(label: str) -> str:
+    """Behaviour whose step model serves a label (``stand``/``other`` steps use the walking model)."""
+    return label if label in _BEHAVIOURS else "walk"
 
 
 def _features(e: StepEvent) -> StepFeatures:
@@ -95,6 +104,11 @@ class _LowRate:
 class GaitPipeline:
     """Step events, calibration and dead reckoning for one session.
 
+    The engine drives it in data-time order: step events wait in :attr:`queue` until either a ZUPT-KF stance
+    claims them (:meth:`take_pair`: calibration, examination) or Gait-DR reckons them (:meth:`reckon`).
+    :attr:`horizon` says up to when the event list is final, so both decisions are independent of how the
+    stream was cut into batches.
+
     Parameters
     ----------
     rate_hz : float
@@ -114,14 +128,19 @@ class GaitPipeline:
         self._mag_v = np.zeros((0, 3))
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
-        self.t_switch = math.inf  # steps after this time are dead-reckoned
+        self.t_in = -math.inf  # newest input sample time [s]
+        self.has_mag = False  # the device has sent magnetometer samples in this session
+        self.recent_d: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # last ZUPT-KF strides [m]
         self.compass_steps = 0
         self.held_steps = 0
 
     # ------------------------------------------------------------------ streams
     def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
         """Consume full- or low-rate samples; new step events join :attr:`queue`."""
+        if len(t_s):
+            self.t_in = float(t_s[-1])
         has_mag = ~np.isnan(mag[:, 0])
+        self.has_mag = self.has_mag or bool(has_mag.any())
         x = np.c_[acc, np.where(has_mag[:, None], mag, 0.0), has_mag.astype(float)]
         lt, lx = self._low.process(t_s, x)
         if not len(lt):
@@ -137,6 +156,11 @@ class GaitPipeline:
         live = {e.index for e in self.queue}
         self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
 
+    @property
+    def horizon(self) -> float:
+        """Every step event with a stance onset before this time [s] is in :attr:`queue` (or was taken)."""
+        return self.t_in - SEGMENTER_LATENCY_S
+
     def _mag_before(self, t_s: float) -> np.ndarray | None:
         """Mean field over the quiet window ending at a stance onset [uT]; None without magnetometer."""
         m = (self._mag_t >= t_s - _MAG_WINDOW_S) & (self._mag_t <= t_s)
@@ -145,20 +169,22 @@ class GaitPipeline:
     def mag_at(self, e: StepEvent) -> np.ndarray | None:
         return self.stance_mag.get(e.index)
 
-    # ------------------------------------------------------------------ calibration while the ZUPT-KF runs
-    def learn(self, st: Stance, behaviour: str) -> None:
-        """Pair a ZUPT-KF stance with its step event; feed calibrator, KF II and magnetometer calibration."""
-        self.heading = float(st.heading)
-        e = next((q for q in self.queue if abs(q.t_s - st.t_start_s) <= _PAIR_TOL_S), None)
-        self.queue = [q for q in self.queue if q.t_s > st.t_start_s + _PAIR_TOL_S]  # later stances stay queued
-        if e is None:
-            return
+    # ------------------------------------------------------------------ pairing with ZUPT-KF stances
+    def take_pair(self, t_start_s: float) -> StepEvent | None:
+        """Remove the events up to a ZUPT-KF stance onset [s] from the queue; return the one of that stance."""
+        near = [q for q in self.queue if abs(q.t_s - t_start_s) <= PAIR_TOL_S]
+        self.queue = [q for q in self.queue if q.t_s > t_start_s + PAIR_TOL_S]
+        return min(near, key=lambda q: abs(q.t_s - t_start_s)) if near else None
+
+    def learn(self, st: Stance, e: StepEvent, behaviour: str) -> None:
+        """Calibration pair: ZUPT-KF stride ``st`` and its step event ``e`` (004 eq. 15, 19, 20, Table 3)."""
         m = self.mag_at(e)
         if m is not None:
             self.mag.add(np.asarray(e.acc_stance), m, float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return
         self.cal.add(behaviour, _features(e), st.step_length)
+        self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
         gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)
         self.kf2[behaviour].update(wrap_angle(gamma - float(st.heading)), dt=e.period_s)  # 004 eq. (19)
 
@@ -168,35 +194,78 @@ class GaitPipeline:
         With a magnetometer the hand-over waits until the stances span enough headings for the
         hard-iron fit (otherwise Gait-DR would have to hold one heading through every turn).
         """
-        if self.cal.n_pairs(behaviour if behaviour in _BEHAVIOURS else "walk") < self.cal.min_pairs:
+        if self.cal.n_pairs(_behaviour(behaviour)) < self.cal.min_pairs:
             return False
-        return self.mag.fit() if self._mag_t.size else True
+        return self.compass_ready()
+
+    def compass_ready(self) -> bool:
+        """True without a magnetometer, or once its hard-iron calibration is fitted."""
+        return self.mag.fit() if self.has_mag else True
 
     def fit(self, behaviour: str) -> dict:
         self.mag.fit()
-        return self.cal.fit(behaviour if behaviour in _BEHAVIOURS else "walk")
+        return self.cal.fit(_behaviour(behaviour))
+
+    def calibration_state(self) -> dict[str, Any]:
+        """What a profile keeps of this session's calibration (opaque ``step_model`` of the profile)."""
+        return {"calibrator": self.cal.get_state(), "compass": self.mag.get_state()}
+
+    def step_length(self, e: StepEvent, behaviour: str) -> tuple[float, float]:
+        """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15).
+
+        Before the behaviour's model is fitted, the median of the latest ZUPT-KF strides stands in for it
+        (a person's stride is far better known from their own last strides than from a generic prior).
+        """
+        b = _behaviour(behaviour)
+        if not self.cal.calibrated(b) and self.recent_d[b]:
+            return float(np.median(self.recent_d[b])), float("nan")
+        return self.cal.predict(b, _features(e))
+
+    def bootstrapped(self) -> bool:
+        """Gait-DR can place a step: some behaviour has a heading deviation (KF II) and a stride estimate."""
+        return any(self.kf2[b].n_updates >= _BOOT_STEPS and (self.recent_d[b] or self.cal.calibrated(b))
+                   for b in _BEHAVIOURS)
+
+    def load_calibration(self, behaviour: str, step_model: dict[str, Any], deviation_rad: float,
+                         deviation_var: float) -> None:
+        """Take a behaviour's calibration from a user profile (:class:`energy.profile.BehaviourCalibration`)."""
+        b = _behaviour(behaviour)
+        stored = step_model.get("calibrator")
+        if isinstance(stored, dict):
+            state = self.cal.get_state()
+            state["pairs"][b] = list(stored.get("pairs", {}).get(b, []))
+            state["fits"] = {k: v for k, v in state["fits"].items() if not (k == b or k.startswith(b + "/"))}
+            state["fits"].update({k: v for k, v in stored.get("fits", {}).items() if k == b or k.startswith(b + "/")})
+            self.cal = StepLengthCalibrator.from_state(state)
+        compass = step_model.get("compass")
+        if isinstance(compass, dict) and not self.mag.ready:
+            self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
+        kf = self.kf2[b]
+        if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
+            kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])
+            kf.p = np.diag([kf.p0_rate**2, float(deviation_var)])
+            kf.n_updates = max(kf.n_updates, _BOOT_STEPS)
 
     # ------------------------------------------------------------------ dead reckoning
-    def start(self, position: np.ndarray, heading: float, t_switch: float) -> None:
-        """Hand-over from the ZUPT-KF at a stance."""
+    @property
+    def active(self) -> bool:
+        return self.dr is not None
+
+    def start(self, position: np.ndarray, heading: float) -> None:
+        """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m], sensor heading [rad]."""
         self.dr = GaitDeadReckoner(position)
         self.heading = float(heading)
-        self.t_switch = float(t_switch)
-        self.queue = [e for e in self.queue if e.t_s > t_switch + _PAIR_TOL_S]
 
-    def stop(self) -> None:
-        self.dr = None
-        self.t_switch = math.inf
-
-    def reckon(self, label_at) -> list[tuple[PdrStep, StepEvent]]:
-        """Dead-reckon queued step events after the hand-over."""
+    def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent]]:
+        """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active)."""
         out: list[tuple[PdrStep, StepEvent]] = []
+        todo = [e for e in self.queue if e.t_s < before_s]
+        self.queue = [e for e in self.queue if e.t_s >= before_s]
         if self.dr is None:
             return out
-        for e in self.queue:
-            b = label_at(e.t_s)
-            b = b if b in _BEHAVIOURS else "walk"
-            d, _ = self.cal.predict(b, _features(e))
+        for e in todo:
+            b = _behaviour(label_at(e.t_s))
+            d, _ = self.step_length(e, b)
             m = self.mag_at(e)
             acc_st = np.asarray(e.acc_stance)
             if m is not None and self.mag.ready and not self.mag.disturbed(acc_st, m):
@@ -205,7 +274,6 @@ class GaitPipeline:
             else:
                 self.held_steps += 1  # disturbed or no magnetometer: hold the last good heading
             out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e))
-        self.queue = []
         return out
 
     # ------------------------------------------------------------------ state
@@ -222,7 +290,7 @@ class GaitPipeline:
                       for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
-            "heading": self.heading, "t_switch": self.t_switch,
+            "heading": self.heading, "t_in": self.t_in, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
         }
 
@@ -239,6 +307,7 @@ class GaitPipeline:
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
-        obj.heading, obj.t_switch = float(d["heading"]), float(d["t_switch"])
+        obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
+        obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         return obj

@@ -42,6 +42,9 @@ class Scheduler:
         self.l_zupt_m = 0.0  # 004 Table 2, L_ZUPT-KF of the running initialisation
         self.last_exam_s = 0.0
         self.exam_active = False  # 004 Table 1: gyro on till a whole step is completed
+        self.exam_started_s = 0.0
+        self.nav_ready = False  # ZUPT-KF aligned and Gait-DR able to place a step (gyroscope needed until then)
+        self.compass_ready = True  # Gait-DR has a heading source (no magnetometer, or its calibration is fitted)
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -80,9 +83,10 @@ class Scheduler:
         """004 Table 2: L_ZUPT-KF >= L0 ends the initialisation."""
         return self.mode != "zupt" and self.working == "zupt" and self.l_zupt_m >= self.config.l0_m
 
-    def on_calibrated(self, t_s: float, t_ns: int) -> list[Event]:
-        """The engine fitted the step model and KF II after L0: switch to Gait-DR."""
-        events = [Event(t_ns, "calibration_done", {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m})]
+    def on_calibrated(self, t_s: float, t_ns: int, detail: dict[str, Any] | None = None) -> list[Event]:
+        """The engine fitted the step model and KF II after L0: switch to Gait-DR. ``detail`` joins the event."""
+        info = {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m, **(detail or {})}
+        events = [Event(t_ns, "calibration_done", info)]
         self.calibrating = None
         self.last_exam_s = t_s
         events += self._switch("pdr", t_ns, reason="initialisation complete")
@@ -101,6 +105,16 @@ class Scheduler:
     def start_exam(self, t_s: float, t_ns: int) -> list[Event]:
         return self._start_exam(t_s, t_ns, reason="T0 elapsed")
 
+    def tick(self, t_s: float, t_ns: int) -> list[Event]:
+        """Data time advanced to ``t_s`` (a Gait-DR step): start a due examination, give up a stale one."""
+        if self.exam_due(t_s):
+            return self.start_exam(t_s, t_ns)
+        if self.exam_active and t_s - self.exam_started_s > self.config.exam_timeout_s:
+            self.exam_active = False
+            self.last_exam_s = t_s
+            return [Event(t_ns, "examination_skipped", {"reason": "no gyroscope stride arrived", "behaviour": self.behaviour})]
+        return []
+
     def on_exam_result(self, passed: bool, d_kf: float, d_sl: float, t_s: float, t_ns: int) -> list[Event]:
         """004 Table 3: |d_KF - d_SL| <= 3 sigma_d keeps Gait-DR, otherwise re-initialise."""
         self.exam_active = False
@@ -115,19 +129,23 @@ class Scheduler:
 
     # ------------------------------------------------------------------ outputs
     def gyro_wanted(self) -> bool:
-        """004 Table 1."""
-        if self.mode == "zupt":
+        """004 Table 1 (plus: on until the ZUPT-KF has aligned once, and while Gait-DR has no heading source)."""
+        if self.mode == "zupt" or not self.nav_ready:
             return True
         if self.mode == "auto" and self.behaviour == "stand":
             return False
-        if self.working == "zupt":
+        if self.working == "zupt" or not self.compass_ready:
             return True
         return self.exam_active
+
+    def idle(self) -> bool:
+        """Standing with the gyroscope off (auto mode)."""
+        return self.mode == "auto" and self.behaviour == "stand" and not self.gyro_wanted()
 
     def sensor_config(self) -> SensorConfig:
         c = self.config
         gyro = self.gyro_wanted()
-        if self.mode == "auto" and self.behaviour == "stand":
+        if self.idle():
             return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0)
         if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
             return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz)
@@ -144,6 +162,7 @@ class Scheduler:
 
     def _start_exam(self, t_s: float, t_ns: int, reason: str) -> list[Event]:
         self.exam_active = True
+        self.exam_started_s = t_s
         return [Event(t_ns, "examination_started", {"reason": reason, "behaviour": self.behaviour})]
 
     def get_state(self) -> dict[str, Any]:
@@ -157,11 +176,15 @@ class Scheduler:
             "l_zupt_m": self.l_zupt_m,
             "last_exam_s": self.last_exam_s,
             "exam_active": self.exam_active,
+            "exam_started_s": self.exam_started_s,
+            "nav_ready": self.nav_ready,
+            "compass_ready": self.compass_ready,
         }
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> Scheduler:
         obj = cls(d["mode"], EngineConfig.from_dict(d["config"]), Profile.from_dict(d["profile"]))
-        for key in ("working", "behaviour", "calibrating", "l_zupt_m", "last_exam_s", "exam_active"):
+        for key in ("working", "behaviour", "calibrating", "l_zupt_m", "last_exam_s", "exam_active", "exam_started_s",
+                    "nav_ready", "compass_ready"):
             setattr(obj, key, d[key])
         return obj

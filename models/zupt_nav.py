@@ -411,6 +411,24 @@ class ZuptNavigator:
         self._P[6, 6] = self._P[7, 7] = self.config.p0_tilt**2
         self._P[8, 8] = self.config.p0_yaw**2
 
+    def restart(self, position_ned: np.ndarray, heading_rad: float) -> None:
+        """Begin a new segment after a gap in the data (the gyroscope was off).
+
+        Like :meth:`reset`, and the detector also forgets everything before the gap (buffered samples, stance
+        state, gait intensity), so no stance or detector window spans the gap. The segment may start anywhere
+        in the gait cycle; its first stance reports a zero increment. Attitude, biases and the magnetic
+        reference are kept.
+        """
+        self.reset(position_ned, heading_rad)
+        self._bt = np.zeros(0)
+        self._ba = np.zeros((0, 3))
+        self._bg = np.zeros((0, 3))
+        self._bm = np.zeros((0, 3))
+        self._next = 0
+        for name in ("in_stance", "has_prev", "has_prev_stance"):
+            self._is[_k.IS[name]] = 0
+        self._fs[_k.FS["intensity"]] = 0.0
+
     # ---- state ------------------------------------------------------------------------------------------
     def get_state(self) -> dict:
         """Complete state as plain values and numpy arrays (for :mod:`energy.codec`)."""

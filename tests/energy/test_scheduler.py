@@ -22,10 +22,17 @@ def calibrated(*behaviours: str) -> Profile:
     return Profile({b: BehaviourCalibration(sigma_d_m=0.05, calibrated=True, n_steps=30) for b in behaviours})
 
 
+def aligned(mode: str, config: EngineConfig, profile: Profile) -> Scheduler:
+    """A scheduler whose ZUPT-KF has aligned once (before that the gyroscope is always wanted)."""
+    s = Scheduler(mode, config, profile)
+    s.nav_ready = True
+    return s
+
+
 # ---------------------------------------------------------------- Table 1: gyroscope strategy
 @pytest.mark.parametrize("working", ["zupt", "pdr"])
 def test_table1_static_behaviour_turns_gyro_off(working: str) -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.working = working
     s.on_behaviour("stand", 1.0, 1)
     assert not s.gyro_wanted()
@@ -34,14 +41,14 @@ def test_table1_static_behaviour_turns_gyro_off(working: str) -> None:
 
 
 def test_table1_zupt_mode_keeps_gyro_on_while_moving() -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     assert s.working == "zupt" and s.gyro_wanted()
     assert s.sensor_config().acc_rate_hz == CFG.full_rate_hz
 
 
 def test_table1_gait_dr_gyro_off_until_t0_then_on_for_one_step() -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, CFG.l0_m)
     assert s.ready_for_pdr()
@@ -58,14 +65,14 @@ def test_table1_gait_dr_gyro_off_until_t0_then_on_for_one_step() -> None:
 
 # ---------------------------------------------------------------- Table 2: mode switching
 def test_table2_stays_in_zupt_below_l0() -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, CFG.l0_m - 2.0)
     assert not s.ready_for_pdr()
 
 
 def test_table2_new_behaviour_sends_gait_dr_back_to_zupt() -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, CFG.l0_m)
     s.on_calibrated(10.0, 10)
@@ -75,20 +82,20 @@ def test_table2_new_behaviour_sends_gait_dr_back_to_zupt() -> None:
 
 
 def test_table2_calibrated_behaviour_resumes_gait_dr_with_an_examination() -> None:
-    s = Scheduler("auto", CFG, calibrated("walk"))
+    s = aligned("auto", CFG, calibrated("walk"))
     events = s.on_behaviour("walk", 1.0, 1)
     assert s.working == "pdr" and s.exam_active
     assert {e.kind for e in events} >= {"mode_switch", "examination_started"}
 
 
 def test_pdr_mode_ignores_behaviour_changes_and_zupt_mode_never_switches() -> None:
-    s = Scheduler("pdr", CFG, Profile())
+    s = aligned("pdr", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, CFG.l0_m)
     s.on_calibrated(5.0, 5)
     s.on_behaviour("run", 6.0, 6)
     assert s.working == "pdr" and not s.gyro_wanted()
-    z = Scheduler("zupt", CFG, Profile())
+    z = aligned("zupt", CFG, Profile())
     z.on_behaviour("walk", 1.0, 1)
     walk_to(z, 10 * CFG.l0_m)
     assert not z.ready_for_pdr() and z.gyro_wanted()
@@ -99,7 +106,7 @@ def test_pdr_mode_ignores_behaviour_changes_and_zupt_mode_never_switches() -> No
 # ---------------------------------------------------------------- Table 3: examination
 @pytest.mark.parametrize("passed, working", [(True, "pdr"), (False, "zupt")])
 def test_table3_examination_outcome(passed: bool, working: str) -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = aligned("auto", CFG, Profile())
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, CFG.l0_m)
     s.on_calibrated(10.0, 10)
@@ -112,8 +119,40 @@ def test_table3_examination_outcome(passed: bool, working: str) -> None:
 
 
 def test_state_round_trip() -> None:
-    s = Scheduler("auto", CFG, calibrated("run"))
+    s = aligned("auto", CFG, calibrated("run"))
     s.on_behaviour("walk", 1.0, 1)
     walk_to(s, 7.0)
     r = Scheduler.from_state(s.get_state())
     assert r.get_state() == s.get_state()
+
+
+def test_gyro_stays_on_until_the_zupt_kf_has_aligned() -> None:
+    s = Scheduler("auto", CFG, Profile())
+    s.on_behaviour("stand", 1.0, 1)
+    assert s.gyro_wanted() and s.sensor_config().acc_rate_hz == CFG.full_rate_hz
+    s.nav_ready = True
+    assert not s.gyro_wanted() and s.idle()
+
+
+def test_gait_dr_without_a_heading_source_keeps_the_gyro_on() -> None:
+    s = aligned("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    s.compass_ready = False
+    assert s.working == "pdr" and s.gyro_wanted()
+    s.compass_ready = True
+    assert not s.gyro_wanted()
+
+
+def test_tick_starts_a_due_examination_and_gives_up_a_stale_one() -> None:
+    s = aligned("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    assert s.tick(10.0 + CFG.t0_s - 1.0, 0) == []
+    started = s.tick(10.0 + CFG.t0_s, 0)
+    assert [e.kind for e in started] == ["examination_started"] and s.exam_active
+    assert s.tick(10.0 + CFG.t0_s + CFG.exam_timeout_s - 0.5, 0) == [] and s.exam_active
+    skipped = s.tick(10.0 + CFG.t0_s + CFG.exam_timeout_s + 0.5, 0)
+    assert [e.kind for e in skipped] == ["examination_skipped"] and not s.exam_active and not s.gyro_wanted()

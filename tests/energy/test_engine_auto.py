@@ -1,0 +1,175 @@
+"""The energy-aware engine end to end: hand-overs between ZUPT-KF and Gait-DR, examinations, standing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clients.synth import synthesize
+from energy.config import EngineConfig
+from energy.device import replay
+from energy.engine import Engine
+from energy.gait_dr import SEGMENTER_LATENCY_S, GaitPipeline
+from models.batch import SensorBatch
+
+CFG = EngineConfig(l0_m=15.0, t0_s=20.0)
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return synthesize("demo", seed=2)
+
+
+@pytest.fixture(scope="module")
+def replayed(demo):
+    eng = Engine(mode="auto", config=CFG, trace=True)
+    return eng, replay(eng, demo.batch, batch_seconds=1.0)
+
+
+def _truth_xy_at(rec, t_ns: np.ndarray) -> np.ndarray:
+    idx = np.clip(np.searchsorted(rec.batch.acc_t_ns, t_ns), 0, len(rec.truth.positions) - 1)
+    return rec.truth.positions[idx, :2]
+
+
+def test_no_position_jumps_at_hand_overs(demo, replayed) -> None:
+    """Consecutive positions are one stride apart, never more (the 30 m jumps of the first engine)."""
+    _, res = replayed
+    p = np.array([[q.north, q.east] for q in res.positions])
+    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    modes = [q.mode for q in res.positions]
+    assert {"zupt", "pdr"} <= set(modes)
+    truth = demo.truth.positions[:, :2]
+    # the longest true stride of the scenario (running), from positions one stride period apart
+    t_ns = np.array([q.t_ns for q in res.positions])
+    true_steps = np.linalg.norm(np.diff(_truth_xy_at(demo, t_ns), axis=0), axis=1)
+    assert steps.max() <= 1.3 * true_steps.max() + 0.2, (steps.max(), true_steps.max(), truth.shape)
+
+
+def test_auto_mode_follows_the_truth(demo, replayed) -> None:
+    _, res = replayed
+    t_ns = np.array([q.t_ns for q in res.positions])
+    est = np.array([[q.north, q.east] for q in res.positions])
+    truth = _truth_xy_at(demo, t_ns)
+    truth = truth - truth[0]
+    path = float(np.sum(np.linalg.norm(np.diff(demo.truth.positions[:, :2], axis=0), axis=1)))
+    err = np.linalg.norm(est - truth, axis=1)
+    assert err[-1] < 0.05 * path, (err[-1], path)
+    est_len = float(np.sum(np.linalg.norm(np.diff(est, axis=0), axis=1)))
+    assert abs(est_len - path) / path < 0.05, (est_len, path)
+
+
+def test_standing_is_idle_with_the_gyro_off_and_every_sample_is_traced(demo, replayed) -> None:
+    _, res = replayed
+    tr = res.trace
+    assert len(tr.t_ns) >= len(demo.batch.acc_t_ns) * 0.2  # gyro-off samples are traced too
+    assert np.all(np.diff(tr.t_ns) >= 0)
+    assert not np.isnan(tr.pos).any()
+    idle = tr.mode == "idle"
+    assert idle.any() and not tr.gyro_on[idle].any()
+    stand_cfgs = [c for _, c in res.configs if not c.gyro_on and c.acc_rate_hz == CFG.stand_rate_hz]
+    assert stand_cfgs, "standing never lowered the rate"
+    assert any(u.mode == "idle" for u in res.updates)
+
+
+def test_examinations_run_every_t0_in_gait_dr(replayed) -> None:
+    _, res = replayed
+    kinds = [e.kind for u in res.updates for e in u.events]
+    assert "calibration_done" in kinds
+    assert "examination_started" in kinds
+    assert kinds.count("examination_passed") + kinds.count("examination_failed") >= 1
+
+
+def test_calibration_event_carries_the_heading_deviation(replayed) -> None:
+    _, res = replayed
+    done = [e for u in res.updates for e in u.events if e.kind == "calibration_done"]
+    assert done and all(np.isfinite(e.detail["heading_deviation_rad"]) for e in done)
+    assert all(e.detail["heading_deviation_var"] > 0 for e in done)
+
+
+def test_a_calibrated_behaviour_is_not_initialised_twice_in_a_session(replayed) -> None:
+    _, res = replayed
+    done = [e.detail["behaviour"] for u in res.updates for e in u.events if e.kind == "calibration_done"]
+    failed = sum(e.kind == "examination_failed" for u in res.updates for e in u.events)
+    assert len(done) - len(set(done)) <= failed
+
+
+def test_gyro_is_off_most_of_the_time_once_calibrated(replayed) -> None:
+    _, res = replayed
+    assert res.gyro_on_fraction < 0.75
+    assert res.mean_rate_hz < 150.0
+
+
+def test_returning_user_uses_the_profile(demo, replayed) -> None:
+    eng, first = replayed
+    back = Engine(mode="auto", config=CFG, profile=eng.profile_dict(), trace=True)
+    res = replay(back, demo.batch, batch_seconds=1.0)
+    kinds = [e.kind for u in res.updates for e in u.events]
+    assert "examination_started" in kinds
+    assert res.gyro_on_fraction < first.gyro_on_fraction
+
+
+def _replayed_batches(rec, config: EngineConfig) -> list[SensorBatch]:
+    """What a device obeying the engine actually sent (gyro gaps, rate changes)."""
+    sent: list[SensorBatch] = []
+    eng = Engine(mode="auto", config=config)
+    orig = eng.feed
+
+    def feed(batch: SensorBatch):
+        sent.append(batch)
+        return orig(batch)
+
+    eng.feed = feed  # type: ignore[method-assign]
+    replay(eng, rec.batch, batch_seconds=1.0)
+    return sent
+
+
+@pytest.fixture(scope="module")
+def sent(demo) -> list[SensorBatch]:
+    return _replayed_batches(demo, CFG)
+
+
+def _positions(eng: Engine, pieces: list[SensorBatch]) -> np.ndarray:
+    ups = [eng.feed(p) for p in pieces] + [eng.flush()]
+    return np.array([[p.t_ns, p.north, p.east, p.down] for u in ups for p in u.positions])
+
+
+def test_device_stream_refed_in_other_pieces_gives_the_same_positions(sent) -> None:
+    """Chunk invariance across gyro gaps and rate changes: the batches as sent vs merged in threes."""
+    a = _positions(Engine(mode="auto", config=CFG), sent)
+    merged = [SensorBatch.concat(sent[i : i + 3]) for i in range(0, len(sent), 3)]
+    b = _positions(Engine(mode="auto", config=CFG), merged)
+    assert a.shape == b.shape and len(a) > 20
+    np.testing.assert_array_equal(a[:, 0], b[:, 0])
+    assert np.abs(a[:, 1:] - b[:, 1:]).max() <= 1e-9
+
+
+def test_restore_mid_session_continues_identically(sent) -> None:
+    whole = _positions(Engine(mode="auto", config=CFG), sent)
+    for cut in (len(sent) // 3, 2 * len(sent) // 3):
+        eng = Engine(mode="auto", config=CFG)
+        first = [eng.feed(p) for p in sent[:cut]]
+        back = Engine.from_bytes(eng.to_bytes())
+        rest = [back.feed(p) for p in sent[cut:]] + [back.flush()]
+        got = np.array([[p.t_ns, p.north, p.east, p.down] for u in first + rest for p in u.positions])
+        assert got.shape == whole.shape and np.abs(got[:, 1:] - whole[:, 1:]).max() <= 1e-9
+
+
+def test_step_events_arrive_within_the_declared_latency(demo) -> None:
+    """GaitPipeline.horizon relies on this bound; measured with 0.1 s pieces at 200 Hz."""
+    gait = GaitPipeline(25.0)
+    b = demo.batch.time_slice(None, demo.batch.t_start_ns + int(60e9))
+    t = (b.acc_t_ns - b.t_start_ns) / 1e9
+    mag_t, mag = b.stream("mag")
+    seen: set[int] = set()
+    lags = []
+    for lo in range(0, len(t), 20):
+        hi = min(lo + 20, len(t))
+        m = np.full((hi - lo, 3), np.nan)
+        gait.feed(t[lo:hi], b.acc[lo:hi], m)
+        for e in gait.queue:
+            if e.index not in seen:
+                seen.add(e.index)
+                lags.append(t[hi - 1] - e.t_s)
+        gait.queue.clear()
+    assert len(lags) > 20
+    assert max(lags) < SEGMENTER_LATENCY_S, max(lags)
