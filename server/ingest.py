@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 from typing import Any, Protocol
 
+import numpy as np
 from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
@@ -28,6 +29,7 @@ from server import crud
 from server.engine_pool import EnginePool
 from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
+from server.timing import phase, since
 
 __all__ = [
     "EngineHost",
@@ -143,13 +145,18 @@ class EngineHost:
 
 
 def json_safe(obj: Any) -> Any:
-    """Replace non-finite floats by None (JSON and PostgreSQL's json type have no NaN)."""
+    """JSON-storable copy: non-finite floats -> None (JSON and PostgreSQL's json type have no NaN), numpy
+    arrays -> (nested) lists, numpy scalars -> Python numbers."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
         return {k: json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        return json_safe(obj.item())
     return obj
 
 
@@ -284,12 +291,15 @@ def _apply_once(
 ) -> tuple[dict[str, Any], bool] | None:
     # Core statements on the hot path: one read transaction, the engine outside any transaction, one short
     # write transaction whose version check makes concurrent workers unable to apply a batch twice.
+    t_lock = time.perf_counter()
     with host.lock(session_id):
-        row = db.execute(
-            select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in).where(
-                _TS.c.id == session_id, _TS.c.user_id == user_id
-            )
-        ).first()
+        since("lock", t_lock)
+        with phase("read"):
+            row = db.execute(
+                select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in).where(
+                    _TS.c.id == session_id, _TS.c.user_id == user_id
+                )
+            ).first()
         if row is None:
             db.rollback()
             return None
@@ -321,25 +331,32 @@ def _apply_once(
             streams = {}
             for name in STREAMS:
                 streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
-            out = host.pool.feed(session_id, row.version, None, seq, streams)
+            with phase("engine"):
+                out = host.pool.feed(session_id, row.version, None, seq, streams)
             if out[0] == "miss":
-                blob = load_state()
-                end_read()
-                out = host.pool.feed(session_id, row.version, blob, seq, streams)
+                with phase("load_state"):
+                    blob = load_state()
+                    end_read()
+                with phase("engine"):
+                    out = host.pool.feed(session_id, row.version, blob, seq, streams)
             if out[0] == "batch_error":
                 raise BatchError(out[1], out[2])
             _, resp, state, behaviour, mode = out
         else:
-            engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
-            end_read()
+            with phase("load_state"):
+                engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
+                end_read()
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
-            upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
-            resp = _update_dict(session_id, seq, seq + 1, upd)
-            state = engine.to_bytes()
+            with phase("engine"):
+                upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
+                resp = _update_dict(session_id, seq, seq + 1, upd)
+                state = engine.to_bytes()
             behaviour, mode = upd.behaviour, upd.mode
         next_seq = seq + 1
         try:
-            with host.write_lock:
+            t_wl = time.perf_counter()
+            with host.write_lock, phase("write"):
+                since("write_lock", t_wl)
                 res = db.execute(
                     update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
                         version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=behaviour,
@@ -359,7 +376,8 @@ def _apply_once(
                     db.execute(insert(_EVENTS), [{"session_id": session_id, "seq": seq, **e} for e in resp["events"]])
                 if also is not None:
                     also(db)
-                db.commit()
+                with phase("commit"):
+                    db.commit()
         except (StaleDataError, IntegrityError):
             # another worker applied this sequence number first: answer as for a retry
             db.rollback()

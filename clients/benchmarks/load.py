@@ -154,8 +154,36 @@ class _Conn:
         self.reader = self.writer = None
 
 
+def _server_timing(h: str) -> dict[str, float]:
+    """``Server-Timing: a;dur=1.2, b;dur=3`` -> {"a": 1.2, "b": 3.0} [ms]."""
+    out: dict[str, float] = {}
+    for part in h.split(","):
+        name, _, rest = part.strip().partition(";dur=")
+        try:
+            out[name] = float(rest)
+        except ValueError:
+            continue
+    return out
+
+
+def _phase_report(lat_ms: np.ndarray, timings: list[dict[str, float]]) -> dict[str, Any]:
+    """Server phase durations: median and p99 over all requests, and the mean over the slowest 1 % of requests
+    (what the tail is made of; client latency minus the phases = event loop, HTTP and network)."""
+    if not timings:
+        return {}
+    names = sorted({k for t in timings for k in t})
+    cols = {k: np.array([t.get(k, 0.0) for t in timings]) for k in names}
+    slow = lat_ms >= np.percentile(lat_ms, 99)
+    return {
+        "p50": {k: round(float(np.percentile(v, 50)), 2) for k, v in cols.items()},
+        "p99": {k: round(float(np.percentile(v, 99)), 2) for k, v in cols.items()},
+        "slowest_1pct_mean": {**{k: round(float(v[slow].mean()), 2) for k, v in cols.items()},
+                              "client_latency": round(float(lat_ms[slow].mean()), 2)},
+    }
+
+
 async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
-                  lat: list[float], stats: dict[str, int]) -> None:
+                  lat: list[float], stats: dict[str, int], timings: list[dict[str, float]]) -> None:
     conn = _Conn("127.0.0.1", port)
     for k, (body, ctype) in enumerate(bodies):
         due = t0 + phase + k
@@ -177,6 +205,7 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
                 continue
             if status == 200:
                 lat.append(time.perf_counter() - start)
+                timings.append(_server_timing(hdrs.get("server-timing", "")))
                 stats["acked"] += 1
                 if hdrs.get("x-pednav-replayed") == "true":
                     stats["replayed"] += 1
@@ -206,11 +235,12 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
             r.raise_for_status()
             sids.append(r.json()["id"])
         lat: list[float] = []
+        timings: list[dict[str, float]] = []
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
         n = len(bodies) - _SPREAD_S
         await asyncio.gather(*[
-            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats)
+            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats, timings)
             for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
@@ -236,6 +266,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         "transport_errors": stats["transport_errors"],
         "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
         "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
+        "server_phases_ms": _phase_report(a, timings),
         "throughput_rps": stats["acked"] / wall if wall > 0 else None,
         "wall_s": wall,
     }
@@ -258,6 +289,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     else:
         tmp = tempfile.TemporaryDirectory(prefix="pednav-load-")
         url = f"sqlite:///{tmp.name}/load.db"
+    load_start = os.getloadavg()
     srv = _Server(url, schema)
     try:
         srv.wait()
@@ -289,5 +321,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "body_bytes": len(bodies[0][0]),
         "database": backend,
         "server_workers": 1,
+        "engine_processes": int(os.environ.get("PEDNAV_ENGINE_PROCESSES", "1")),
+        "cpus": os.cpu_count(),
+        "loadavg_1_5_15_at_start": [round(x, 2) for x in load_start],
+        "loadavg_1_5_15_at_end": [round(x, 2) for x in os.getloadavg()],
         **res,
     }

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
@@ -15,6 +16,7 @@ from server.auth import authenticate
 from server.deps import CurrentUser, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
+from server.timing import Phases, phase
 from server.schemas import BatchResponse
 
 __all__ = ["router"]
@@ -34,30 +36,36 @@ async def _body(request: Request) -> bytes:
     return b"".join(chunks)
 
 
-def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes) -> Response:
+def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes, queued_at: float) -> Response:
     """The whole upload in ONE worker thread: auth, decode, validate, apply (no connection is held while a
     request waits for a thread)."""
-    app = request.app
-    settings, host = app.state.settings, app.state.host
-    cred = _bearer_of(request)
-    token = cred.credentials if cred is not None else request.query_params.get("token")
-    with app.state.sessionmaker() as db:
-        user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
-        if seq < 0:
-            raise BatchError("seq", "must be >= 0")
-        batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
-        try:
-            out = apply_batch(db, host, user_id, session_id, seq, batch)
-        except BatchError:
-            db.rollback()
-            raise
-    if out is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
-    resp, replayed = out
-    return Response(
-        content=json.dumps(resp, separators=(",", ":")), media_type="application/json",
-        headers={"X-Pednav-Replayed": "true" if replayed else "false"},
-    )
+    with Phases() as ph:
+        ph.add("queue", time.perf_counter() - queued_at)  # waiting for an ingest thread
+        app = request.app
+        settings, host = app.state.settings, app.state.host
+        cred = _bearer_of(request)
+        token = cred.credentials if cred is not None else request.query_params.get("token")
+        with app.state.sessionmaker() as db:
+            with phase("auth"):
+                user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
+            if seq < 0:
+                raise BatchError("seq", "must be >= 0")
+            with phase("decode"):
+                batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
+            try:
+                out = apply_batch(db, host, user_id, session_id, seq, batch)
+            except BatchError:
+                db.rollback()
+                raise
+        if out is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+        resp, replayed = out
+        with phase("encode"):
+            content = json.dumps(resp, separators=(",", ":"))
+        return Response(
+            content=content, media_type="application/json",
+            headers={"X-Pednav-Replayed": "true" if replayed else "false", "Server-Timing": ph.header()},
+        )
 
 
 def _bearer_of(request: Request) -> HTTPAuthorizationCredentials | None:
@@ -82,7 +90,8 @@ async def put_batch(session_id: int, seq: int, body: Annotated[bytes, Depends(_b
     The body is JSON or msgpack (``Content-Type``), see ``server/formats.py``.
     """
     loop = asyncio.get_running_loop()
-    return await loop.run_in_executor(request.app.state.ingest_pool, _put_batch_sync, request, session_id, seq, body)
+    return await loop.run_in_executor(
+        request.app.state.ingest_pool, _put_batch_sync, request, session_id, seq, body, time.perf_counter())
 
 
 @router.get("")

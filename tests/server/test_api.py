@@ -322,3 +322,14 @@ def test_openapi_page(client) -> None:  # type: ignore[no-untyped-def]
     assert client.get("/docs").status_code == 200
     paths = client.get("/openapi.json").json()["paths"]
     assert "/v1/sessions/{session_id}/batches/{seq}" in paths and "/v1/sensorlogger" in paths
+
+
+def test_json_safe_stores_what_an_engine_profile_may_hold() -> None:
+    import json
+
+    from server.ingest import json_safe
+
+    doc = {"a": np.array([[1.0, np.nan], [2.0, 3.0]]), "b": np.float32(0.5), "c": (np.int64(3), float("inf")), "d": "x"}
+    out = json_safe(doc)
+    assert out == {"a": [[1.0, None], [2.0, 3.0]], "b": 0.5, "c": [3, None], "d": "x"}
+    json.dumps(out, allow_nan=False)
