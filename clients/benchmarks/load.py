@@ -228,7 +228,10 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         # warm-up session (engine JIT compilation), not measured
         warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
         for k, (body, ctype) in enumerate(bodies[: min(20, len(bodies))]):
-            await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body, headers={**h, "content-type": ctype})
+            # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
+            r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body, headers={**h, "content-type": ctype},
+                                 timeout=600.0)
+            r.raise_for_status()
         sids = []
         for i in range(devices):
             r = await client.post("/v1/sessions", json={"device_kind": "foot"}, headers={"Authorization": f"Bearer {tokens[i]}"})
