@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 __all__ = [
     "LABELS",
@@ -173,6 +174,62 @@ def classify_window(f: WindowFeatures) -> str:
     return "walk"
 
 
+@njit(cache=True)
+def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stance_s: float, tol: float,
+                    max_stance_s: float) -> tuple[float, float, float, float]:
+    """The features every decision needs, in one compiled pass (no per-call NumPy overhead).
+
+    Returns ``(still_std, dc, variance, stance_fraction)`` with the definitions of :func:`window_features`
+    (standard deviation over the most recent ``still_s`` [m/s^2]; mean [m/s^2] and variance [m^2/s^4] of
+    the window; gait stance fraction over the most recent ``stance_s``, rests longer than ``max_stance_s``
+    left out). Same summation order as a plain two-pass mean/variance; labels were checked identical to
+    the NumPy formulation on every synthetic scenario and real recording at 200 Hz and 1/8 rate.
+    """
+    n = x.size
+    t_end = t[n - 1]
+    i_still = np.searchsorted(t, t_end - still_s)
+    m = n - i_still
+    still = 0.0
+    if m > 1:
+        mu = 0.0
+        for i in range(i_still, n):
+            mu += x[i]
+        mu /= m
+        ss = 0.0
+        for i in range(i_still, n):
+            ss += (x[i] - mu) ** 2
+        still = np.sqrt(ss / m)
+    mu = 0.0
+    for i in range(n):
+        mu += x[i]
+    mu /= n
+    ss = 0.0
+    for i in range(n):
+        ss += (x[i] - mu) ** 2
+    var = ss / n
+    i_st = np.searchsorted(t, t_end - stance_s)
+    size = n - i_st
+    n_rest = 0
+    n_long = 0
+    run_start = -1
+    for i in range(i_st, n + 1):
+        r = i < n and abs(x[i] - g) < tol
+        if r:
+            n_rest += 1
+            if run_start < 0:
+                run_start = i
+        elif run_start >= 0:
+            if t[i - 1] - t[run_start] > max_stance_s:
+                n_long += i - run_start
+            run_start = -1
+    n_keep = size - n_long
+    if n_keep < 0.25 * size or n_keep < 3:
+        stance = 1.0
+    else:
+        stance = (n_rest - n_long) / n_keep
+    return still, mu, var, stance
+
+
 def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFeatures]:
     """Label one window computing only the features the rule set needs (same label as
     ``classify_window(window_features(t_s, acc_norm))``).
@@ -196,19 +253,13 @@ def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFea
     features : WindowFeatures
         The features of the window; those the decision did not need are ``nan``.
     """
-    x = np.asarray(acc_norm, dtype=np.float64)
-    t = np.asarray(t_s, dtype=np.float64)
+    x = np.ascontiguousarray(acc_norm, dtype=np.float64)
+    t = np.ascontiguousarray(t_s, dtype=np.float64)
     nan = float("nan")
-    i_still = int(np.searchsorted(t, t[-1] - STILL_WINDOW_S, side="left"))
-    recent = x[i_still:]
-    still = float(recent.std()) if recent.size > 1 else 0.0
+    still, dc, var, stance = _cheap_features(t, x, G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S)
     if still < STILL_STD:
         return "stand", WindowFeatures(nan, nan, nan, still, nan, nan, nan)
-    dc = float(x.mean())
-    var = float(x.var())
     energy = var + (dc - G) ** 2  # = mean((|a| - g)^2); not used by the rules, kept for the caller
-    i_st = int(np.searchsorted(t, t[-1] - STANCE_WINDOW_S, side="left"))
-    stance = _gait_stance_fraction(t[i_st:], np.abs(x[i_st:] - G) < STANCE_TOL)
     std = float(np.sqrt(var))
 
     def period() -> tuple[float, float]:

@@ -112,7 +112,7 @@ def test_lazy_decision_equals_the_full_rule_set(scenario, factor):
         m = (t >= td - WINDOW_S) & (t < td)
         lab, f = decide_window(t[m], n[m])
         assert lab == classify_window(window_features(t[m], n[m])), f"window ending {td:.2f} s"
-        assert f.still_std == window_features(t[m], n[m]).still_std
+        assert f.still_std == pytest.approx(window_features(t[m], n[m]).still_std, rel=1e-12)  # compiled sums
         labels.add(lab)
     assert {"stand", "walk"} <= labels  # the comparison covered more than one branch
 
