@@ -40,6 +40,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--encoding", choices=("msgpack", "json"), default="msgpack")
 
 
+def _proc_stats() -> dict[int, tuple[int, str, float]]:
+    """pid -> (parent pid, command name, CPU seconds used so far) of every process (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                raw = f.read()
+        except OSError:
+            continue
+        comm = raw[raw.index("(") + 1: raw.rindex(")")]
+        fields = raw[raw.rindex(")") + 2:].split()
+        out[int(d)] = (int(fields[1]), comm, (int(fields[11]) + int(fields[12])) / tick)
+    return out
+
+
+def _cpu_probe(server_pid: int) -> dict[str, float]:
+    """CPU seconds used so far by the server process, its descendants (the engine helper) and all postgres
+    processes (on a shared machine the latter include other clients of the database)."""
+    if not os.path.isdir("/proc"):
+        return {}
+    st = _proc_stats()
+    kids: dict[int, list[int]] = {}
+    for pid, (ppid, _, _) in st.items():
+        kids.setdefault(ppid, []).append(pid)
+    desc, todo = [], list(kids.get(server_pid, []))
+    while todo:
+        p = todo.pop()
+        desc.append(p)
+        todo += kids.get(p, [])
+    return {
+        "server_worker": st.get(server_pid, (0, "", 0.0))[2],
+        "engine_helpers": sum(st[p][2] for p in desc if p in st),
+        "postgres_all": sum(c for _, n, c in st.values() if n.startswith("postgres")),
+    }
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -217,7 +256,8 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
     conn.close()
 
 
-async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]]) -> dict[str, Any]:
+async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]],
+                     cpu: Any = lambda: {}) -> dict[str, Any]:
     import httpx
 
     port = int(url.rsplit(":", 1)[1])
@@ -242,11 +282,13 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
         n = len(bodies) - _SPREAD_S
+        cpu0 = cpu()
         await asyncio.gather(*[
             _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats, timings)
             for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
+        cpu1 = cpu()
         # verify against what the server stored
         stored_total, lost, dup = 0, 0, 0
         for i, sid in enumerate(sids):
@@ -270,6 +312,8 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
         "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
         "server_phases_ms": _phase_report(a, timings),
+        # CPU time per acknowledged batch [ms]: the cost that decides capacity, independent of other load
+        "cpu_ms_per_batch": {k: round(1e3 * (cpu1[k] - cpu0[k]) / max(stats["acked"], 1), 3) for k in cpu1},
         "throughput_rps": stats["acked"] / wall if wall > 0 else None,
         "wall_s": wall,
     }
@@ -306,7 +350,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             tokens = [crud.issue_token(db, user, f"device-{i}") for i in range(args.devices)] + [first]
             db.commit()
         eng.dispose()
-        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies))
+        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid)))
     finally:
         srv.stop()
         if schema:
