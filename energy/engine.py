@@ -499,7 +499,7 @@ class Engine:
             passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
             events += sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns)
         gait.learn(st, e, label)
-        sched.compass_ready = gait.compass_ready()
+        sched.compass_ready = gait.heading_source()
         sched.nav_ready = gait.bootstrapped()
         if sched.ready_for_pdr() and gait.ready(label):
             fits = gait.fit(label)

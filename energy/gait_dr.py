@@ -202,6 +202,10 @@ class GaitPipeline:
         """True without a magnetometer, or once its hard-iron calibration is fitted."""
         return self.mag.fit() if self.has_mag else True
 
+    def heading_source(self) -> bool:
+        """Gait-DR can follow turns with the gyroscope off: a magnetometer with a fitted calibration."""
+        return self.has_mag and self.compass_ready()
+
     def fit(self, behaviour: str) -> dict:
         self.mag.fit()
         return self.cal.fit(_behaviour(behaviour))

@@ -44,7 +44,7 @@ class Scheduler:
         self.exam_active = False  # 004 Table 1: gyro on till a whole step is completed
         self.exam_started_s = 0.0
         self.nav_ready = False  # ZUPT-KF aligned and Gait-DR able to place a step (gyroscope needed until then)
-        self.compass_ready = True  # Gait-DR has a heading source (no magnetometer, or its calibration is fitted)
+        self.compass_ready = True  # Gait-DR has a heading source (a magnetometer with a fitted calibration)
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -129,12 +129,16 @@ class Scheduler:
 
     # ------------------------------------------------------------------ outputs
     def gyro_wanted(self) -> bool:
-        """004 Table 1 (plus: on until the ZUPT-KF has aligned once, and while Gait-DR has no heading source)."""
+        """004 Table 1, plus: on until Gait-DR can place a step, and (auto) while Gait-DR has no heading source.
+
+        Without a calibrated magnetometer Gait-DR could only hold one heading through every turn; the fixed
+        ``pdr`` scheme accepts that (it is what 004 evaluates), the energy-aware scheduler keeps the ZUPT-KF.
+        """
         if self.mode == "zupt" or not self.nav_ready:
             return True
         if self.mode == "auto" and self.behaviour == "stand":
             return False
-        if self.working == "zupt" or not self.compass_ready:
+        if self.working == "zupt" or (self.mode == "auto" and not self.compass_ready):
             return True
         return self.exam_active
 
