@@ -32,11 +32,21 @@ def tilt_from_acc(acc: np.ndarray) -> tuple[float, float]:
     return roll, pitch
 
 
+def _level_heading(f: tuple[float, float, float] | list[float], m: tuple[float, float, float] | list[float]) -> float:
+    """:func:`level_heading` on plain floats (no array overhead: called once per Gait-DR step)."""
+    roll = math.atan2(-f[1], -f[2])
+    pitch = math.atan2(f[0], math.hypot(f[1], f[2]))
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    # first two rows of Rz(0) Ry(pitch) Rx(roll) (models.rotations.euler_to_dcm) applied to m
+    h_n = cp * m[0] + sp * sr * m[1] + sp * cr * m[2]
+    h_e = cr * m[1] - sr * m[2]
+    return math.atan2(h_e, h_n)
+
+
 def level_heading(acc: np.ndarray, mag: np.ndarray) -> float:
     """Angle [rad] of the levelled field's horizontal part seen from the body with zero yaw: atan2(E, N)."""
-    roll, pitch = tilt_from_acc(acc)
-    h = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(0.0)) @ np.asarray(mag, dtype=np.float64)
-    return math.atan2(float(h[1]), float(h[0]))
+    return _level_heading(np.asarray(acc, dtype=np.float64).reshape(3).tolist(),
+                          np.asarray(mag, dtype=np.float64).reshape(3).tolist())
 
 
 class MagCalibrator:
@@ -149,25 +159,38 @@ class MagCalibrator:
         """Calibrated field W (m - b) [uT], body frame."""
         return self.w @ (np.asarray(mag, dtype=np.float64).reshape(3) - self.b)
 
+    def _cal3(self, mag: np.ndarray | tuple[float, ...]) -> list[float]:
+        """:meth:`calibrate` on plain floats (per-step path)."""
+        m = np.asarray(mag, dtype=np.float64).reshape(3).tolist()
+        b = self.b.tolist()
+        d = [m[0] - b[0], m[1] - b[1], m[2] - b[2]]
+        w = self.w.tolist()
+        return [w[0][0] * d[0] + w[0][1] * d[1] + w[0][2] * d[2],
+                w[1][0] * d[0] + w[1][1] * d[1] + w[1][2] * d[2],
+                w[2][0] * d[0] + w[2][1] * d[1] + w[2][2] * d[2]]
+
     def disturbed(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> bool:
         """Magnitude/dip gate of the calibrated field against m_n (True = do not trust the compass)."""
         if not self.ready:
             return True
-        m = self.calibrate(mag_stance)
-        ref = float(np.linalg.norm(self.m_n))
-        if abs(float(np.linalg.norm(m)) - ref) > self.mag_tol * ref:
+        m = self._cal3(mag_stance)
+        mn = self.m_n.tolist()
+        ref = math.sqrt(mn[0] ** 2 + mn[1] ** 2 + mn[2] ** 2)
+        nm = math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2)
+        if abs(nm - ref) > self.mag_tol * ref:  # 002 eq. (4), magnitude
             return True
-        f = np.asarray(acc_stance, dtype=np.float64).reshape(3)
-        down = -f / max(float(np.linalg.norm(f)), 1e-9)
-        dip = math.asin(max(-1.0, min(1.0, float(m @ down) / max(float(np.linalg.norm(m)), 1e-9))))
-        dip_ref = math.atan2(float(self.m_n[2]), float(np.linalg.norm(self.m_n[:2])))
-        return abs(dip - dip_ref) > self.dip_tol
+        f = np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist()
+        nf = max(math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2), 1e-9)
+        down_dot = -(m[0] * f[0] + m[1] * f[1] + m[2] * f[2]) / nf
+        dip = math.asin(max(-1.0, min(1.0, down_dot / max(nm, 1e-9))))
+        dip_ref = math.atan2(mn[2], math.hypot(mn[0], mn[1]))
+        return abs(dip - dip_ref) > self.dip_tol  # 002 eq. (5), inclination
 
     def heading(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> float:
         """Compass heading [rad] of the body in the navigator's NED frame (NaN before calibration)."""
         if not self.ready:
             return float("nan")
-        alpha = level_heading(acc_stance, self.calibrate(mag_stance))
+        alpha = _level_heading(np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist(), self._cal3(mag_stance))
         psi = math.atan2(float(self.m_n[1]), float(self.m_n[0])) - alpha
         return math.atan2(math.sin(psi), math.cos(psi))
 

@@ -10,6 +10,7 @@ feeding a signal in one call or in arbitrary pieces gives the same output (the f
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy import signal
 
 __all__ = ["hamming_lowpass", "FirFilter", "Decimator"]
@@ -65,6 +66,15 @@ class FirFilter:
         """Group delay [samples] of linear-phase taps."""
         return (self.taps.size - 1) / 2.0
 
+    def _extend(self, x2: np.ndarray) -> np.ndarray:
+        """History + new inputs (the filter's input span), and the history advanced."""
+        n_hist = self.taps.size - 1
+        if self._hist is None:
+            self._hist = np.repeat(x2[:1], n_hist, axis=0)
+        ext = np.concatenate([self._hist, x2], axis=0)
+        self._hist = ext[ext.shape[0] - n_hist:].copy() if n_hist else ext[:0].copy()
+        return ext
+
     def process(self, x: np.ndarray) -> np.ndarray:
         """Filter the next chunk.
 
@@ -82,15 +92,23 @@ class FirFilter:
         x2 = x.reshape(-1, self.channels)
         if x2.shape[0] == 0:
             return x.copy()
-        n_hist = self.taps.size - 1
-        if self._hist is None:
-            self._hist = np.repeat(x2[:1], n_hist, axis=0)
-        ext = np.concatenate([self._hist, x2], axis=0)
-        y = np.empty_like(x2)
-        for c in range(self.channels):
-            y[:, c] = np.convolve(ext[:, c], self.taps, mode="valid")
-        self._hist = ext[max(ext.shape[0] - n_hist, 0) :].copy() if n_hist else ext[:0].copy()
+        y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
         return y.reshape(-1) if squeeze else y
+
+    def process_rows(self, x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Filter the next chunk but compute only the outputs ``rows`` (indices into the chunk).
+
+        The history advances by the whole chunk, exactly as :meth:`process`; a decimator that keeps one
+        output in ``factor`` pays for those only.
+
+        Returns
+        -------
+        ndarray, shape (len(rows), C)
+        """
+        x2 = np.asarray(x, dtype=np.float64).reshape(-1, self.channels)
+        if x2.shape[0] == 0:
+            return np.zeros((0, self.channels))
+        return _fir_rows(self._extend(x2), self.taps, np.asarray(rows, dtype=np.int64))
 
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
@@ -166,7 +184,6 @@ class Decimator:
         """
         t_ns = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         x = np.asarray(x, dtype=np.float64).reshape(-1, self.channels)
-        y = self._fir.process(x)
         delay = int(self._fir.delay_samples)
         if self._count == 0 and t_ns.size:
             self._t_hist = np.repeat(t_ns[:1], delay)  # matches the FIR's replicated start
@@ -175,9 +192,10 @@ class Decimator:
         idx = np.arange(self._count, self._count + t_ns.size)
         # output n is centred on input n - delay: keep inputs 0, factor, 2 factor, ... (none before the start)
         keep = (idx >= delay) & (((idx - delay) % self.factor) == 0)
+        y = self._fir.process_rows(x, np.flatnonzero(keep))  # only the kept outputs are computed
         self._count += t_ns.size
         self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
-        return t_centre[keep].copy(), y[keep]
+        return t_centre[keep].copy(), y
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """End of the stream: the outputs still held back by the filter's latency.
@@ -196,13 +214,13 @@ class Decimator:
         hist = self._fir._hist
         if delay == 0 or self._count == 0 or hist is None:
             return np.zeros(0, dtype=np.int64), np.zeros((0, self.channels))
-        y = self._fir.process(np.repeat(hist[-1:], delay, axis=0))
         t_c = self._t_hist  # times of the last `delay` inputs: the outputs are centred on them
         c = np.arange(self._count - delay, self._count)  # their input indices
         keep = (c >= 0) & ((c % self.factor) == 0)  # the same grid as process() keeps
+        y = self._fir.process_rows(np.repeat(hist[-1:], delay, axis=0), np.flatnonzero(keep))
         self._count += delay
         self._t_hist = self._t_hist[:0]
-        return t_c[keep].copy(), y[keep]
+        return t_c[keep].copy(), y
 
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
@@ -218,3 +236,19 @@ class Decimator:
         obj._count = int(d["count"])
         obj._t_hist = np.asarray(d["t_hist"], dtype=np.int64).copy()
         return obj
+
+
+@njit(cache=True)
+def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``y[j, c] = sum_k taps[k] ext[rows[j] + L - 1 - k, c]`` (what ``np.convolve(..., "valid")`` gives at
+    ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked."""
+    n_taps = taps.size
+    y = np.empty((rows.size, ext.shape[1]))
+    for j in range(rows.size):
+        r = rows[j] + n_taps - 1
+        for c in range(ext.shape[1]):
+            acc = 0.0
+            for k in range(n_taps):
+                acc += taps[k] * ext[r - k, c]
+            y[j, c] = acc
+    return y

@@ -78,6 +78,20 @@ def regressors(model: str, x: StepFeatures, height_m: float = 1.75) -> np.ndarra
     raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
 
 
+def _regressor_list(model: str, x: StepFeatures, height_m: float) -> list[float]:
+    """:func:`regressors` as plain floats (the per-step prediction path; no array overhead)."""
+    f = max(x.f_s, 1e-3)
+    if model == "eq15":
+        return [1.0, f ** -0.5, 1.0 / f, x.acc_max]  # 004 eq. (15), walking
+    if model == "eq15_run":
+        return [math.copysign(abs(x.acc_mean) ** (1.0 / 3.0), x.acc_mean)]  # 004 eq. (15), running
+    if model == "weinberg":
+        return [max(x.acc_max - x.acc_min, 0.0) ** 0.25]  # 000 eq. (35)
+    if model == "height_freq":
+        return [height_m * f, height_m, 1.0]  # 003 eq. (28)
+    raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
+
+
 def default_prior(model: str) -> tuple[np.ndarray, np.ndarray]:
     """Generic (population) coefficients and their prior standard deviations.
 
@@ -249,8 +263,8 @@ class StepLengthCalibrator:
         """Step length [m] and its sigma_d [m] (NaN sigma when only the generic prior is available)."""
         model = self.model_for(behaviour)
         e = self._entry(behaviour, x.f_s)
-        coef = np.asarray(e["coef"]) if e else default_prior(model)[0]
-        d = float(regressors(model, x, self.height_m) @ coef)
+        coef = e["coef"] if e else default_prior(model)[0].tolist()
+        d = math.fsum(c * r for c, r in zip(coef, _regressor_list(model, x, self.height_m)))
         return d, (float(e["sigma_d"]) if e else float("nan"))
 
     def examine(self, d_kf: float, d_sl: float, behaviour: str = "walk", f_s: float | None = None) -> bool:
@@ -300,7 +314,8 @@ class StepLengthCalibrator:
     def from_state(cls, d: dict) -> StepLengthCalibrator:
         """Rebuild from :meth:`get_state` output."""
         obj = cls(d["model"], float(d["band_hz"]), int(d["min_pairs"]), float(d["height_m"]),
-                  float(d["sigma_floor"]), float(d.get("band_prior_scale", math.inf)))  # older profiles: independent bands
+                  float(d["sigma_floor"]),
+                  float(d.get("band_prior_scale", math.inf)))  # older profiles: independent bands
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
         obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                      for k, v in d["fits"].items()}
