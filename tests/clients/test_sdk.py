@@ -176,8 +176,6 @@ def test_api_streamed_equals_local_synthetic(client, make_user, encoding) -> Non
     _api_vs_local(client, tok, synthesize("walk", seed=3), encoding)
 
 
-@pytest.mark.xfail(strict=True, reason="known gap: the stored mixed-rate batches (200 Hz with gyro / 25 Hz without) "
-                   "re-fed in ONE piece to an auto engine differ from the 1-s stream by up to 8 cm in Gait-DR")
 def test_stored_batches_refed_in_one_piece_equal_the_stream(client, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
     from clients.synth import synthesize
 
