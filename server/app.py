@@ -73,6 +73,11 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.settings = settings
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
+    # PostgreSQL uploads run in autocommit mode with one atomic write statement (see server.ingest.apply_batch)
+    app.state.upload_sessionmaker = (
+        make_sessionmaker(db_engine.execution_options(isolation_level="AUTOCOMMIT"))
+        if db_engine.dialect.name == "postgresql" and settings.pg_one_statement_writes else None
+    )
     app.state.limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")

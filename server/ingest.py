@@ -19,7 +19,7 @@ from contextlib import contextmanager, nullcontext
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import insert, select, update
+from sqlalchemy import insert, select, text, update
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
@@ -231,9 +231,15 @@ def apply_batch(
     batch: SensorBatch,
     attempts: int = 5,
     also: Callable[[Session], None] | None = None,
+    one_statement: bool = False,
 ) -> tuple[dict[str, Any], bool] | None:
     """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session
     of this user).
+
+    ``one_statement`` (PostgreSQL, ``db`` in autocommit mode, no ``also``): the whole write — versioned session
+    update, raw batch, positions, events — is ONE atomic statement (data-modifying CTE), so an upload costs
+    three round trips (auth, read, write) instead of eight (BEGIN, auth, read, update, three inserts, COMMIT);
+    under CPU contention every round trip waits for the database process to be scheduled.
 
     A retry of an applied sequence number with the same content returns the stored response
     (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
@@ -246,7 +252,7 @@ def apply_batch(
     h = digest(raw)
     for i in range(attempts):
         try:
-            return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also)
+            return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also, one_statement and also is None)
         except (OperationalError, _Raced):
             db.rollback()
             host.forget(session_id)
@@ -288,6 +294,7 @@ def _apply_once(
     raw: bytes,
     h: str,
     also: Callable[[Session], None] | None,
+    one_statement: bool = False,
 ) -> tuple[dict[str, Any], bool] | None:
     # Core statements on the hot path: one read transaction, the engine outside any transaction, one short
     # write transaction whose version check makes concurrent workers unable to apply a batch twice.
@@ -353,6 +360,20 @@ def _apply_once(
                 state = engine.to_bytes()
             behaviour, mode = upd.behaviour, upd.mode
         next_seq = seq + 1
+        if one_statement:
+            try:
+                with phase("write"):
+                    n = db.execute(_PG_WRITE, _pg_write_params(
+                        session_id, seq, row.version, state, behaviour, mode, resp, raw, h, batch)).scalar_one()
+                if n != 1:
+                    raise StaleDataError("session changed since it was read")
+            except (StaleDataError, IntegrityError):
+                db.rollback()
+                cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
+                return _replayed_core(db, session_id, seq, h, cur), True
+            if engine is not None:
+                host.remember(session_id, row.version + 1, engine)
+            return resp, False
         try:
             t_wl = time.perf_counter()
             with host.write_lock, phase("write"):
@@ -386,6 +407,48 @@ def _apply_once(
         if engine is not None:
             host.remember(session_id, row.version + 1, engine)
         return resp, False
+
+
+# PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement; the inserts take the
+# session id from the update's RETURNING, so when the version check fails nothing at all is written
+_PG_WRITE = text("""
+WITH u AS (
+    UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = :state, behaviour = :behaviour,
+        mode = :mode, sensor_config = CAST(:sensor_config AS json), n_positions = n_positions + :n_new
+    WHERE id = :sid AND version = :v0
+    RETURNING id
+), b AS (
+    INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at)
+    SELECT u.id, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, CAST(:response AS json), :received_at FROM u
+), p AS (
+    INSERT INTO positions (session_id, seq, t_ns, north, east, down, heading_rad, behaviour, mode, step_length_m, gyro_on)
+    SELECT u.id, :seq, x.* FROM u, unnest(CAST(:p_t AS bigint[]), CAST(:p_n AS float8[]), CAST(:p_e AS float8[]),
+        CAST(:p_d AS float8[]), CAST(:p_h AS float8[]), CAST(:p_b AS text[]), CAST(:p_m AS text[]),
+        CAST(:p_l AS float8[]), CAST(:p_g AS boolean[])) AS x
+), e AS (
+    INSERT INTO events (session_id, seq, t_ns, kind, detail)
+    SELECT u.id, :seq, x.* FROM u, unnest(CAST(:e_t AS bigint[]), CAST(:e_k AS text[]), CAST(:e_d AS json[])) AS x
+)
+SELECT count(*) FROM u
+""")
+
+
+def _pg_write_params(session_id: int, seq: int, version: int, state: bytes, behaviour: str, mode: str,
+                     resp: dict[str, Any], raw: bytes, h: str, batch: SensorBatch) -> dict[str, Any]:
+    ps, es = resp["positions"], resp["events"]
+
+    def col(k: str) -> list[Any]:
+        return [p[k] for p in ps]
+
+    return {
+        "sid": session_id, "v0": version, "v1": version + 1, "next_seq": seq + 1, "state": state,
+        "behaviour": behaviour, "mode": mode, "sensor_config": json.dumps(resp["sensor_config"]), "n_new": len(ps),
+        "seq": seq, "sha": h, "raw": raw, "n_acc": len(batch.acc_t_ns), "n_gyr": len(batch.gyr_t_ns),
+        "n_mag": len(batch.mag_t_ns), "response": json.dumps(resp, allow_nan=False), "received_at": utcnow(),
+        "p_t": col("t_ns"), "p_n": col("north"), "p_e": col("east"), "p_d": col("down"), "p_h": col("heading_rad"),
+        "p_b": col("behaviour"), "p_m": col("mode"), "p_l": col("step_length_m"), "p_g": col("gyro_on"),
+        "e_t": [e["t_ns"] for e in es], "e_k": [e["kind"] for e in es], "e_d": [json.dumps(e["detail"]) for e in es],
+    }
 
 
 def close_session(db: Session, host: EngineHost, user: User, session_id: int) -> TrackSession | None:

@@ -45,6 +45,9 @@ class Settings(BaseSettings):
         Sustained requests per second allowed per token (per server process); 0 = no limit.
     rate_limit_burst : int
         Requests a token may make at once after being idle.
+    pg_one_statement_writes : bool
+        PostgreSQL: write an upload (session update, raw batch, positions, events) as one atomic statement in
+        autocommit mode (3 round trips per upload instead of 8).
     """
 
     model_config = SettingsConfigDict(env_prefix="PEDNAV_", extra="ignore")
@@ -63,6 +66,7 @@ class Settings(BaseSettings):
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
     rate_limit_burst: int = Field(default=200, ge=1)
+    pg_one_statement_writes: bool = True
 
     @model_validator(mode="after")
     def _check_limits(self) -> Settings:

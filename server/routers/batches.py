@@ -45,7 +45,8 @@ def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes, qu
         settings, host = app.state.settings, app.state.host
         cred = _bearer_of(request)
         token = cred.credentials if cred is not None else request.query_params.get("token")
-        with app.state.sessionmaker() as db:
+        one = app.state.upload_sessionmaker is not None
+        with (app.state.upload_sessionmaker if one else app.state.sessionmaker)() as db:
             with phase("auth"):
                 user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
             if seq < 0:
@@ -53,7 +54,7 @@ def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes, qu
             with phase("decode"):
                 batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
             try:
-                out = apply_batch(db, host, user_id, session_id, seq, batch)
+                out = apply_batch(db, host, user_id, session_id, seq, batch, one_statement=one)
             except BatchError:
                 db.rollback()
                 raise

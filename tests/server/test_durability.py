@@ -102,3 +102,37 @@ def test_engine_helper_process_gives_identical_results(settings, client, make_us
     strip = lambda rs: [{k: v for k, v in r.items() if k != "session_id"} for r in rs]  # noqa: E731
     assert strip(got.responses) == strip(ref.responses)
     assert got.positions == ref.positions
+
+
+def test_postgresql_one_statement_write_stores_what_the_transactional_write_stores(settings, backend, make_user) -> None:  # type: ignore[no-untyped-def]
+    """PostgreSQL uploads write session, raw batch, positions and events in one statement (autocommit); the
+    stored rows equal those of the multi-statement transaction."""
+    if backend != "postgresql":
+        pytest.skip("PostgreSQL only")
+    from clients.sdk import PednavClient
+    from clients.simulators import FootSensorSimulator
+    from clients.synth import synthesize
+
+    rec = synthesize("walk", seed=6)
+    out = []
+    for flag in (True, False):
+        a = create_app(settings.model_copy(update={"migrate_on_startup": False, "pg_one_statement_writes": flag}))
+        try:
+            assert (a.state.upload_sessionmaker is not None) is flag
+            _, tok = make_user()
+            with TestClient(a) as c:
+                api = PednavClient(token=tok, http=c)
+                sid = FootSensorSimulator(rec).run(api, close=False).session_id
+                traj = api.trajectory(sid)["positions"]
+                ev = [{k: v for k, v in e.items()} for e in api.events(sid)]
+                batches = [{k: v for k, v in b.items() if k != "received_at"} for b in api._json("GET", f"/v1/sessions/{sid}/batches")]
+                again = c.put(f"/v1/sessions/{sid}/batches/3", content=api.request(
+                    "GET", f"/v1/sessions/{sid}/batches/3/raw").content, headers={**auth(tok), "content-type": MSGPACK_TYPE})
+                assert again.status_code == 200 and again.headers["x-pednav-replayed"] == "true"
+            with a.state.sessionmaker() as db:
+                s = db.get(TrackSession, sid)
+                out.append((traj, ev, batches, s.engine_state, s.n_positions, s.next_seq, s.sensor_config, s.mode))
+        finally:
+            a.state.db_engine.dispose()
+    assert len(out[0][0]) > 5 and any(out[0][1])
+    assert out[0] == out[1]
