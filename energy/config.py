@@ -32,6 +32,9 @@ class EngineConfig:
         A gyroscope/magnetometer sample older than this is not paired with an accelerometer sample [s].
     exam_timeout_s : float
         An examination with no ZUPT-KF stride after this long is given up [s].
+    heading_assist : bool
+        In Gait-DR, turn the gyroscope on while the magnetic field is disturbed (auto mode) instead of
+        holding the last good compass heading.
     """
 
     full_rate_hz: float = 200.0
@@ -42,6 +45,7 @@ class EngineConfig:
     t0_s: float = 30.0
     max_sample_age_s: float = 0.05
     exam_timeout_s: float = 10.0
+    heading_assist: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

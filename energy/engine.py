@@ -1,10 +1,10 @@
 """The streaming engine: one object per (user, device) session (DESIGN.md, "The engine contract").
 
-``Engine.feed(batch)`` synchronises the sensor streams on the accelerometer's time axis, recognises behaviour,
-and runs the navigation mode that the scheduler (:mod:`energy.scheduler`) chooses: the ZUPT-aided MARG Kalman
-filter while the gait is being calibrated, calibrated gait dead reckoning afterwards (004 Sections 2, 4).
-It returns the new positions, events and the sensor configuration the device must use next. The complete state
-serialises to bytes (:meth:`Engine.to_bytes`) through the safe codec of :mod:`energy.codec`.
+``Engine.feed(batch)`` pairs the sensor streams on the accelerometer's time axis, recognises behaviour, and
+navigates: where gyroscope samples arrived the ZUPT-aided MARG Kalman filter, elsewhere calibrated gait dead
+reckoning (004 Sections 2, 4); the two hand over at stances. The scheduler (:mod:`energy.scheduler`) decides
+which sensors the device should use next (004 Tables 1-3). The complete state serialises to bytes
+(:meth:`Engine.to_bytes`) through the safe codec of :mod:`energy.codec`.
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ _STATE_VERSION = 2
 _GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
+_ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
+_ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
 
 
 @dataclass
@@ -272,6 +274,8 @@ class Engine:
         self._pos: np.ndarray | None = None  # last output position [m NED]
         self._head = math.nan  # sensor heading at the last output [rad]
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
+        self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
+        self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
         self._labels_pending: list[tuple[float, str]] = []
 
@@ -493,6 +497,11 @@ class Engine:
         e = gait.take_pair(st.t_start_s)
         if e is None:
             return
+        if sched.assist_active:
+            self._clean_run = self._clean_run + 1 if gait.field_clean(e) else 0
+            if self._clean_run >= _ASSIST_RELEASE_STEPS:
+                events += sched.release_heading_assist(t_ns)
+                self._clean_run = 0
         if sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest:
             b = label if label in ("walk", "run") else "walk"
             d_sl, _ = gait.step_length(e, b)
@@ -516,12 +525,15 @@ class Engine:
         gait = self._gait
         assert gait is not None
         steps = gait.reckon(before_s, self._labels.at)
-        for step, _ in steps:
+        for step, _, source in steps:
             self._apply_labels(step.t_s, events)
             t_ns = self._ns(step.t_s)
             pos = step.position
             positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
             events += self._sched.tick(step.t_s, t_ns)
+            self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
+            if self._disturbed_run >= _ASSIST_AFTER_STEPS:
+                events += self._sched.request_heading_assist(t_ns)
             if self.trace is not None:
                 self.trace.append(np.array([t_ns], dtype=np.int64), np.array([pos]), np.array([step.behaviour]),
                                   np.array(["pdr"]), np.zeros(1, dtype=bool))
@@ -609,6 +621,8 @@ class Engine:
             "pos": self._pos,
             "head": self._head,
             "seg_t": self._seg_t,
+            "disturbed_run": self._disturbed_run,
+            "clean_run": self._clean_run,
             "nav_t": self._nav_t,
             "labels_pending": [[t, lab] for t, lab in self._labels_pending],
         }
@@ -638,6 +652,8 @@ class Engine:
         obj._pos = None if d["pos"] is None else np.asarray(d["pos"], dtype=float).reshape(3)
         obj._head = float(d["head"])
         obj._seg_t = float(d["seg_t"])
+        obj._disturbed_run = int(d["disturbed_run"])
+        obj._clean_run = int(d["clean_run"])
         obj._nav_t = float(d["nav_t"])
         obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]
         return obj

@@ -1,11 +1,11 @@
 """The Gait-DR half of the engine: low-rate step stream, online calibration against the ZUPT-KF, dead reckoning.
 
 Runs on a low-rate copy of the accelerometer/magnetometer streams (anti-aliased to ``pdr_rate_hz`` whatever
-the device sends), so its step events do not change when the device is de-sampled (004 Section 4.3). While
-the ZUPT-KF runs, each of its stances is paired with the step event of the same stance and feeds the
-step-length calibrator (004 eq. 15, Table 3), KF II (004 eq. 17-20) and the magnetometer calibration; in
-Gait-DR the step events are dead-reckoned (004 eq. 14, 16) with the compass heading, or the last good heading
-where the field is disturbed or absent.
+the device sends), so its step events do not change when the device is de-sampled (004 Section 4.3). Step
+events wait in a queue; the engine (:mod:`energy.engine`) hands each one either to a ZUPT-KF stance of the
+same stance (step-length calibration 004 eq. 15 and Table 3, KF II 004 eq. 17-20, magnetometer calibration,
+examination) or to dead reckoning (004 eq. 14, 16) with the compass heading, or the last good heading where
+the field is disturbed or absent. :attr:`GaitPipeline.horizon` bounds how late an event can still appear.
 """
 
 from __future__ import annotations
@@ -260,9 +260,14 @@ class GaitPipeline:
         self.dr = GaitDeadReckoner(position)
         self.heading = float(heading)
 
-    def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent]]:
-        """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active)."""
-        out: list[tuple[PdrStep, StepEvent]] = []
+    def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
+        """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
+
+        Returns ``(step, event, heading source)`` with source ``"compass"``, ``"disturbed"`` (a field was
+        measured but failed the disturbance test: the last good heading is held) or ``"none"`` (no calibrated
+        field at that stance: held too).
+        """
+        out: list[tuple[PdrStep, StepEvent, str]] = []
         todo = [e for e in self.queue if e.t_s < before_s]
         self.queue = [e for e in self.queue if e.t_s >= before_s]
         if self.dr is None:
@@ -272,13 +277,21 @@ class GaitPipeline:
             d, _ = self.step_length(e, b)
             m = self.mag_at(e)
             acc_st = np.asarray(e.acc_stance)
-            if m is not None and self.mag.ready and not self.mag.disturbed(acc_st, m):
+            source = "none"
+            if m is not None and self.mag.ready:
+                source = "disturbed" if self.mag.disturbed(acc_st, m) else "compass"
+            if source == "compass":
                 self.heading = self.mag.heading(acc_st, m)
                 self.compass_steps += 1
             else:
                 self.held_steps += 1  # disturbed or no magnetometer: hold the last good heading
-            out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e))
+            out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e, source))
         return out
+
+    def field_clean(self, e: StepEvent) -> bool:
+        """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""
+        m = self.mag_at(e)
+        return m is not None and self.mag.ready and not self.mag.disturbed(np.asarray(e.acc_stance), m)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:

@@ -45,6 +45,7 @@ class Scheduler:
         self.exam_started_s = 0.0
         self.nav_ready = False  # ZUPT-KF aligned and Gait-DR able to place a step (gyroscope needed until then)
         self.compass_ready = True  # Gait-DR has a heading source (a magnetometer with a fitted calibration)
+        self.assist_active = False  # gyroscope carries the heading through a magnetic disturbance
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -105,6 +106,20 @@ class Scheduler:
     def start_exam(self, t_s: float, t_ns: int) -> list[Event]:
         return self._start_exam(t_s, t_ns, reason="T0 elapsed")
 
+    def request_heading_assist(self, t_ns: int) -> list[Event]:
+        """Gait-DR is holding its heading on a disturbed field: the gyroscope carries it (auto mode)."""
+        if self.mode != "auto" or self.assist_active or not self.config.heading_assist or self.working != "pdr":
+            return []
+        self.assist_active = True
+        return [Event(t_ns, "gyroscope_requested", {"reason": "magnetic disturbance"})]
+
+    def release_heading_assist(self, t_ns: int) -> list[Event]:
+        """The field is clean again: the compass takes the heading back."""
+        if not self.assist_active:
+            return []
+        self.assist_active = False
+        return [Event(t_ns, "gyroscope_released", {"reason": "magnetic field clean"})]
+
     def tick(self, t_s: float, t_ns: int) -> list[Event]:
         """Data time advanced to ``t_s`` (a Gait-DR step): start a due examination, give up a stale one."""
         if self.exam_due(t_s):
@@ -123,6 +138,9 @@ class Scheduler:
         if passed:
             return [Event(t_ns, "examination_passed", detail)]
         events = [Event(t_ns, "examination_failed", detail)]
+        stale = self.profile.get(self.behaviour)
+        if stale is not None:
+            stale.calibrated = False  # not to be resumed until re-calibrated
         self.calibrating, self.l_zupt_m = self.behaviour, 0.0
         events += self._switch("zupt", t_ns, reason="step-length model no longer fits")
         return events
@@ -140,7 +158,7 @@ class Scheduler:
             return False
         if self.working == "zupt" or (self.mode == "auto" and not self.compass_ready):
             return True
-        return self.exam_active
+        return self.exam_active or self.assist_active
 
     def idle(self) -> bool:
         """Standing with the gyroscope off (auto mode)."""
@@ -162,6 +180,7 @@ class Scheduler:
         previous, self.working = self.working, working
         if working == "zupt":
             self.exam_active = False
+            self.assist_active = False
         return [Event(t_ns, "mode_switch", {"from": previous, "to": working, "reason": reason})]
 
     def _start_exam(self, t_s: float, t_ns: int, reason: str) -> list[Event]:
@@ -183,12 +202,13 @@ class Scheduler:
             "exam_started_s": self.exam_started_s,
             "nav_ready": self.nav_ready,
             "compass_ready": self.compass_ready,
+            "assist_active": self.assist_active,
         }
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> Scheduler:
         obj = cls(d["mode"], EngineConfig.from_dict(d["config"]), Profile.from_dict(d["profile"]))
         for key in ("working", "behaviour", "calibrating", "l_zupt_m", "last_exam_s", "exam_active", "exam_started_s",
-                    "nav_ready", "compass_ready"):
+                    "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
         return obj

@@ -156,3 +156,20 @@ def test_tick_starts_a_due_examination_and_gives_up_a_stale_one() -> None:
     assert s.tick(10.0 + CFG.t0_s + CFG.exam_timeout_s - 0.5, 0) == [] and s.exam_active
     skipped = s.tick(10.0 + CFG.t0_s + CFG.exam_timeout_s + 0.5, 0)
     assert [e.kind for e in skipped] == ["examination_skipped"] and not s.exam_active and not s.gyro_wanted()
+
+
+def test_heading_assist_turns_the_gyro_on_in_a_disturbance_and_off_after_it() -> None:
+    s = aligned("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    assert not s.gyro_wanted()
+    assert [e.kind for e in s.request_heading_assist(0)] == ["gyroscope_requested"]
+    assert s.gyro_wanted() and s.request_heading_assist(0) == []
+    assert [e.kind for e in s.release_heading_assist(0)] == ["gyroscope_released"]
+    assert not s.gyro_wanted()
+    off = aligned("auto", EngineConfig(l0_m=20.0, heading_assist=False), Profile())
+    off.on_behaviour("walk", 1.0, 1)
+    walk_to(off, 20.0)
+    off.on_calibrated(10.0, 10)
+    assert off.request_heading_assist(0) == [] and not off.gyro_wanted()
