@@ -297,9 +297,15 @@ class StepSegmenter:
 
     @classmethod
     def from_state(cls, d: dict) -> StepSegmenter:
-        """Rebuild from :meth:`get_state` output."""
+        """Rebuild from :meth:`get_state` output.
+
+        A state written by the earlier threshold-only segmenter (no ``"ist"``; its first nine parameters are
+        the same) restores as a fresh detector with that filter history: at most the step in flight is lost.
+        """
         obj = cls(*[float(v) for v in d["params"]])
         obj._fir = FirFilter.from_state(d["fir"])
+        if "ist" not in d:
+            return obj
         obj._flushed = bool(d["flushed"])
         for a in cls._ARRAYS:
             ref = getattr(obj, "_" + a)

@@ -106,3 +106,13 @@ def test_gyro_off_step_count_within_2pct_of_truth(gdin_dir: Path, name: str, rat
     seg = StepSegmenter(rate)
     n = len(seg.feed(t_ns * 1e-9, acc)) + len(seg.flush())  # gyroscope never passed
     assert abs(n - truth) <= 0.02 * truth, f"{n} steps vs {truth} strides"
+
+
+def test_state_of_the_earlier_segmenter_restores_as_a_fresh_detector() -> None:
+    old = {"params": [25.0, 0.12, 1.5, 5.0, 0.6, 0.4, 2.5, 8.0, 0.16], "fir": StepSegmenter(25.0)._fir.get_state(),
+           "t_hist": np.zeros(2), "win": np.zeros((2, 3)), "stance": False, "peak": 0.0, "last_onset": 1.0,
+           "last_event": 1.0, "last_stance_end": 1.2, "periods": [1.1], "buf": np.zeros(0), "count": 10,
+           "n_events": 1}
+    seg = StepSegmenter.from_state(loads(dumps(old)))
+    t, acc = synthetic_foot(25.0, strides=6)
+    assert len(seg.feed(t, acc)) == 6 and seg.min_period_s == 0.4
