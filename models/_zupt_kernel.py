@@ -85,6 +85,10 @@ PAR = {
             "align_timeout_s",  # [s] no strict rest by then: align on the adaptive detector's first stance
             "trapezoid",  # 1: integrate the mean of consecutive samples (better at low rates)
             "intensity_mode",  # 0: decaying peak of the statistic, 1: exp. mean of its log10, 2: decaying peak |a|
+            "gyr_sat_frac",  # a gyro axis within this fraction of the largest |rate| seen so far may be clipped
+            "gyr_sat_min",  # [rad/s] ... but only above this (below it no gyro range is plausible)
+            "gyr_sat_sigma",  # [rad/s] 1-sigma rate a clipped sample may have missed (tilt variance, 0 = off)
+            "gyr_delay_s",  # [s] the gyro output lags the accelerometer's by this (read the gyro this much later)
         )
     )
 }
@@ -118,6 +122,7 @@ FS = {
             "dom_ref",  # first straight segment's heading: building dominant directions are dom_ref + k*90 deg
             "dom_valid",
             "t_first",  # time of the first sample [s]
+            "gyr_peak",  # largest single-axis |rate| seen so far [rad/s] (the sensor's range once it clips)
         )
     )
 }
@@ -184,6 +189,11 @@ _ATO = PAR["align_timeout_s"]
 _F_TFIRST = FS["t_first"]
 _TRAP = PAR["trapezoid"]
 _IMODE = PAR["intensity_mode"]
+_GSF = PAR["gyr_sat_frac"]
+_GSM = PAR["gyr_sat_min"]
+_GSS_SAT = PAR["gyr_sat_sigma"]
+_F_GPEAK = FS["gyr_peak"]
+_GDEL = PAR["gyr_delay_s"]
 
 
 @njit(cache=True)
@@ -507,6 +517,19 @@ def _shoe_at(i, t, acc, gyr, hw, g, sa2, sw2):
 
 
 @njit(cache=True)
+def _gyr_at(t, gyr, tq):
+    """Angular rate [rad/s] at time ``tq`` [s], linear between samples (held beyond the buffer's ends)."""
+    n = t.shape[0]
+    if tq <= t[0]:
+        return gyr[0].copy()
+    if tq >= t[n - 1]:
+        return gyr[n - 1].copy()
+    j = np.searchsorted(t, tq) - 1
+    u = (tq - t[j]) / (t[j + 1] - t[j])
+    return (1.0 - u) * gyr[j] + u * gyr[j + 1]
+
+
+@njit(cache=True)
 def _hdr(x, P, dx, fs, par):
     """Heuristic drift reduction (003 Sec. drift reduction; Borenstein's HDR): while strides keep one
     direction, the heading is pulled back to that segment's direction; a turn starts a new segment."""
@@ -567,7 +590,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
     n_st = 0
     i = i0
     while i < n_all:
-        if not final and (i + 1 >= n_all or t[n_all - 1] <= t[i] + hw + ew):
+        if not final and (i + 1 >= n_all or t[n_all - 1] <= t[i] + hw + ew + par[_GDEL]):
             break
         # ---- SHOE / GLRT statistic (002 eq. 1-2), eroded: max over +-erosion_s (no ZUPT at swing edges) ----
         T = _shoe_at(i, t, acc, gyr, hw, g, sa2, sw2)
@@ -679,9 +702,16 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         C0 = quat_dcm_s(q)
         # rate and specific force over (t[i-1], t[i]]: this sample's, or the mean of both ends (trapezoid)
         ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
-        wx = (0.5 * (gyr[i, 0] + gyr[ip, 0]) - x[13]) * dt
-        wy = (0.5 * (gyr[i, 1] + gyr[ip, 1]) - x[14]) * dt
-        wz = (0.5 * (gyr[i, 2] + gyr[ip, 2]) - x[15]) * dt
+        if par[_GDEL] > 0.0:
+            # inter-sensor latency: the rate that belongs with this specific force is read gyr_delay_s later
+            w_i = _gyr_at(t, gyr, t[i] + par[_GDEL])
+            w_p = _gyr_at(t, gyr, t[ip] + par[_GDEL])
+        else:
+            w_i = gyr[i]
+            w_p = gyr[ip]
+        wx = (0.5 * (w_i[0] + w_p[0]) - x[13]) * dt
+        wy = (0.5 * (w_i[1] + w_p[1]) - x[14]) * dt
+        wz = (0.5 * (w_i[2] + w_p[2]) - x[15]) * dt
         if par[_FO] > 0:
             dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
         else:
@@ -711,6 +741,17 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                 P[6, 6] += qs
                 P[7, 7] += qs
                 P[8, 8] += qs
+            if par[_GSS_SAT] > 0.0:
+                # range clipping: a sample at the largest |rate| seen so far (above any plausible range floor)
+                # may have lost rotation; the missed angle is mostly pitch/roll of the swinging foot, so the
+                # tilt variance grows (the next ZUPT re-levels it and corrects velocity/position through P)
+                wm = max(abs(gyr[i, 0]), abs(gyr[i, 1]), abs(gyr[i, 2]))
+                if wm > fs[_F_GPEAK]:
+                    fs[_F_GPEAK] = wm
+                if wm >= par[_GSM] and wm >= par[_GSF] * fs[_F_GPEAK]:
+                    qsat = (par[_GSS_SAT] * dt) ** 2
+                    P[6, 6] += qsat
+                    P[7, 7] += qsat
         fs[1] = t[i]
         ist[3] = 1
         # ---- stance bookkeeping and measurement updates ----

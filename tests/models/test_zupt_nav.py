@@ -295,3 +295,59 @@ def test_noisy_sensor_without_a_strict_rest_still_aligns():
     t_init = out.t_s[np.argmax(np.isfinite(out.heading))]
     assert t_init >= nav.config.align_timeout_s
     assert len(out.stances) >= 4
+
+
+def test_clipped_gyro_grows_tilt_variance_and_recovers_the_distance():
+    # a gyro whose range (6 rad/s) is below the swing's peak rate (9.4 rad/s) under-rotates every swing: the
+    # tilt is then wrong for the rest of the swing and gravity leaks into the horizontal. The clipped samples
+    # grow the tilt variance, so the next ZUPT re-levels and corrects velocity and position through P.
+    t, acc, gyr, dist = synthetic_walk(rotvec_to_dcm(np.array([0.4, 0.2, 1.0])), n_strides=8, swing_s=0.4)
+    assert np.abs(gyr).max() > 9.0
+    clipped = np.clip(gyr, -6.0, 6.0)
+    err = {}
+    for sigma in (0.0, 5.0):
+        out = ZuptNavigator(ZuptConfig(gyr_sat_sigma=sigma, gyr_delay_s=0.0)).run(t, acc, clipped)
+        err[sigma] = abs(np.linalg.norm(out.stances[-1].position[:2] - out.stances[0].position[:2]) / dist - 1)
+    assert err[0.0] > 0.007
+    assert err[5.0] < 0.4 * err[0.0]
+    # unclipped data: the largest rates seen also count as possibly clipped, which must cost nothing
+    out = ZuptNavigator(ZuptConfig(gyr_delay_s=0.0)).run(t, acc, gyr)
+    assert np.linalg.norm(out.stances[-1].position[:2] - out.stances[0].position[:2]) == pytest.approx(dist, rel=0.003)
+
+
+def test_gyro_delay_compensation_restores_the_undelayed_solution():
+    t, acc, gyr, _ = synthetic_walk(rotvec_to_dcm(np.array([0.4, 0.2, 1.0])), swing_s=0.4)
+    ref = ZuptNavigator(ZuptConfig(gyr_sat_sigma=0.0, gyr_delay_s=0.0)).run(t, acc, gyr)
+    lagged = np.stack([np.interp(t - 0.005, t, gyr[:, k]) for k in range(3)], axis=1)  # gyro 5 ms late
+    dev = {}
+    for d in (0.0, 0.005):
+        out = ZuptNavigator(ZuptConfig(gyr_sat_sigma=0.0, gyr_delay_s=d)).run(t, acc, lagged)
+        assert len(out.stances) == len(ref.stances)
+        dev[d] = np.abs(out.stances[-1].position - ref.stances[-1].position).max()  # where the walk ends [m]
+    assert dev[0.0] > 0.02
+    assert dev[0.005] < 0.005
+
+
+@pytest.mark.parametrize("delay_s", [0.005, 0.02])
+def test_chunk_invariance_with_gyro_delay(delay_s):
+    t, acc, gyr, _ = synthetic_walk(rotvec_to_dcm(np.array([0.4, 0.2, 1.0])))
+    cfg = ZuptConfig(gyr_delay_s=delay_s)
+    ref = ZuptNavigator(cfg).run(t, acc, gyr)
+    rng = np.random.default_rng(3)
+    nav = ZuptNavigator(cfg)
+    cuts = list(np.sort(rng.choice(t.size, 40, replace=False)))
+    parts = [nav.process(t[a:b], acc[a:b], gyr[a:b]) for a, b in _chunks(t.size, cuts)] + [nav.flush()]
+    out = NavOutput.concatenate(parts)
+    np.testing.assert_allclose(out.pos, ref.pos, atol=1e-9, rtol=0)
+    assert len(out.stances) == len(ref.stances)
+
+
+def test_state_from_before_the_gyro_peak_entry_restores():
+    t, acc, gyr, _ = synthetic_walk()
+    nav = ZuptNavigator()
+    nav.process(t[:700], acc[:700], gyr[:700])
+    state = nav.get_state()
+    state["fs"] = state["fs"][:-1]  # a state saved before FS gained "gyr_peak"
+    back = ZuptNavigator.from_state(state)
+    assert back.get_state()["fs"][-1] == 0.0
+    back.process(t[700:], acc[700:], gyr[700:])
