@@ -11,6 +11,16 @@ Recordings are paired by experiment number NN. The stride table's ``strideIndex`
 series; for files at another rate (exp 42/43 at 250 Hz) the stride sample is found by its ``timestamp``.
 Arrays other than ``imu_data``/``timestamps`` in format C files (pyshoeTrajectory, traj_wcf, gt ...) are the
 dataset authors' estimates or unrelated leftovers and are never imported.
+
+Truth caveats (measured 2026-11-22; the truth is imported as stored, never corrected):
+
+- exp27: GCP_meters describe one 27 m x 1.8 m loop (57.6 m) walked in ``numberOfStrides`` = 62 strides, i.e.
+  0.93 m per stride, whereas every other usable recording of the same walker implies 1.22-1.47 m per stride
+  (truth path / numberOfStrides). Our ZUPT filter, which is 1-3 % short on the others, finds 1.13 m per stride
+  inside a 26.6 m x 2.5 m box and 70.4 m in all: the stored path is most likely about 12 m short (more
+  walking than the GCP loop), so exp27's distance error (+22 %) says nothing about the filter.
+- own_obsolete (exp 06-28): the truth path is the polygon through the corner GCPs; a walker rounds corners,
+  so the walked path is somewhat shorter than the truth path there (not measurable from these files).
 """
 
 from __future__ import annotations
