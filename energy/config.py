@@ -34,7 +34,9 @@ class EngineConfig:
         An examination with no ZUPT-KF stride after this long is given up [s].
     heading_assist : bool
         In Gait-DR, turn the gyroscope on while the magnetic field is disturbed (auto mode) instead of
-        holding the last good compass heading.
+        holding the last good compass heading. Off: on gdin it cost gyroscope time and made positions worse
+        (the ZUPT-KF restarts from the held heading, so a turn missed before the gyroscope woke stays missed,
+        and the compass no longer re-anchors the heading while the gyroscope runs).
     """
 
     full_rate_hz: float = 200.0
@@ -45,7 +47,7 @@ class EngineConfig:
     t0_s: float = 30.0
     max_sample_age_s: float = 0.05
     exam_timeout_s: float = 10.0
-    heading_assist: bool = True
+    heading_assist: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -35,6 +35,10 @@ _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> an
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
+_G = 9.81  # [m/s^2]
+_REST_GYR = 1.0  # |w| below this [rad/s] ...
+_REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
+_REST_S = 0.04  # ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start
 
 
 @dataclass
@@ -274,6 +278,8 @@ class Engine:
         self._pos: np.ndarray | None = None  # last output position [m NED]
         self._head = math.nan  # sensor heading at the last output [rad]
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
+        self._await_rest = False  # a restarting segment waits for a still foot
+        self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
         self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
         self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
@@ -394,10 +400,21 @@ class Engine:
                     self._head = gait.heading
                 self._apply_labels(t_b, events)
                 self._seg_t = t_b
-                if nav.initialised:
-                    nav.restart(nav.position, self._head if math.isfinite(self._head) else nav.heading)
+                self._await_rest = nav.initialised  # a restart waits for the foot to be still
+                self._pre = None
                 self._in_seg, self._seg_first = True, True
                 self._ops.pop(0)
+            elif kind == "samples" and self._await_rest:
+                rest = self._rest_start(op)
+                self._ops.pop(0)
+                if rest is not None:
+                    i, acc_rest = rest
+                    pre = self._pre
+                    assert pre is not None
+                    self._pre = None
+                    self._await_rest = False
+                    nav.restart(nav.position, self._head if math.isfinite(self._head) else nav.heading, acc_rest)
+                    self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
                 out = nav.process(op[1], op[2], op[3], op[4])
                 if len(out.t_s):
@@ -442,6 +459,34 @@ class Engine:
         while self._labels_pending and self._labels_pending[0][0] <= upto_s:
             td, label = self._labels_pending.pop(0)
             events += self._sched.on_behaviour(label, td, self._ns(td))
+
+    def _rest_start(self, op: tuple) -> tuple[int, np.ndarray] | None:
+        """Look for the first still stretch of a restarting segment (the foot on the ground).
+
+        Samples before it are dropped (Gait-DR covers them); the trailing candidate stretch is kept in
+        ``self._pre`` across calls. Returns its first index in ``self._pre`` and its mean specific force.
+        """
+        t, a, g, m = op[1], op[2], op[3], op[4]
+        if self._pre is not None:
+            p = self._pre
+            pm = p[3] if p[3] is not None else np.full((len(p[0]), 3), np.nan)
+            mm = m if m is not None else np.full((len(t), 3), np.nan)
+            t, a, g = np.concatenate([p[0], t]), np.concatenate([p[1], a]), np.concatenate([p[2], g])
+            m = np.concatenate([pm, mm]) if (p[3] is not None or op[4] is not None) else None
+        still = (np.linalg.norm(g, axis=1) < _REST_GYR) & (np.abs(np.linalg.norm(a, axis=1) - _G) < _REST_ACC)
+        start = -1  # first index of the current still run
+        for k in range(len(t)):
+            if not still[k]:
+                start = -1
+                continue
+            if start < 0:
+                start = k
+            if t[k] - t[start] >= _REST_S:
+                self._pre = (t, a, g, m)
+                return start, a[start : k + 1].mean(axis=0)
+        keep = start if start >= 0 else len(t)
+        self._pre = (t[keep:], a[keep:], g[keep:], None if m is None else m[keep:])
+        return None
 
     def _nav_ops(self, out: NavOutput) -> list[tuple]:
         """ZUPT-KF output as queue entries: per-sample trace pieces and stances, in time order."""
@@ -621,6 +666,8 @@ class Engine:
             "pos": self._pos,
             "head": self._head,
             "seg_t": self._seg_t,
+            "await_rest": self._await_rest,
+            "pre": None if self._pre is None else list(self._pre),
             "disturbed_run": self._disturbed_run,
             "clean_run": self._clean_run,
             "nav_t": self._nav_t,
@@ -652,6 +699,11 @@ class Engine:
         obj._pos = None if d["pos"] is None else np.asarray(d["pos"], dtype=float).reshape(3)
         obj._head = float(d["head"])
         obj._seg_t = float(d["seg_t"])
+        obj._await_rest = bool(d["await_rest"])
+        pre = d["pre"]
+        obj._pre = None if pre is None else (
+            np.asarray(pre[0], dtype=float), np.asarray(pre[1], dtype=float).reshape(-1, 3),
+            np.asarray(pre[2], dtype=float).reshape(-1, 3), None if pre[3] is None else np.asarray(pre[3], dtype=float).reshape(-1, 3))
         obj._disturbed_run = int(d["disturbed_run"])
         obj._clean_run = int(d["clean_run"])
         obj._nav_t = float(d["nav_t"])

@@ -46,6 +46,7 @@ class Scheduler:
         self.nav_ready = False  # ZUPT-KF aligned and Gait-DR able to place a step (gyroscope needed until then)
         self.compass_ready = True  # Gait-DR has a heading source (a magnetometer with a fitted calibration)
         self.assist_active = False  # gyroscope carries the heading through a magnetic disturbance
+        self.failed: set[str] = set()  # behaviours whose examination failed in this session
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -58,13 +59,13 @@ class Scheduler:
         if self.mode != "auto" or label not in _MOVING:
             return events
         if self.working == "pdr" and previous in _MOVING and label != previous:
-            if self.profile.is_calibrated(label):
+            if self._resumable(label):
                 events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
             else:
                 self.calibrating, self.l_zupt_m = label, 0.0
                 events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
         elif self.working == "zupt" and self.calibrating != label:
-            if self.profile.is_calibrated(label):
+            if self._resumable(label):
                 events += self._switch("pdr", t_ns, reason=f"profile has {label} calibration")
                 events += self._start_exam(t_s, t_ns, reason="check stored calibration")
             else:
@@ -87,6 +88,7 @@ class Scheduler:
     def on_calibrated(self, t_s: float, t_ns: int, detail: dict[str, Any] | None = None) -> list[Event]:
         """The engine fitted the step model and KF II after L0: switch to Gait-DR. ``detail`` joins the event."""
         info = {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m, **(detail or {})}
+        self.failed.discard(info["behaviour"])
         events = [Event(t_ns, "calibration_done", info)]
         self.calibrating = None
         self.last_exam_s = t_s
@@ -138,9 +140,7 @@ class Scheduler:
         if passed:
             return [Event(t_ns, "examination_passed", detail)]
         events = [Event(t_ns, "examination_failed", detail)]
-        stale = self.profile.get(self.behaviour)
-        if stale is not None:
-            stale.calibrated = False  # not to be resumed until re-calibrated
+        self.failed.add(self.behaviour)  # not resumed in this session until re-calibrated
         self.calibrating, self.l_zupt_m = self.behaviour, 0.0
         events += self._switch("zupt", t_ns, reason="step-length model no longer fits")
         return events
@@ -174,6 +174,10 @@ class Scheduler:
         return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz)  # 004 Section 4.3
 
     # ------------------------------------------------------------------ internals
+    def _resumable(self, behaviour: str) -> bool:
+        """Calibrated (profile or this session) and not failed an examination since."""
+        return self.profile.is_calibrated(behaviour) and behaviour not in self.failed
+
     def _switch(self, working: str, t_ns: int, reason: str) -> list[Event]:
         if working == self.working:
             return []
@@ -203,6 +207,7 @@ class Scheduler:
             "nav_ready": self.nav_ready,
             "compass_ready": self.compass_ready,
             "assist_active": self.assist_active,
+            "failed": sorted(self.failed),
         }
 
     @classmethod
@@ -211,4 +216,5 @@ class Scheduler:
         for key in ("working", "behaviour", "calibrating", "l_zupt_m", "last_exam_s", "exam_active", "exam_started_s",
                     "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
+        obj.failed = set(d["failed"])
         return obj

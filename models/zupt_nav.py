@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from models import _zupt_kernel as _k
+from models.attitude import align_at_rest
+from models.rotations import dcm_to_quat
 
 __all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator"]
 
@@ -433,14 +435,17 @@ class ZuptNavigator:
         self._P[6, 6] = self._P[7, 7] = self.config.p0_tilt**2
         self._P[8, 8] = self.config.p0_yaw**2
 
-    def restart(self, position_ned: np.ndarray, heading_rad: float) -> None:
-        """Begin a new segment after a gap in the data (the gyroscope was off).
+    def restart(self, position_ned: np.ndarray, heading_rad: float, acc_rest: np.ndarray | None = None) -> None:
+        """Begin a new segment after a gap in the data (the gyroscope was off), at a stance.
 
         Like :meth:`reset`, and the detector also forgets everything before the gap (buffered samples, stance
-        state, gait intensity), so no stance or detector window spans the gap. The segment may start anywhere
-        in the gait cycle; its first stance reports a zero increment. Attitude, biases and the magnetic
-        reference are kept.
+        state, gait intensity), so no stance or detector window spans the gap; its first stance reports a zero
+        increment. Biases and the magnetic reference are kept; with ``acc_rest`` (mean specific force over the
+        quiet samples the segment starts with [m/s^2], body frame) roll and pitch are re-levelled from it
+        (001 eq. 1-3), otherwise the attitude of the last stance is kept.
         """
+        if acc_rest is not None:
+            self._x[0:4] = dcm_to_quat(align_at_rest(acc_rest))
         self.reset(position_ned, heading_rad)
         self._bt = np.zeros(0)
         self._ba = np.zeros((0, 3))

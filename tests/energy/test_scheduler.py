@@ -159,16 +159,16 @@ def test_tick_starts_a_due_examination_and_gives_up_a_stale_one() -> None:
 
 
 def test_heading_assist_turns_the_gyro_on_in_a_disturbance_and_off_after_it() -> None:
-    s = aligned("auto", CFG, Profile())
+    s = aligned("auto", EngineConfig(l0_m=20.0, heading_assist=True), Profile())
     s.on_behaviour("walk", 1.0, 1)
-    walk_to(s, CFG.l0_m)
+    walk_to(s, 20.0)
     s.on_calibrated(10.0, 10)
     assert not s.gyro_wanted()
     assert [e.kind for e in s.request_heading_assist(0)] == ["gyroscope_requested"]
     assert s.gyro_wanted() and s.request_heading_assist(0) == []
     assert [e.kind for e in s.release_heading_assist(0)] == ["gyroscope_released"]
     assert not s.gyro_wanted()
-    off = aligned("auto", EngineConfig(l0_m=20.0, heading_assist=False), Profile())
+    off = aligned("auto", EngineConfig(l0_m=20.0), Profile())  # off by default
     off.on_behaviour("walk", 1.0, 1)
     walk_to(off, 20.0)
     off.on_calibrated(10.0, 10)
