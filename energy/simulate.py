@@ -453,6 +453,7 @@ def simulate(
     measure: bool = True,
     encode: Encoder | None = None,
     components: bool = True,
+    repeats: int = 1,
 ) -> dict[str, Any]:
     """Scheduler (``auto``) vs always-on baseline (``zupt``) on one recording with truth.
 
@@ -477,6 +478,10 @@ def simulate(
         ``batch -> uploaded bytes`` (default :func:`model_bytes`).
     components : bool
         Split the measured CPU time by engine component.
+    repeats : int
+        With ``measure``: replay each engine this many times, interleaved, and keep for each the run with the
+        least total CPU time (timing noise on a shared machine only ever adds time). Positions and sensor
+        schedules are identical across repeats (the engine is deterministic).
 
     Returns
     -------
@@ -488,10 +493,12 @@ def simulate(
     """
     if measure:
         _warm_up(batch, batch_seconds)
-    runs = {
-        m: run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components)
-        for m in ("auto", "zupt")
-    }
+    runs: dict[str, RunResult] = {}
+    for _ in range(max(int(repeats), 1) if measure else 1):
+        for m in ("auto", "zupt"):
+            r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components)
+            if m not in runs or sum(r.cpu_us_by_class.values()) < sum(runs[m].cpu_us_by_class.values()):
+                runs[m] = r
     sched, base = runs["auto"], runs["zupt"]
     steps = max(int(truth_steps), 1)
 
@@ -546,7 +553,8 @@ def simulate(
         "truth_path_m": float(np.sum(np.linalg.norm(np.diff(truth_pos[:, :2], axis=0), axis=1))),
         "profile": profile.name,
         "compute_costs_measured": (
-            {"date": date.today().isoformat(), "machine": _machine(), "how": "thread CPU time of every Engine.feed, this run"}
+            {"date": date.today().isoformat(), "machine": _machine(),
+             "how": f"thread CPU time of every Engine.feed, least of {max(int(repeats), 1)} interleaved runs per engine"}
             if measure
             else dict(profile.compute.measured)
         ),

@@ -29,7 +29,7 @@ def _simulate(args: argparse.Namespace) -> int:
     doc.update(
         simulate(
             profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds,
-            measure=not args.stored_costs, encode=_upload_bytes,
+            measure=not args.stored_costs, encode=_upload_bytes, repeats=args.repeats,
         )
     )
     if args.plot:
@@ -122,6 +122,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--profile", default="foot-004", help="device power profile (energy/profiles/NAME.json) or a path")
     s.add_argument("--batch-seconds", type=float, default=1.0, help="upload batch duration [s]")
     s.add_argument("--plot", metavar="PNG", help="write mode/behaviour/gyroscope timelines of the scheduler")
+    s.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="replay each engine this many times (interleaved) and charge the least CPU time of each (default 3)",
+    )
     s.add_argument(
         "--stored-costs",
         action="store_true",
