@@ -347,6 +347,8 @@ class Engine:
             self._labels_pending.append((td, label))
         if self._gait is not None and len(t_s):
             self._gait.feed(t_s, acc, mag)
+        if self._gait is not None and final:
+            self._gait.flush()
         self._ingest(t_s, acc, gyr, mag, final)
         self._drain(final, positions, events)
         if len(t_s):

@@ -152,8 +152,11 @@ class GaitPipeline:
         self.has_mag = self.has_mag or bool(has_mag.any())
         x = np.c_[acc, np.where(has_mag[:, None], mag, 0.0), has_mag.astype(float)]
         lt, lx = self._low.process(t_s, x)
-        if not len(lt):
-            return
+        if len(lt):
+            self._append_low(lt, lx)
+
+    def _append_low(self, lt: np.ndarray, lx: np.ndarray) -> None:
+        """Low-rate samples ``[acc(3), mag(3), mag flag]`` to the field buffer and the step segmentation."""
         valid = lx[:, 6] > 0.999
         self._mag_t = np.concatenate([self._mag_t, lt[valid]])
         self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
@@ -164,6 +167,21 @@ class GaitPipeline:
         self._mag_t, self._mag_v = self._mag_t[keep], self._mag_v[keep]
         live = {e.index for e in self.queue}
         self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
+
+    def flush(self) -> None:
+        """End of the session: the step events the filters and the segmenter's look-ahead still hold."""
+        low = self._low
+        if low.dec is not None:
+            ft, fx = low.dec.flush()
+            fs = ft / 1e9
+            keep = fs > low.last_t
+            if np.any(keep):
+                self._append_low(fs[keep], fx[keep])
+                low.last_t = float(fs[keep][-1])
+        for e in self._seg.flush():
+            self.queue.append(e)
+            self.stance_mag[e.index] = self._mag_before(e.t_s)
+        self.t_in = math.inf
 
     @property
     def horizon(self) -> float:
