@@ -139,6 +139,7 @@ class GaitPipeline:
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
         self.t_in = -math.inf  # newest input sample time [s]
         self.has_mag = False  # the device has sent magnetometer samples in this session
+        self._mag_fit_n = -1  # magnetometer stances at the last calibration fit
         self.recent_d: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # last ZUPT-KF strides [m]
         self.compass_steps = 0
         self.held_steps = 0
@@ -227,14 +228,22 @@ class GaitPipeline:
 
     def compass_ready(self) -> bool:
         """True without a magnetometer, or once its hard-iron calibration is fitted."""
-        return self.mag.fit() if self.has_mag else True
+        return self._fit_compass() if self.has_mag else True
+
+    def _fit_compass(self) -> bool:
+        """Refit the magnetometer calibration only when stances were added since the last fit."""
+        n = self.mag.n_stances
+        if n != self._mag_fit_n:
+            self.mag.fit()
+            self._mag_fit_n = n
+        return self.mag.ready
 
     def heading_source(self) -> bool:
         """Gait-DR can follow turns with the gyroscope off: a magnetometer with a fitted calibration."""
         return self.has_mag and self.compass_ready()
 
     def fit(self, behaviour: str) -> dict:
-        self.mag.fit()
+        self._fit_compass()
         return self.cal.fit(_behaviour(behaviour))
 
     def calibration_state(self) -> dict[str, Any]:
@@ -271,6 +280,7 @@ class GaitPipeline:
         compass = step_model.get("compass")
         if isinstance(compass, dict) and not self.mag.ready:
             self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
+            self._mag_fit_n = self.mag.n_stances
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
             kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])
@@ -333,7 +343,7 @@ class GaitPipeline:
             "queue": [event_row(e) for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
-            "heading": self.heading, "t_in": self.t_in, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
+            "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
         }
 
@@ -351,6 +361,7 @@ class GaitPipeline:
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
+        obj._mag_fit_n = int(d["mag_fit_n"])
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         return obj
