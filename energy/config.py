@@ -50,7 +50,7 @@ class EngineConfig:
     heading_assist: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # flat: no deep copy
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> EngineConfig:

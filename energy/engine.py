@@ -361,8 +361,8 @@ class Engine:
         idx = np.flatnonzero(has)
         if len(idx):
             ts = t_s[idx]
-            gaps = np.flatnonzero(np.diff(np.r_[self._last_gyr_s, ts]) > _GYRO_GAP_S)
-            for lo, hi in zip(np.r_[0, gaps], np.r_[gaps, len(ts)]):
+            gaps = np.flatnonzero(np.diff(ts, prepend=self._last_gyr_s) > _GYRO_GAP_S).tolist()
+            for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
                     continue
                 if lo in gaps or not self._seg_open:

@@ -76,9 +76,10 @@ class _LowRate:
         fast = (t_s - prev) < 1.0 / (1.6 * self.rate_hz)
         outs_t, outs_x = [], []
         edges = np.flatnonzero(np.diff(fast.astype(np.int8))) + 1
-        for lo, hi in zip(np.r_[0, edges], np.r_[edges, len(t_s)]):
+        cuts = edges.tolist()
+        for lo, hi in zip([0, *cuts], [*cuts, len(t_s)]):
             if fast[lo]:
-                dt = float(np.median(np.diff(np.r_[prev[lo], t_s[lo:hi]])))
+                dt = float(np.median(np.diff(t_s[lo:hi], prepend=prev[lo])))
                 factor = max(1, int(round(1.0 / (dt * self.rate_hz))))
                 if self.dec is None or factor != self.dec.factor:
                     self.dec = Decimator(self.rate_hz * factor, self.rate_hz, channels=x.shape[1])
@@ -231,9 +232,13 @@ class GaitPipeline:
         return self._fit_compass() if self.has_mag else True
 
     def _fit_compass(self) -> bool:
-        """Refit the magnetometer calibration only when stances were added since the last fit."""
+        """Refit the magnetometer calibration when the stances grew by a tenth since the last fit.
+
+        A fit costs time linear in the stances, so refitting at every stance would cost quadratic time over a
+        session; growth by a tenth keeps the total linear.
+        """
         n = self.mag.n_stances
-        if n != self._mag_fit_n:
+        if n >= self._mag_fit_n + max(1, n // 10):
             self.mag.fit()
             self._mag_fit_n = n
         return self.mag.ready

@@ -6,7 +6,7 @@ behaviour resumes in Gait-DR after a short examination instead of a full initial
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 __all__ = ["BehaviourCalibration", "Profile", "PROFILE_BEHAVIOURS"]
@@ -42,8 +42,9 @@ class BehaviourCalibration:
     n_steps: int = 0
     calibrated: bool = False
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+    def to_dict(self, copy: bool = True) -> dict[str, Any]:
+        """As plain data; ``copy=False`` shares the nested values (for immediate serialisation only)."""
+        return asdict(self) if copy else {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> BehaviourCalibration:
@@ -76,8 +77,9 @@ class Profile:
         cal = self.behaviours.get(behaviour)
         return bool(cal and cal.calibrated)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"version": _VERSION, "behaviours": {k: v.to_dict() for k, v in sorted(self.behaviours.items())}}
+    def to_dict(self, copy: bool = True) -> dict[str, Any]:
+        """As plain data; ``copy=False`` shares the nested values (for immediate serialisation only)."""
+        return {"version": _VERSION, "behaviours": {k: v.to_dict(copy) for k, v in sorted(self.behaviours.items())}}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Profile:

@@ -196,7 +196,7 @@ class Scheduler:
         return {
             "mode": self.mode,
             "config": self.config.to_dict(),
-            "profile": self.profile.to_dict(),
+            "profile": self.profile.to_dict(copy=False),
             "working": self.working,
             "behaviour": self.behaviour,
             "calibrating": self.calibrating,
