@@ -40,6 +40,7 @@ class Scheduler:
         self.behaviour = "stand"
         self.calibrating: str | None = None  # behaviour whose initialisation runs
         self.l_zupt_m = 0.0  # 004 Table 2, L_ZUPT-KF of the running initialisation
+        self.progress_m: dict[str, float] = {}  # L_ZUPT-KF of interrupted initialisations, per behaviour
         self.last_exam_s = 0.0
         self.exam_active = False  # 004 Table 1: gyro on till a whole step is completed
         self.exam_started_s = 0.0
@@ -62,14 +63,14 @@ class Scheduler:
             if self._resumable(label):
                 events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
             else:
-                self.calibrating, self.l_zupt_m = label, 0.0
+                self._calibrate(label)
                 events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
         elif self.working == "zupt" and self.calibrating != label:
             if self._resumable(label):
                 events += self._switch("pdr", t_ns, reason=f"profile has {label} calibration")
                 events += self._start_exam(t_s, t_ns, reason="check stored calibration")
             else:
-                self.calibrating, self.l_zupt_m = label, 0.0
+                self._calibrate(label)
         return events
 
     def on_zupt_distance(self, d_m: float, t_ns: int) -> list[Event]:
@@ -77,7 +78,7 @@ class Scheduler:
         if self.working != "zupt" or self.mode == "zupt":
             return []
         if self.calibrating is None and self.behaviour in _MOVING:
-            self.calibrating = self.behaviour
+            self._calibrate(self.behaviour)
         self.l_zupt_m += d_m
         return []
 
@@ -90,6 +91,7 @@ class Scheduler:
         info = {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m, **(detail or {})}
         self.failed.discard(info["behaviour"])
         events = [Event(t_ns, "calibration_done", info)]
+        self.progress_m.pop(info["behaviour"], None)
         self.calibrating = None
         self.last_exam_s = t_s
         events += self._switch("pdr", t_ns, reason="initialisation complete")
@@ -141,7 +143,9 @@ class Scheduler:
             return [Event(t_ns, "examination_passed", detail)]
         events = [Event(t_ns, "examination_failed", detail)]
         self.failed.add(self.behaviour)  # not resumed in this session until re-calibrated
-        self.calibrating, self.l_zupt_m = self.behaviour, 0.0
+        self.progress_m.pop(self.behaviour, None)  # re-initialise from scratch
+        self.calibrating, self.l_zupt_m = None, 0.0
+        self._calibrate(self.behaviour)
         events += self._switch("zupt", t_ns, reason="step-length model no longer fits")
         return events
 
@@ -174,6 +178,13 @@ class Scheduler:
         return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz)  # 004 Section 4.3
 
     # ------------------------------------------------------------------ internals
+    def _calibrate(self, behaviour: str) -> None:
+        """Initialise ``behaviour``; an interrupted initialisation of it continues where it stopped (the step
+        pairs it gathered are kept too), so a brief mislabelled stretch does not restart L0."""
+        if self.calibrating is not None:
+            self.progress_m[self.calibrating] = self.l_zupt_m
+        self.calibrating, self.l_zupt_m = behaviour, self.progress_m.get(behaviour, 0.0)
+
     def _resumable(self, behaviour: str) -> bool:
         """Calibrated (profile or this session) and not failed an examination since."""
         return self.profile.is_calibrated(behaviour) and behaviour not in self.failed
@@ -208,6 +219,7 @@ class Scheduler:
             "compass_ready": self.compass_ready,
             "assist_active": self.assist_active,
             "failed": sorted(self.failed),
+            "progress_m": dict(self.progress_m),
         }
 
     @classmethod
@@ -217,4 +229,5 @@ class Scheduler:
                     "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
         obj.failed = set(d["failed"])
+        obj.progress_m = {str(k): float(v) for k, v in d["progress_m"].items()}
         return obj

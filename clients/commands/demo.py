@@ -164,12 +164,19 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
                                         f"{p['behaviour']}/{p['mode']} gyro={'on' if p['gyro_on'] else 'off'}")
                 bar.refresh()
 
+            start = {"latitude_deg": 43.6629, "longitude_deg": -79.3957, "altitude_m": 100.0}
             sim = FootSensorSimulator(rec, batch_seconds=1.0)
-            res = sim.run(api, start={"latitude_deg": 43.6629, "longitude_deg": -79.3957, "altitude_m": 100.0},
-                          progress=progress)
+            res = sim.run(api, start=start, progress=progress)
             bar.close()
             res.stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")  # type: ignore[attr-defined]
             geo = api.trajectory(res.session_id, "geojson")
+            # the same person another day: closing the first session stored their calibration profile on the
+            # server, which the new session uses (Gait-DR after one examination instead of an initialisation)
+            rec2 = synthesize(scenario, seed=seed + 1)
+            if not quiet:
+                print("second walk, same user (the server now has their calibration profile) ...", file=sys.stderr)
+            res2 = FootSensorSimulator(rec2, batch_seconds=1.0).run(api, start=start)
+            res2.stored = api._json("GET", f"/v1/sessions/{res2.session_id}/batches")  # type: ignore[attr-defined]
     pos = np.array([[p["t_ns"], p["north"], p["east"], p["down"]] for p in res.positions]).reshape(-1, 4)
     steps = np.linalg.norm(np.diff(pos[:, 1:3], axis=0), axis=1) if len(pos) > 1 else np.zeros(0)
     final_err = float("nan")
@@ -186,6 +193,7 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
         c1 = res.configs[i + 1][0] if i + 1 < len(res.configs) else int(rec.batch.t_end_ns)
         mode_time[r["mode"]] = mode_time.get(r["mode"], 0.0) + (c1 - c0) / 1e9
     energy = _energy(res, rec, "foot-lsm9ds1")
+    energy2 = _energy(res2, rec2, "foot-lsm9ds1")
     _plot(plot_path, res, rec, t0_ns)
     summary = {
         "session_id": res.session_id,
@@ -200,8 +208,24 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
         "energy": energy,
         "geojson_points": len(geo["features"][0]["geometry"]["coordinates"]),
         "plot": str(plot_path),
+        "returning_user": {
+            "session_id": res2.session_id,
+            "final_error_m": _final_error(res2, rec2),
+            "gyro_duty_cycle": res2.gyro_on_fraction,
+            "energy": energy2,
+        },
     }
     return summary
+
+
+def _final_error(res: Any, rec: Any) -> float:
+    """Horizontal error of the last position against the synthetic truth [m]."""
+    from energy.simulate import position_errors
+
+    pos = np.array([[p["t_ns"], p["north"], p["east"]] for p in res.positions]).reshape(-1, 3)
+    if not len(pos) or rec.truth is None or rec.truth.positions is None:
+        return float("nan")
+    return float(position_errors(pos[:, 0].astype(np.int64), pos[:, 1:3], rec.truth.t_ns, rec.truth.positions[:, :2])["final_m"])
 
 
 def _print_summary(s: dict[str, Any]) -> None:
@@ -215,6 +239,9 @@ def _print_summary(s: dict[str, Any]) -> None:
     print(f"  energy ({e['profile']})  {e['scheduler_mj']:.0f} mJ vs always-on {e['always_on_mj']:.0f} mJ "
           f"= {e['ratio']:.0%}")
     print(f"  uploaded                 {s['bytes_uploaded'] / 1024:8.1f} KiB in {s['duration_s']:.0f} s")
+    r = s["returning_user"]
+    print(f"  same user, second walk   gyroscope {r['gyro_duty_cycle']:.0%}, energy {r['energy']['ratio']:.0%} of always-on, "
+          f"final error {r['final_error_m']:.2f} m (calibration profile from the first walk)")
     print(f"  plot                     {s['plot']}")
 
 

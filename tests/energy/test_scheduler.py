@@ -173,3 +173,17 @@ def test_heading_assist_turns_the_gyro_on_in_a_disturbance_and_off_after_it() ->
     walk_to(off, 20.0)
     off.on_calibrated(10.0, 10)
     assert off.request_heading_assist(0) == [] and not off.gyro_wanted()
+
+
+def test_an_interrupted_initialisation_continues_where_it_stopped() -> None:
+    s = aligned("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, 0.6 * CFG.l0_m)
+    done = s.l_zupt_m
+    s.on_behaviour("run", 2.0, 2)  # a brief mislabelled stretch
+    assert s.calibrating == "run" and s.l_zupt_m == 0.0
+    walk_to(s, 3.0)
+    s.on_behaviour("walk", 3.0, 3)
+    assert s.calibrating == "walk" and s.l_zupt_m == done
+    walk_to(s, 0.4 * CFG.l0_m + 1.0)
+    assert s.ready_for_pdr()

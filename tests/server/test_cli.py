@@ -75,3 +75,6 @@ def test_demo_runs_and_writes_plot(capsys, tmp_path: Path) -> None:  # type: ign
     assert set(s["time_in_mode_s"]) <= {"zupt", "pdr", "idle"} and 0 < s["gyro_duty_cycle"] < 1
     assert s["energy"]["scheduler_mj"] > 0 and s["energy"]["always_on_mj"] > 0
     assert s["geojson_points"] == s["positions"]
+    back = s["returning_user"]  # the second walk starts from the profile the first one stored on the server
+    assert back["session_id"] != s["session_id"] and np.isfinite(back["final_error_m"])
+    assert back["gyro_duty_cycle"] < s["gyro_duty_cycle"]
