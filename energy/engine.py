@@ -23,6 +23,7 @@ from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
+from models.detectors import first_still_run
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
 
 __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-exported from energy.config
@@ -35,7 +36,6 @@ _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> an
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
-_G = 9.81  # [m/s^2]
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
 _REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
 _REST_S = 0.04  # ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start
@@ -337,6 +337,9 @@ class Engine:
     def _ns(self, t_s: float) -> int:
         return (self._t0_ns or 0) + int(round(t_s * 1e9))
 
+    def _ns_many(self, t_s: np.ndarray) -> np.ndarray:
+        return (self._t0_ns or 0) + np.round(np.asarray(t_s) * 1e9).astype(np.int64)
+
     def _process(self, t_acc: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, final: bool) -> Update:
         events: list[Event] = []
         positions: list[Position] = []
@@ -380,7 +383,7 @@ class Engine:
         if self.trace is not None and np.any(~has):
             tt = t_s[~has]
             lab = self._labels.at_many(tt)
-            self.trace.append(np.array([self._ns(x) for x in tt], dtype=np.int64), np.full((len(tt), 3), np.nan), lab,
+            self.trace.append(self._ns_many(tt), np.full((len(tt), 3), np.nan), lab,
                               np.where(lab == "stand", "idle", "pdr"), np.zeros(len(tt), dtype=bool))
 
     def _horizon(self, final: bool) -> float:
@@ -475,19 +478,11 @@ class Engine:
             mm = m if m is not None else np.full((len(t), 3), np.nan)
             t, a, g = np.concatenate([p[0], t]), np.concatenate([p[1], a]), np.concatenate([p[2], g])
             m = np.concatenate([pm, mm]) if (p[3] is not None or op[4] is not None) else None
-        still = (np.linalg.norm(g, axis=1) < _REST_GYR) & (np.abs(np.linalg.norm(a, axis=1) - _G) < _REST_ACC)
-        start = -1  # first index of the current still run
-        for k in range(len(t)):
-            if not still[k]:
-                start = -1
-                continue
-            if start < 0:
-                start = k
-            if t[k] - t[start] >= _REST_S:
-                self._pre = (t, a, g, m)
-                return start, a[start : k + 1].mean(axis=0)
-        keep = start if start >= 0 else len(t)
-        self._pre = (t[keep:], a[keep:], g[keep:], None if m is None else m[keep:])
+        start, end = first_still_run(t, a, g, _REST_S, _REST_GYR, _REST_ACC)
+        if end >= 0:
+            self._pre = (t, a, g, m)
+            return start, a[start : end + 1].mean(axis=0)
+        self._pre = (t[start:], a[start:], g[start:], None if m is None else m[start:])
         return None
 
     def _nav_ops(self, out: NavOutput) -> list[tuple]:
@@ -509,7 +504,7 @@ class Engine:
     def _trace_nav(self, t: np.ndarray, pos: np.ndarray) -> None:
         assert self.trace is not None
         p = np.full_like(pos, np.nan) if self._seg_first else pos + self._offset
-        self.trace.append(np.array([self._ns(x) for x in t], dtype=np.int64), p, self._labels.at_many(t),
+        self.trace.append(self._ns_many(t), p, self._labels.at_many(t),
                           np.full(len(t), "zupt"), np.ones(len(t), dtype=bool))
 
     def _stance(self, st: Stance, positions: list[Position], events: list[Event]) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import median_filter
 
-__all__ = ["shoe_statistic", "shoe_detector", "adaptive_threshold", "multi_condition_detector"]
+__all__ = ["shoe_statistic", "shoe_detector", "adaptive_threshold", "multi_condition_detector", "first_still_run"]
 
 
 def _check(acc: np.ndarray, gyr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,3 +111,38 @@ def multi_condition_detector(
     if median_window > 1:
         c = median_filter(c, size=median_window, mode="nearest")
     return c.astype(bool)
+
+
+def first_still_run(
+    t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, min_duration_s: float, gyr_max: float, acc_tol: float,
+    gravity: float = 9.81,
+) -> tuple[int, int]:
+    """The first stretch where the sensor is still for ``min_duration_s``.
+
+    Still = ``|w| < gyr_max`` [rad/s] and ``||a| - gravity| < acc_tol`` [m/s^2] (a foot on the ground).
+
+    Parameters
+    ----------
+    t_s : ndarray (N,)
+        Sample times [s], increasing.
+    acc, gyr : ndarray (N, 3)
+        Specific force [m/s^2] and angular rate [rad/s], body frame.
+
+    Returns
+    -------
+    start, end : int
+        Indices of the first sample of the stretch and of the sample that completes it (``end`` inclusive).
+        When no stretch is long enough: ``end == -1`` and ``start`` is the first index of the still run that
+        reaches the last sample (``N`` when the last sample is not still), so a caller can keep it.
+    """
+    n = len(t_s)
+    still = (np.linalg.norm(gyr, axis=1) < gyr_max) & (np.abs(np.linalg.norm(acc, axis=1) - gravity) < acc_tol)
+    # first index of the still run each sample belongs to (n where the sample is not still)
+    idx = np.arange(n)
+    begins = still & ~np.concatenate([[False], still[:-1]])
+    run_start = np.maximum.accumulate(np.where(begins, idx, 0)) if n else idx
+    done = still & (t_s - t_s[run_start] >= min_duration_s) if n else still
+    if np.any(done):
+        k = int(np.argmax(done))
+        return int(run_start[k]), k
+    return (int(run_start[-1]) if n and still[-1] else n), -1

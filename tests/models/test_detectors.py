@@ -76,3 +76,19 @@ def test_bad_input_named():
         shoe_statistic(np.full((10, 3), np.nan), np.zeros((10, 3)))
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         shoe_statistic(np.zeros((10, 2)), np.zeros((10, 2)))
+
+
+def test_first_still_run_finds_the_first_long_enough_stretch() -> None:
+    from models.detectors import first_still_run
+
+    t = np.arange(20) * 0.01
+    acc = np.tile([0.0, 0.0, 9.81], (20, 1))
+    gyr = np.zeros((20, 3))
+    gyr[:5, 0] = 3.0  # swing
+    gyr[8, 0] = 3.0  # a short still moment (5..7) before it
+    assert first_still_run(t, acc, gyr, 0.04, 1.0, 1.5) == (9, 13)
+    # too short anywhere: the still run reaching the end is reported for the caller to keep
+    assert first_still_run(t[:12], acc[:12], gyr[:12], 0.04, 1.0, 1.5) == (9, -1)
+    gyr[-1, 0] = 3.0
+    assert first_still_run(t[:12], acc[:12], np.vstack([gyr[:11], [[3.0, 0, 0]]]), 0.04, 1.0, 1.5) == (12, -1)
+    assert first_still_run(t[:0], acc[:0], gyr[:0], 0.04, 1.0, 1.5) == (0, -1)
