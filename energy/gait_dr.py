@@ -24,7 +24,7 @@ from models.step_length import StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
 
-__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S", "event_from_row", "event_row"]
+__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S"]
 
 PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
 SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
@@ -36,12 +36,12 @@ _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step
 _BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
 
 
-def event_row(e: StepEvent) -> list[float]:
+def _event_row(e: StepEvent) -> list[float]:
     """A step event as plain numbers (engine state)."""
     return [e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, float(e.after_rest), float(e.index)]
 
 
-def event_from_row(q: list[float]) -> StepEvent:
+def _event_from_row(q: list[float]) -> StepEvent:
     return StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), bool(q[9]), int(q[10]))
 
 
@@ -345,7 +345,7 @@ class GaitPipeline:
             "kf2": {b: k.get_state() for b, k in self.kf2.items()},
             "mag": self.mag.get_state(),
             "dr": None if self.dr is None else self.dr.get_state(),
-            "queue": [event_row(e) for e in self.queue],
+            "queue": [_event_row(e) for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
@@ -361,7 +361,7 @@ class GaitPipeline:
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
-        obj.queue = [event_from_row(q) for q in d["queue"]]
+        obj.queue = [_event_from_row(q) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
