@@ -272,6 +272,13 @@ _POSITIONS = PositionRecord.__table__
 _EVENTS = EventRecord.__table__
 
 
+def _answer_as_retry(db: Session, session_id: int, seq: int, h: str) -> dict[str, Any]:
+    """A concurrent writer applied ``seq`` first: roll back and answer as for a retried upload."""
+    db.rollback()
+    cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
+    return _replayed_core(db, session_id, seq, h, cur)
+
+
 def _replayed_core(db: Session, session_id: int, seq: int, h: str, expected: int) -> dict[str, Any]:
     row = db.execute(
         select(_BATCHES.c.body_sha256, _BATCHES.c.response).where(_BATCHES.c.session_id == session_id, _BATCHES.c.seq == seq)
@@ -368,9 +375,7 @@ def _apply_once(
                 if n != 1:
                     raise StaleDataError("session changed since it was read")
             except (StaleDataError, IntegrityError):
-                db.rollback()
-                cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
-                return _replayed_core(db, session_id, seq, h, cur), True
+                return _answer_as_retry(db, session_id, seq, h), True
             if engine is not None:
                 host.remember(session_id, row.version + 1, engine)
             return resp, False
@@ -401,9 +406,7 @@ def _apply_once(
                     db.commit()
         except (StaleDataError, IntegrityError):
             # another worker applied this sequence number first: answer as for a retry
-            db.rollback()
-            cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
-            return _replayed_core(db, session_id, seq, h, cur), True
+            return _answer_as_retry(db, session_id, seq, h), True
         if engine is not None:
             host.remember(session_id, row.version + 1, engine)
         return resp, False
