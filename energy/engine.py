@@ -172,6 +172,8 @@ class _LabelHistory:
         self.labels: list[str] = []
 
     def add(self, t_s: float, label: str) -> None:
+        if self.labels and self.labels[-1] == label:
+            return  # a repeated decision changes nothing the lookups return
         self.t.append(float(t_s))
         self.labels.append(label)
 

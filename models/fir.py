@@ -9,6 +9,8 @@ feeding a signal in one call or in arbitrary pieces gives the same output (the f
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numba import njit
 from scipy import signal
@@ -37,6 +39,12 @@ def hamming_lowpass(numtaps: int, cutoff_hz: float, rate_hz: float) -> np.ndarra
         raise ValueError(f"numtaps must be odd and positive, got {numtaps}")
     if not 0.0 < cutoff_hz < rate_hz / 2.0:
         raise ValueError(f"cutoff {cutoff_hz} Hz must lie in (0, {rate_hz / 2.0}) Hz")
+    return _firwin_hamming(int(numtaps), float(cutoff_hz), float(rate_hz)).copy()
+
+
+@lru_cache(maxsize=64)
+def _firwin_hamming(numtaps: int, cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    # engines are rebuilt from state on every batch; the design is the same few filters each time
     return signal.firwin(numtaps, cutoff_hz, window="hamming", fs=rate_hz)
 
 
