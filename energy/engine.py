@@ -415,12 +415,14 @@ class Engine:
                 rest = self._rest_start(op)
                 self._ops.pop(0)
                 if rest is not None:
-                    i, acc_rest = rest
+                    i, j = rest
                     pre = self._pre
                     assert pre is not None
                     self._pre = None
                     self._await_rest = False
-                    nav.restart(nav.position, self._head if math.isfinite(self._head) else nav.heading, acc_rest)
+                    acc_rest = pre[1][i : j + 1].mean(axis=0)
+                    head = self._restart_heading(acc_rest, None if pre[3] is None else pre[3][i : j + 1])
+                    nav.restart(nav.position, head, acc_rest)
                     self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
                 out = nav.process(op[1], op[2], op[3], op[4])
@@ -467,11 +469,11 @@ class Engine:
             td, label = self._labels_pending.pop(0)
             events += self._sched.on_behaviour(label, td, self._ns(td))
 
-    def _rest_start(self, op: tuple) -> tuple[int, np.ndarray] | None:
+    def _rest_start(self, op: tuple) -> tuple[int, int] | None:
         """Look for the first still stretch of a restarting segment (the foot on the ground).
 
         Samples before it are dropped (Gait-DR covers them); the trailing candidate stretch is kept in
-        ``self._pre`` across calls. Returns its first index in ``self._pre`` and its mean specific force.
+        ``self._pre`` across calls. Returns its first and last index in ``self._pre``.
         """
         t, a, g, m = op[1], op[2], op[3], op[4]
         if self._pre is not None:
@@ -483,9 +485,24 @@ class Engine:
         start, end = first_still_run(t, a, g, _REST_S, _REST_GYR, _REST_ACC)
         if end >= 0:
             self._pre = (t, a, g, m)
-            return start, a[start : end + 1].mean(axis=0)
+            return start, end
         self._pre = (t[start:], a[start:], g[start:], None if m is None else m[start:])
         return None
+
+    def _restart_heading(self, acc_rest: np.ndarray, mag_rest: np.ndarray | None) -> float:
+        """Sensor heading [rad] for a restarting ZUPT-KF: the compass on the still foot where the field is clean.
+
+        The foot may have turned since Gait-DR's last step (a segment often starts mid-turn), so the last
+        step's heading is only the fallback (disturbed or no field, compass not calibrated).
+        """
+        gait = self._gait
+        if gait is not None and mag_rest is not None and gait.mag.ready:
+            ok = np.isfinite(mag_rest).all(axis=1)
+            if ok.any():
+                m = mag_rest[ok].mean(axis=0)
+                if not gait.mag.disturbed(acc_rest, m):
+                    return gait.mag.heading(acc_rest, m)
+        return self._head if math.isfinite(self._head) else self._nav.heading
 
     def _nav_ops(self, out: NavOutput) -> list[tuple]:
         """ZUPT-KF output as queue entries: per-sample trace pieces and stances, in time order."""
