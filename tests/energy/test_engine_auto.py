@@ -31,6 +31,15 @@ def _truth_xy_at(rec, t_ns: np.ndarray) -> np.ndarray:
     return rec.truth.positions[idx, :2]
 
 
+def _errors(rec, res) -> tuple[np.ndarray, np.ndarray, float]:
+    """Estimated positions, their horizontal errors vs the truth (origin at the first) [m], true path length [m]."""
+    t_ns = np.array([q.t_ns for q in res.positions])
+    est = np.array([[q.north, q.east] for q in res.positions])
+    truth = _truth_xy_at(rec, t_ns)
+    path = float(np.sum(np.linalg.norm(np.diff(rec.truth.positions[:, :2], axis=0), axis=1)))
+    return est, np.linalg.norm(est - (truth - truth[0]), axis=1), path
+
+
 def test_no_position_jumps_at_hand_overs(demo, replayed) -> None:
     """Consecutive positions are one stride apart, never more (the 30 m jumps of the first engine)."""
     _, res = replayed
@@ -47,12 +56,7 @@ def test_no_position_jumps_at_hand_overs(demo, replayed) -> None:
 
 def test_auto_mode_follows_the_truth(demo, replayed) -> None:
     _, res = replayed
-    t_ns = np.array([q.t_ns for q in res.positions])
-    est = np.array([[q.north, q.east] for q in res.positions])
-    truth = _truth_xy_at(demo, t_ns)
-    truth = truth - truth[0]
-    path = float(np.sum(np.linalg.norm(np.diff(demo.truth.positions[:, :2], axis=0), axis=1)))
-    err = np.linalg.norm(est - truth, axis=1)
+    est, err, path = _errors(demo, res)
     assert err[-1] < 0.05 * path, (err[-1], path)
     est_len = float(np.sum(np.linalg.norm(np.diff(est, axis=0), axis=1)))
     assert abs(est_len - path) / path < 0.05, (est_len, path)
@@ -131,12 +135,7 @@ def test_returning_user_follows_the_truth(readme_profile, seed) -> None:
     """
     rec = synthesize("demo", seed=seed)
     res = replay(Engine(mode="auto", profile=readme_profile, trace=True), rec.batch, batch_seconds=1.0)
-    t_ns = np.array([q.t_ns for q in res.positions])
-    est = np.array([[q.north, q.east] for q in res.positions])
-    truth = _truth_xy_at(rec, t_ns)
-    truth = truth - truth[0]
-    path = float(np.sum(np.linalg.norm(np.diff(rec.truth.positions[:, :2], axis=0), axis=1)))
-    err = np.linalg.norm(est - truth, axis=1)
+    _, err, path = _errors(rec, res)
     assert res.gyro_on_fraction < 0.6  # it did use the profile
     assert err[-1] < 0.05 * path, (err[-1], path)
 
