@@ -4,8 +4,9 @@ Runs on a low-rate copy of the accelerometer/magnetometer streams (anti-aliased 
 the device sends), so its step events do not change when the device is de-sampled (004 Section 4.3). Step
 events wait in a queue; the engine (:mod:`energy.engine`) hands each one either to a ZUPT-KF stance of the
 same stance (step-length calibration 004 eq. 15 and Table 3, KF II 004 eq. 17-20, magnetometer calibration,
-examination) or to dead reckoning (004 eq. 14, 16) with the compass heading, or the last good heading where
-the field is disturbed or absent. :attr:`GaitPipeline.horizon` bounds how late an event can still appear.
+examination) or to dead reckoning (004 eq. 14, 16) with the heading following the stance compass
+(:func:`models.compass.follow_compass`: small disagreements averaged, turns only on a clean field), or the last
+heading where no calibrated field is there. :attr:`GaitPipeline.horizon` bounds how late an event can still appear.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from models.compass import MagCalibrator
+from models.compass import MagCalibrator, follow_compass
 from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
@@ -305,9 +306,10 @@ class GaitPipeline:
     def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
         """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
 
-        Returns ``(step, event, heading source)`` with source ``"compass"``, ``"disturbed"`` (a field was
-        measured but failed the disturbance test: the last good heading is held) or ``"none"`` (no calibrated
-        field at that stance: held too).
+        Returns ``(step, event, heading source)`` with source ``"compass"`` (clean field: the heading follows
+        the compass, turns taken at once), ``"disturbed"`` (the field failed the disturbance test: it may pull
+        the heading but not turn it, :func:`models.compass.follow_compass`) or ``"none"`` (no calibrated field
+        at that stance: the last heading is held).
         """
         out: list[tuple[PdrStep, StepEvent, str]] = []
         todo = [e for e in self.queue if e.t_s < before_s]
@@ -322,11 +324,11 @@ class GaitPipeline:
             source = "none"
             if m is not None and self.mag.ready:
                 source = "disturbed" if self.mag.disturbed(acc_st, m) else "compass"
-            if source == "compass":
-                self.heading = self.mag.heading(acc_st, m)  # absolute: measured better than relative to the hand-over
-                self.compass_steps += 1
+            if source == "none":
+                self.held_steps += 1  # no calibrated field: hold the last heading
             else:
-                self.held_steps += 1  # disturbed or no magnetometer: hold the last good heading
+                self.heading = follow_compass(self.heading, self.mag.heading(acc_st, m), source == "compass")
+                self.compass_steps += 1
             out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e, source))
         return out
 
