@@ -7,15 +7,21 @@ acceleration. For a foot-mounted sensor we compute, over a sliding window of the
 - DC: ``mean |a|`` [m/s^2] (walking and running lift it above g: impacts and centripetal terms);
 - variance: ``var |a|`` [m^2/s^4] (004 Section 2.3);
 - energy: ``mean (|a| - g)^2`` [m^2/s^4] (004 Section 2.3);
-- duty factor: the fraction of samples with ``| |a| - g | < 1.5 m/s^2`` (foot at rest on the ground). Running
+- duty factor: the fraction of the time with ``| |a| - g | < 1.5 m/s^2`` (foot at rest on the ground). Running
   has a flight phase, i.e. each foot is on the ground for less than half of the stride; the |a|-based stance
-  excludes heel strike and push-off, so it reads about 0.1-0.15 lower than the true duty factor;
-- stride period [s] and periodicity: the first dominant peak of the normalised autocorrelation of ``|a|``.
+  excludes heel strike and push-off, so it reads about 0.1-0.15 lower than the true duty factor. It is
+  weighted towards the newest samples (``sqrt`` ramp over ``STANCE_WINDOW_S``) so a change of gait shows
+  within about one stride, and each sample by the time it stands for, so windows that mix sampling rates
+  (the engine switches the accelerometer rate) measure time, not sample counts;
+- stride period [s] and periodicity: the first dominant peak of the normalised autocorrelation of ``|a|``
+  (on a uniform grid of the lower rate when a window mixes rates).
 
-All of these are sample moments or fractions, so they estimate the same quantities at 200 Hz and after
-de-sampling to 25-50 Hz. One fixed, physically motivated rule set (module constants below) turns the features
-into a label; a new label must win ``HYSTERESIS`` consecutive decisions before it replaces the current one,
-so one odd step does not flip the behaviour. Decisions are taken on a fixed time grid (every ``HOP_S`` from
+All of these are moments or fractions of time, so they estimate the same quantities at 200 Hz and after
+de-sampling to 25-50 Hz. Measured on 12 synthetic days (``tests/models/test_behaviour.py``): every change of
+behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants below) turns the features
+into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF`` decisions before it replaces
+the current one, so one odd step does not flip the behaviour (and one odd decision in a change does not
+restart the count). Decisions are taken on a fixed time grid (every ``HOP_S`` from
 the first sample), which makes the recogniser chunk-invariant.
 """
 
@@ -42,9 +48,13 @@ LABELS: tuple[str, ...] = ("stand", "walk", "run", "other")
 G = 9.80665  # m/s^2
 WINDOW_S = 3.0  # s, feature window (>= 2 walking strides)
 HOP_S = 0.25  # s, decision interval
-STANCE_WINDOW_S = 2.75  # s, the duty factor looks at the most recent ~2-3 strides (fast walk <-> run changes)
+STANCE_WINDOW_S = 3.0  # s, the duty factor looks at the most recent ~2-4 strides ...
+# ... weighted by sqrt((t - window start) / STANCE_WINDOW_S): a sample at the window's start weighs 0, the newest 1.
+# The newest stride counts most (a change of gait shows within about one stride) while the older ones still
+# average one odd step out.
 STILL_WINDOW_S = 1.0  # s, the stand test looks at the most recent second only (fast wake / fast sleep)
-HYSTERESIS = 3  # consecutive decisions a new label needs (0.5 s beyond the first)
+HYSTERESIS = 3  # decisions a new label must win ...
+HYSTERESIS_OF = 4  # ... among the most recent this many (0.5-0.75 s beyond the first)
 STANCE_TOL = 1.5  # m/s^2, | |a| - g | below this counts as foot at rest
 # Stand: a person standing still moves the foot far less than this (sensor noise ~0.02 m/s^2).
 STILL_STD = 0.5  # m/s^2, std of |a| over the last second
@@ -59,6 +69,12 @@ OTHER_MAX_STD = 4.0  # m/s^2
 OTHER_MAX_PERIODICITY = 0.15  # normalised autocorrelation peak
 OTHER_MIN_STANCE = 0.75
 MAX_STANCE_S = 1.0  # s, a rest longer than this is standing, not the stance phase of a stride
+MAX_SAMPLE_DT_S = 0.1  # s, a sample stands for at most this much time (gaps in the stream are not stance)
+MIN_GAIT_S = 0.5  # s, less gait than this in the stance window (a start): no duty factor yet (reads 1.0)
+# A stride periodicity needs more than one stride in the window: while the gait part of the window (rests longer
+# than MAX_STANCE_S left out) is shorter than this, i.e. in the first stride after a rest, the periodicity test
+# of "other" waits (a start of walking is not "other" because only one stride is visible yet).
+PERIODICITY_MIN_GAIT_S = 1.5
 MIN_PERIOD_S, MAX_PERIOD_S = 0.45, 1.9  # s, plausible stride periods (running ... slow walking)
 
 
@@ -77,11 +93,16 @@ class WindowFeatures:
     still_std : float
         Standard deviation of ``|a|`` over the most recent ``STILL_WINDOW_S`` [m/s^2].
     stance_fraction : float
-        Fraction of the gait samples with ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S`` excluded).
+        Recency-weighted fraction of the gait samples of the last ``STANCE_WINDOW_S`` with
+        ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S`` excluded; 1.0 with < ``MIN_GAIT_S`` of gait).
     stride_period_s : float
         Dominant period of ``|a|`` [s] (``nan`` when not found).
     periodicity : float
         Normalised autocorrelation at that period (0 = aperiodic, 1 = perfectly periodic).
+    gait_s : float
+        Length of the gait part of the stance window [s] (rests longer than ``MAX_STANCE_S`` left out).
+    gait_std : float
+        Standard deviation of ``|a|`` over that gait part [m/s^2].
     """
 
     dc: float
@@ -91,6 +112,8 @@ class WindowFeatures:
     stance_fraction: float
     stride_period_s: float
     periodicity: float
+    gait_s: float = float("nan")
+    gait_std: float = float("nan")
 
 
 def _stride_period(x: np.ndarray, fs: float) -> tuple[float, float]:
@@ -120,20 +143,66 @@ def _stride_period(x: np.ndarray, fs: float) -> tuple[float, float]:
     return float((lo + k + d) / fs), float(y1)
 
 
-def _gait_stance_fraction(t: np.ndarray, rest: np.ndarray) -> float:
-    """Fraction of the gait part of a window with the foot at rest.
+def _sample_dt(t: np.ndarray) -> np.ndarray:
+    """Time each sample stands for [s]: the interval to the next sample (the last one repeats the previous
+    interval), at most ``MAX_SAMPLE_DT_S``. Weighting by it makes fractions fractions of time, also in windows
+    that mix sampling rates (the engine changes the accelerometer rate)."""
+    if t.size < 2:
+        return np.zeros(t.size)
+    d = np.diff(t)
+    return np.minimum(np.append(d, d[-1]), MAX_SAMPLE_DT_S)
+
+
+def _uniform(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
+    """The series on a uniform time grid and its rate [Hz], for the autocorrelation.
+
+    A window recorded at one rate is returned as it is; a window that mixes rates is interpolated onto the grid
+    of the lower rate (the stride period is ~0.7-1.9 s, far above either sampling interval)."""
+    n = t.size
+    if n < 2 or t[-1] <= t[0]:
+        return x, float("nan")
+    k = min(16, n - 1)
+    d_old = float(t[k] - t[0]) / k  # mean sampling interval at the window's start and at its end
+    d_new = float(t[-1] - t[-1 - k]) / k
+    if max(d_old, d_new) <= 1.2 * min(d_old, d_new):
+        return x, (n - 1) / (t[-1] - t[0])
+    step = max(d_old, d_new)
+    grid = t[0] + step * np.arange(int((t[-1] - t[0]) / step) + 1)
+    return np.interp(grid, t, x), 1.0 / step
+
+
+def _gait_stance_fraction(t: np.ndarray, x: np.ndarray, span_s: float) -> tuple[float, float, float]:
+    """Recency-weighted fraction of the time of the gait part of a window with the foot at rest, and that
+    part's length.
 
     Rests longer than ``MAX_STANCE_S`` are standing, not stance phases of a gait, and are left out of both
     numerator and denominator, so a window that straddles a start or a stop measures the gait's duty factor.
+    Sample ``i`` weighs ``dt_i * sqrt((t_i - (t_end - span_s)) / span_s)`` (``dt_i`` from
+    :func:`_sample_dt`).
+
+    Returns
+    -------
+    fraction : float
+        Weighted duty factor of the gait part; 1.0 when it is shorter than ``MIN_GAIT_S``.
+    gait_s : float
+        Length of the gait part [s].
+    gait_std : float
+        Standard deviation of ``|a|`` over the gait part [m/s^2].
     """
+    rest = np.abs(x - G) < STANCE_TOL
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     a, b = edges[::2], edges[1::2]
     long_ = (t[b - 1] - t[a]) > MAX_STANCE_S
-    n_long = int(np.sum(b[long_] - a[long_]))  # samples of rests that are standing, not stance phases
-    n_keep = rest.size - n_long
-    if n_keep < 0.25 * rest.size or n_keep < 3:
-        return 1.0
-    return float((np.count_nonzero(rest) - n_long) / n_keep)
+    keep = np.ones(rest.size, dtype=bool)
+    for i0, i1 in zip(a[long_], b[long_]):
+        keep[i0:i1] = False
+    dt = _sample_dt(t)
+    gait_s = float(np.sum(dt * keep))
+    gait_std = float(x[keep].std()) if np.count_nonzero(keep) > 1 else 0.0
+    if gait_s < MIN_GAIT_S or np.count_nonzero(keep) < 3:
+        return 1.0, gait_s, gait_std
+    w = np.sqrt(np.clip((t - (t[-1] - span_s)) / span_s, 0.0, 1.0)) * dt * keep
+    return float(np.sum(w * rest) / np.sum(w)), gait_s, gait_std
 
 
 def window_features(t_s: np.ndarray, acc_norm: np.ndarray) -> WindowFeatures:
@@ -154,10 +223,10 @@ def window_features(t_s: np.ndarray, acc_norm: np.ndarray) -> WindowFeatures:
     recent = x[t >= t[-1] - STILL_WINDOW_S]
     still = float(recent.std()) if recent.size > 1 else 0.0
     rs = t >= t[-1] - STANCE_WINDOW_S
-    stance = _gait_stance_fraction(t[rs], np.abs(x[rs] - G) < STANCE_TOL)
-    fs = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else float("nan")
-    period, periodicity = _stride_period(x - dc, fs) if np.isfinite(fs) else (float("nan"), 0.0)
-    return WindowFeatures(dc, var, energy, still, stance, period, periodicity)
+    stance, gait_s, gait_std = _gait_stance_fraction(t[rs], x[rs], STANCE_WINDOW_S)
+    xu, fs = _uniform(t, x)
+    period, periodicity = _stride_period(xu - xu.mean(), fs) if np.isfinite(fs) else (float("nan"), 0.0)
+    return WindowFeatures(dc, var, energy, still, stance, period, periodicity, gait_s, gait_std)
 
 
 def classify_window(f: WindowFeatures) -> str:
@@ -169,21 +238,27 @@ def classify_window(f: WindowFeatures) -> str:
         return "run"
     if f.stance_fraction < JOG_STANCE and np.isfinite(f.stride_period_s) and f.stride_period_s <= JOG_PERIOD_S:
         return "run"
-    if std < OTHER_MAX_STD and (f.periodicity < OTHER_MAX_PERIODICITY or f.stance_fraction >= OTHER_MIN_STANCE):
+    if std < OTHER_MAX_STD and f.stance_fraction >= OTHER_MIN_STANCE:
+        return "other"
+    if std < OTHER_MAX_STD and f.gait_s >= PERIODICITY_MIN_GAIT_S and f.periodicity < OTHER_MAX_PERIODICITY:
+        return "other"
+    if std < OTHER_MAX_STD and f.gait_s < PERIODICITY_MIN_GAIT_S and f.gait_std < OTHER_MAX_STD:
         return "other"
     return "walk"
 
 
 @njit(cache=True)
 def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stance_s: float, tol: float,
-                    max_stance_s: float) -> tuple[float, float, float, float]:
+                    max_stance_s: float, min_gait_s: float,
+                    max_dt: float) -> tuple[float, float, float, float, float, float]:
     """The features every decision needs, in one compiled pass (no per-call NumPy overhead).
 
-    Returns ``(still_std, dc, variance, stance_fraction)`` with the definitions of :func:`window_features`
-    (standard deviation over the most recent ``still_s`` [m/s^2]; mean [m/s^2] and variance [m^2/s^4] of
-    the window; gait stance fraction over the most recent ``stance_s``, rests longer than ``max_stance_s``
-    left out). Same summation order as a plain two-pass mean/variance; labels were checked identical to
-    the NumPy formulation on every synthetic scenario and real recording at 200 Hz and 1/8 rate.
+    Returns ``(still_std, dc, variance, stance_fraction, gait_s, gait_std)`` with the definitions of
+    :func:`window_features` (standard deviation over the most recent ``still_s`` [m/s^2]; mean [m/s^2] and
+    variance [m^2/s^4] of the window; recency- and time-weighted gait stance fraction over the most recent
+    ``stance_s`` with weights ``dt * sqrt((t - (t_end - stance_s)) / stance_s)`` (``dt`` the interval to
+    the next sample, at most ``max_dt``), rests longer than ``max_stance_s`` left out, 1.0 with less than
+    ``min_gait_s`` of gait; length [s] and standard deviation of ``|a|`` [m/s^2] of that gait part).
     """
     n = x.size
     t_end = t[n - 1]
@@ -209,25 +284,67 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
     var = ss / n
     i_st = np.searchsorted(t, t_end - stance_s)
     size = n - i_st
-    n_rest = 0
+    t_lo = t_end - stance_s
+    w_all = 0.0  # weight of all samples
+    w_rest = 0.0  # weight of the rest samples
+    w_long = 0.0  # weight of the samples of long rests (standing)
     n_long = 0
     run_start = -1
+    run_w = 0.0
+    gait_s = 0.0
+    dt_long = 0.0  # time of the samples of long rests
+    run_dt = 0.0
+    s1 = 0.0  # sums of |a| and |a|^2 over the stance window, over its long rests, over the current rest
+    s2 = 0.0
+    l1 = 0.0
+    l2 = 0.0
+    r1 = 0.0
+    r2 = 0.0
     for i in range(i_st, n + 1):
         r = i < n and abs(x[i] - g) < tol
+        if i < n:
+            if n < 2:
+                dt = 0.0
+            elif i < n - 1:
+                dt = min(t[i + 1] - t[i], max_dt)
+            else:
+                dt = min(t[i] - t[i - 1], max_dt)
+            gait_s += dt
+            w = np.sqrt(min(max((t[i] - t_lo) / stance_s, 0.0), 1.0)) * dt
+            w_all += w
+            s1 += x[i]
+            s2 += x[i] * x[i]
         if r:
-            n_rest += 1
+            w_rest += w
             if run_start < 0:
                 run_start = i
+                run_w = 0.0
+                run_dt = 0.0
+                r1 = 0.0
+                r2 = 0.0
+            run_w += w
+            run_dt += dt
+            r1 += x[i]
+            r2 += x[i] * x[i]
         elif run_start >= 0:
             if t[i - 1] - t[run_start] > max_stance_s:
                 n_long += i - run_start
+                w_long += run_w
+                dt_long += run_dt
+                l1 += r1
+                l2 += r2
             run_start = -1
     n_keep = size - n_long
-    if n_keep < 0.25 * size or n_keep < 3:
+    gait_s -= dt_long
+    gait_std = 0.0
+    if n_keep > 1:
+        m1 = (s1 - l1) / n_keep
+        gait_std = np.sqrt(max((s2 - l2) / n_keep - m1 * m1, 0.0))
+    if gait_s < min_gait_s or n_keep < 3 or w_all - w_long <= 0.0:
         stance = 1.0
     else:
-        stance = (n_rest - n_long) / n_keep
-    return still, mu, var, stance
+        stance = (w_rest - w_long) / (w_all - w_long)
+    return still, mu, var, stance, gait_s, gait_std
 
 
 def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFeatures]:
@@ -256,31 +373,39 @@ def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFea
     x = np.ascontiguousarray(acc_norm, dtype=np.float64)
     t = np.ascontiguousarray(t_s, dtype=np.float64)
     nan = float("nan")
-    still, dc, var, stance = _cheap_features(t, x, G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S)
+    still, dc, var, stance, gait_s, gait_std = _cheap_features(t, x, G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL,
+                                                               MAX_STANCE_S, MIN_GAIT_S,
+                                                               MAX_SAMPLE_DT_S)
     if still < STILL_STD:
-        return "stand", WindowFeatures(nan, nan, nan, still, nan, nan, nan)
+        return "stand", WindowFeatures(nan, nan, nan, still, nan, nan, nan, nan, nan)
     energy = var + (dc - G) ** 2  # = mean((|a| - g)^2); not used by the rules, kept for the caller
     std = float(np.sqrt(var))
 
     def period() -> tuple[float, float]:
-        fs = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else float("nan")
-        return _stride_period(x - dc, fs) if np.isfinite(fs) else (float("nan"), 0.0)
+        xu, fs = _uniform(t, x)
+        return _stride_period(xu - xu.mean(), fs) if np.isfinite(fs) else (float("nan"), 0.0)
+
+    def feats(per: float, perio: float) -> WindowFeatures:
+        return WindowFeatures(dc, var, energy, still, stance, per, perio, gait_s, gait_std)
 
     if stance <= RUN_STANCE:
-        return "run", WindowFeatures(dc, var, energy, still, stance, nan, nan)
+        return "run", feats(nan, nan)
     per, perio = nan, nan
     if stance < JOG_STANCE:
         per, perio = period()
         if np.isfinite(per) and per <= JOG_PERIOD_S:
-            return "run", WindowFeatures(dc, var, energy, still, stance, per, perio)
+            return "run", feats(per, perio)
     if std < OTHER_MAX_STD:
         if stance >= OTHER_MIN_STANCE:
-            return "other", WindowFeatures(dc, var, energy, still, stance, per, perio)
-        if np.isnan(perio):
-            per, perio = period()
-        if perio < OTHER_MAX_PERIODICITY:
-            return "other", WindowFeatures(dc, var, energy, still, stance, per, perio)
-    return "walk", WindowFeatures(dc, var, energy, still, stance, per, perio)
+            return "other", feats(per, perio)
+        if gait_s >= PERIODICITY_MIN_GAIT_S:
+            if np.isnan(perio):
+                per, perio = period()
+            if perio < OTHER_MAX_PERIODICITY:
+                return "other", feats(per, perio)
+        elif gait_std < OTHER_MAX_STD:
+            return "other", feats(per, perio)
+    return "walk", feats(per, perio)
 
 
 class BehaviourRecognizer:
@@ -305,8 +430,7 @@ class BehaviourRecognizer:
         self._t0: float | None = None
         self._k = 1  # index of the next decision instant
         self.label = "stand"
-        self._candidate = "stand"
-        self._count = 0
+        self._recent: list[str] = []  # the last HYSTERESIS_OF raw decisions since the label last changed
         self.features: WindowFeatures | None = None
 
     def process(self, t_s: np.ndarray, acc: np.ndarray) -> list[tuple[float, str]]:
@@ -344,16 +468,11 @@ class BehaviourRecognizer:
         return out
 
     def _vote(self, new: str) -> None:
-        """Hysteresis: ``new`` replaces the label after ``HYSTERESIS`` consecutive wins."""
-        if new == self.label:
-            self._candidate, self._count = new, 0
-            return
-        if new == self._candidate:
-            self._count += 1
-        else:
-            self._candidate, self._count = new, 1
-        if self._count >= HYSTERESIS:
-            self.label, self._count = new, 0
+        """Hysteresis: ``new`` replaces the label once it won ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
+        decisions."""
+        self._recent = (self._recent + [new])[-HYSTERESIS_OF:]
+        if new != self.label and self._recent.count(new) >= HYSTERESIS:
+            self.label, self._recent = new, []
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
@@ -365,8 +484,7 @@ class BehaviourRecognizer:
             "t0": self._t0,
             "k": self._k,
             "label": self.label,
-            "candidate": self._candidate,
-            "count": self._count,
+            "recent": list(self._recent),
         }
 
     @classmethod
@@ -378,8 +496,10 @@ class BehaviourRecognizer:
         r._t0 = None if d["t0"] is None else float(d["t0"])
         r._k = int(d["k"])
         r.label = str(d["label"])
-        r._candidate = str(d["candidate"])
-        r._count = int(d["count"])
+        if "recent" in d:
+            r._recent = [str(v) for v in d["recent"]]
+        else:  # a state of the consecutive-count hysteresis: its candidate's run of wins
+            r._recent = [str(d["candidate"])] * int(d["count"])
         return r
 
 

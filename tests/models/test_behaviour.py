@@ -24,7 +24,7 @@ from models.behaviour import (
 
 MAX_DELAY_S = 2.0  # issue 4: synthetic transitions detected within 2 s
 MAX_RUN_FRACTION_WALKING = 0.10  # gdin walking recordings: at most brief fast stretches labelled run
-KNOWN_GDIN_RUN_GAPS = ["exp21"]
+FAST_STRIDE_MPS = 1.5  # a stride at least this fast is "fast walking or faster" (normal walking 1.0-1.4 m/s)
 
 
 @pytest.fixture(scope="module")
@@ -117,6 +117,61 @@ def test_lazy_decision_equals_the_full_rule_set(scenario, factor):
     assert {"stand", "walk"} <= labels  # the comparison covered more than one branch
 
 
+@pytest.mark.parametrize("factor", [1, 8])
+@pytest.mark.parametrize("at_s", [15.0, 20.0, 25.0, 45.0])
+def test_one_odd_stride_does_not_flip_walk(at_s, factor):
+    """Hysteresis: one running stride (0.74 s of the synthetic run) spliced into a walk gives no run label."""
+    w, r = synthesize("walk", seed=1), synthesize("run", seed=1)
+    tw, a = w.batch.acc_t_ns / 1e9, w.batch.acc.copy()
+    i0, j0, n = int(np.searchsorted(tw, at_s)), int(np.searchsorted(r.batch.acc_t_ns / 1e9, 20.0)), 148
+    a[i0 : i0 + n] = r.batch.acc[j0 : j0 + n]
+    labels = {lab for _, lab in label_recording(tw[::factor], a[::factor])}
+    assert labels == {"stand", "walk"}
+
+
+def test_vote_needs_three_of_the_last_four():
+    r = BehaviourRecognizer()
+    r.label = "walk"
+    for d in ["run", "walk", "run", "walk", "run", "walk"]:  # alternating: never 3 of 4
+        r._vote(d)
+        assert r.label == "walk"
+    for d, want in [("run", "walk"), ("run", "run")]:  # run, walk, run, run: 3 of the last 4
+        r._vote(d)
+        assert r.label == want
+
+
+def test_state_of_the_consecutive_count_hysteresis_restores():
+    r = BehaviourRecognizer()
+    st = r.get_state()
+    del st["recent"]
+    st.update(label="walk", candidate="run", count=2)
+    r2 = BehaviourRecognizer.from_state(st)
+    r2._vote("run")
+    assert r2.label == "run"  # the candidate's two wins carried over
+
+
+@pytest.mark.parametrize("factor", [2, 8])
+def test_duty_factor_is_a_fraction_of_time_in_mixed_rate_windows(demo, factor):
+    """A window whose newer part comes at a lower rate (the engine lowered it) measures the same stance
+    fraction and stride period as the same window at one rate."""
+    t, a, _ = demo
+    n = np.linalg.norm(a, axis=1)
+    checked = 0
+    for td in np.arange(20.0, 100.0, 1.37):
+        m = (t >= td - WINDOW_S) & (t < td)
+        tt, nn = t[m], n[m]
+        mid = tt.size // 2
+        keep = np.r_[np.arange(mid), np.arange(mid, tt.size)[::factor]]
+        full, mixed = window_features(tt, nn), window_features(tt[keep], nn[keep])
+        if full.stance_fraction >= 1.0 or mixed.stance_fraction >= 1.0:
+            continue
+        assert mixed.stance_fraction == pytest.approx(full.stance_fraction, abs=0.05), f"window ending {td:.2f} s"
+        if full.periodicity > 0.5:
+            assert mixed.stride_period_s == pytest.approx(full.stride_period_s, rel=0.05), f"window ending {td:.2f} s"
+        checked += 1
+    assert checked >= 30
+
+
 def test_labels_are_known():
     t = np.arange(2000) / 200.0
     a = np.tile([0.0, 0.0, -9.81], (2000, 1))
@@ -178,46 +233,58 @@ def test_gdin_walks_not_run(gdin_dir):
         print(f"{r.name}: {path_m / dur:.2f} m/s, run fraction {frac:.3f}")
         if frac > MAX_RUN_FRACTION_WALKING:
             failing.append(r.name)
-    # Known gap (strict: the test fails when it disappears, so the list is kept honest): exp21 gets run labels
-    # for 5 s (24.0-29.0 s, 10.1 % of its decisions). Its GCPs are too sparse to show speed there, but the
-    # ZUPT-KF strides (gdin loop closure 0.4 %) put its fastest stretch exactly there: 22.9-26.7 s at
-    # 1.64-1.72 m/s and 0.87-0.94 s per stride vs 1.0-1.3 s elsewhere (recording mean 1.21 m/s); the labels
-    # outlast it by 2.3 s (window + hysteresis). Its window features (|a|-stance 0.35-0.38, period 0.9 s,
-    # median |a| 13.5 m/s^2) are those of the VICON slow-jog run trials 11-44-47 (dataset-repo label) and
-    # 18-00-40 (stance 0.25-0.39, period 1.0 s): dropping the jog rule clears exp21 but costs VICON walk/run
-    # 98.4 -> 94.9 % (200 Hz) and 98.0 -> 94.3 % (25 Hz), measured 2026-11-22.
-    assert sorted(failing) == KNOWN_GDIN_RUN_GAPS
+    # Measured 2026-11-22 after the recency-weighted duty factor: exp21 8.7 % (run decisions 24.0-28.25 s, on
+    # and just after its fastest ZUPT-KF strides, see the next test), every other walk 0 %.
+    assert failing == []
+
+
+def _fast_strides(r) -> tuple[np.ndarray, np.ndarray, str]:
+    """Stride start/end times [s from the first sample] and speeds [m/s] of a gdin recording, and their source.
+
+    Per-stride footprints where the recording has them (exp 31-43); otherwise the ZUPT-KF's stances (engine in
+    ``zupt`` mode, gyroscope on: an estimate independent of the accelerometer-only recogniser, gdin loop
+    closure ~0.4-3 %)."""
+    from clients.evaluation.harness import run_engine
+
+    t0 = r.batch.acc_t_ns[0]
+    extra = r.truth.extra if r.truth else {}
+    if "stride_t_ns" in extra:
+        ts = (np.asarray(extra["stride_t_ns"]) - t0) / 1e9
+        xy = np.asarray(extra["stride_gcp_xy"], dtype=float)
+        src = "footprints"
+    else:
+        st = run_engine(r.batch, "zupt").stances
+        ts, xy, src = (st[:, 0] - t0) / 1e9, st[:, 1:3], "zupt-kf"
+    v = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.maximum(np.diff(ts), 1e-3)
+    return ts, v, src
 
 
 @pytest.mark.slow
 def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir):
-    """Where gdin has a footprint per stride (exp 31-43), run decisions must fall in fast stretches: a truth
-    stride of >= 1.5 m/s (the speed the walking test above calls fast) overlapping the decision's window.
-    Measured 2026-11-22: exp34 63/67, exp35 81/81, exp43 106/110; no run decision on the other recordings."""
+    """Run decisions on gdin must fall in fast stretches: a stride of >= FAST_STRIDE_MPS overlapping the
+    decision's window. Stride speeds from the footprints (exp 31-43) or, where gdin has only corner GCPs, from
+    the ZUPT-KF (see _fast_strides). Measured 2026-11-22: exp34 64/64, exp35 78/78, exp43 97/98 in fast
+    stretches (footprints), exp21 18/18 (ZUPT-KF: its fastest strides, 22.0-24.7 s at 1.68-1.76 m/s); no run
+    decision elsewhere."""
     from clients.importers import list_recordings, load
     from models.behaviour import WINDOW_S
 
     n_run = n_fast = 0
+    rows = []
     for p in list_recordings(gdin_dir):
         r = load(p)
-        extra = r.truth.extra if r.truth else {}
-        if "stride_t_ns" not in extra:
-            continue
         t0 = r.batch.acc_t_ns[0]
-        ts = (np.asarray(extra["stride_t_ns"]) - t0) / 1e9
-        xy = np.asarray(extra["stride_gcp_xy"], dtype=float)
-        v = np.linalg.norm(np.diff(xy, axis=0), axis=1) / np.diff(ts)
-        runs = fast = 0
-        for td, lab in label_recording((r.batch.acc_t_ns - t0) / 1e9, r.batch.acc):
-            if lab != "run":
-                continue
+        runs_t = [td for td, lab in label_recording((r.batch.acc_t_ns - t0) / 1e9, r.batch.acc) if lab == "run"]
+        if not runs_t:
+            continue
+        ts, v, src = _fast_strides(r)
+        fast = 0
+        for td in runs_t:
             m = (ts[1:] >= td - WINDOW_S) & (ts[:-1] <= td)
-            runs += 1
-            fast += bool(m.any() and v[m].max() >= 1.5)
-        if v.max() < 1.5:
-            assert runs == 0, f"{r.name}: run labels although no stride reaches 1.5 m/s"
-        n_run, n_fast = n_run + runs, n_fast + fast
-    print(f"gdin run decisions in fast stretches: {n_fast}/{n_run}")
+            fast += bool(m.any() and v[m].max() >= FAST_STRIDE_MPS)
+        rows.append(f"{r.name} {fast}/{len(runs_t)} ({src})")
+        n_run, n_fast = n_run + len(runs_t), n_fast + fast
+    print("gdin run decisions in fast stretches:", "; ".join(rows))
     assert n_run and n_fast / n_run >= 0.9
 
 
@@ -242,15 +309,10 @@ def _latencies(scenarios, factor):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="measured 2026-11-22 on demo and mixed-day seeds 0-5: walk->run takes up to 2.31 s at 200 Hz (3 of 6 "
-    "over 2 s, median 1.91 s) and 2.50 s at 25 Hz (4 of 6); run->walk 2.27 s and stand->walk 2.17 s once each. "
-    "The stance-fraction window (2.75 s) plus the hysteresis (0.5 s) is the cause; shorter windows or less "
-    "hysteresis trade it against VICON walk/run accuracy (97.3 % / 96.5 %) and stand->run latency",
-)
 @pytest.mark.parametrize("factor", [1, 8])
 def test_every_synthetic_transition_within_2s_over_seeds(factor):
+    """Every behaviour change of 12 synthetic days at 200 Hz and 25 Hz recognised within 2 s (issue 4).
+    Measured 2026-11-22: worst 2.00 s (run->walk) at 200 Hz, 1.75 s at 25 Hz."""
     scen = [(sc, seed) for sc in ("demo", "mixed-day") for seed in range(6)]
     lat = _latencies(scen, factor)
     summary = {k: (len(v), round(max(v), 2), round(float(np.median(v)), 2)) for k, v in sorted(lat.items())}
@@ -261,7 +323,8 @@ def test_every_synthetic_transition_within_2s_over_seeds(factor):
 @pytest.mark.slow
 def test_transition_latency_through_the_engine():
     """The engine's behaviour events while the device follows its sensor commands (25 Hz in Gait-DR and
-    standing): measured and printed; every transition must at least be recognised within 3 s."""
+    standing): every transition recognised within 2 s (issue 4). Measured 2026-11-22: worst 1.75 s (was
+    2.28 s before the duty factor became a time fraction in windows that mix the rates)."""
     from energy.device import replay
     from energy.engine import Engine
 
@@ -279,4 +342,4 @@ def test_transition_latency_through_the_engine():
             rows.append(f"{sc}/{seed} {lab}@{t0:.1f}s {d:.2f}s")
             worst = max(worst, d)
     print("engine-loop transition latency:", "; ".join(rows), f"; worst {worst:.2f} s")
-    assert worst <= 3.0
+    assert worst <= MAX_DELAY_S
