@@ -1,8 +1,8 @@
 """A device that obeys the engine's sensor configuration, and the replay loop built on it.
 
 Replaying a recording through :func:`replay` behaves like a real phone or foot sensor talking to the server:
-samples go out in batches of ``batch_seconds``; after each batch the engine's :class:`~energy.types.SensorConfig`
-applies from the next batch on. A gyroscope switched off sends nothing; a lower output data rate is produced by
+samples go out in batches of ``batch_seconds`` (or as long as the engine's ``SensorConfig.batch_s`` says); after
+each batch the engine's :class:`~energy.types.SensorConfig` applies from the next batch on. A gyroscope switched off sends nothing; a lower output data rate is produced by
 anti-aliased decimation of the recorded stream (004 Section 4.3), as a sensor's own digital filter would.
 """
 
@@ -138,7 +138,7 @@ class ReplayResult:
 def replay(
     engine: Engine,
     recording: SensorBatch,
-    batch_seconds: float = 1.0,
+    batch_seconds: float | None = 1.0,
     progress: Callable[[float], None] | None = None,
 ) -> ReplayResult:
     """Stream ``recording`` through ``engine`` as a device obeying the engine's sensor configuration.
@@ -149,8 +149,9 @@ def replay(
         A fresh or restored engine (created with ``trace=True`` for per-sample output).
     recording : SensorBatch
         Native-rate streams.
-    batch_seconds : float
-        Duration of each uploaded batch [s].
+    batch_seconds : float or None
+        Duration of each uploaded batch [s]; None: the ``batch_s`` of the configuration the engine asked for
+        (the device batches as long as it is told).
     progress : callable, optional
         Called with the fraction done after each batch.
     """
@@ -158,8 +159,7 @@ def replay(
     t_start, t_end = recording.t_start_ns, recording.t_end_ns
     if t_start is None or t_end is None:
         raise ValueError("recording: no samples")
-    step = int(round(batch_seconds * 1e9))
-    if step <= 0:
+    if batch_seconds is not None and batch_seconds <= 0:
         raise ValueError("batch_seconds must be positive")
     updates: list[Update] = []
     positions: list[Position] = []
@@ -169,8 +169,11 @@ def replay(
     compute = 0.0
     t0 = t_start
     while t0 <= t_end:
-        t1 = min(t0 + step, t_end + 1)
         config = engine.sensor_config
+        step = int(round((config.batch_s if batch_seconds is None else batch_seconds) * 1e9))
+        if step <= 0:
+            raise ValueError(f"batch duration must be positive, got {step} ns")
+        t1 = min(t0 + step, t_end + 1)
         configs.append((t0, config))
         batch = device.emit(t0, t1, config)
         for name in STREAMS:

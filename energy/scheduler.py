@@ -17,6 +17,8 @@ from energy.types import Event, SensorConfig
 __all__ = ["Scheduler"]
 
 _MOVING = ("walk", "run")
+BATCH_S = 1.0  # upload period while the ZUPT-KF runs or the navigation is not ready [s]
+LOW_POWER_BATCH_S = 4.0  # upload period with the gyroscope off once Gait-DR can navigate (auto mode) [s]
 
 
 class Scheduler:
@@ -168,14 +170,26 @@ class Scheduler:
         """Standing with the gyroscope off (auto mode)."""
         return self.mode == "auto" and self.behaviour == "stand" and not self.gyro_wanted()
 
+    def batch_s(self, gyro_on: bool) -> float:
+        """Upload period [s]: short while the ZUPT-KF runs (its results end examinations and initialisations,
+        and each answer may switch the gyroscope off) or before the navigation is ready (the start of the walk
+        must reach the scheduler quickly); long in auto mode once the gyroscope is off and Gait-DR can navigate
+        (fewer radio wake-ups and fewer per-batch computations; nothing is waiting for the answer)."""
+        if self.mode == "auto" and not gyro_on and self.nav_ready:
+            return LOW_POWER_BATCH_S
+        return BATCH_S
+
     def sensor_config(self) -> SensorConfig:
         c = self.config
         gyro = self.gyro_wanted()
+        batch = self.batch_s(gyro)
         if self.idle():
-            return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0)
+            return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0, batch_s=batch)
         if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
-            return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz)
-        return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz)  # 004 Section 4.3
+            return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
+                                batch_s=batch)
+        # 004 Section 4.3: de-sampled Gait-DR
+        return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz, batch_s=batch)
 
     # ------------------------------------------------------------------ internals
     def _calibrate(self, behaviour: str) -> None:

@@ -16,7 +16,13 @@ scheduler's measured computation per step vs the baseline's, both measured in th
 Gait-DR stream, calibration, dead reckoning, input checks) so the report says where the computation goes.
 
 Radio: the bytes of every uploaded batch as encoded by ``encode`` (the CLI passes the SDK's msgpack float32
-encoder, i.e. the bytes the project's client really sends), plus one request per batch.
+encoder, i.e. the bytes the project's client really sends, its per-body framing included), plus one request
+per batch. By default each device batches as long as its engine's ``SensorConfig.batch_s`` says (the scheduler
+asks for longer uploads once the gyroscope is off and Gait-DR navigates); ``batch_seconds`` fixes it instead.
+
+New or returning user: without ``user_profile`` the scheduler initialises every behaviour during the day (a new
+user's first day); with the profile it handed out after an earlier day (:func:`learn_profile`), calibrated
+behaviours resume in Gait-DR after one examination stride (the returning user, the product's normal case).
 
 Position error: the positions (one per stance/step) are compared with the synthetic truth at the same
 instants, after the one rotation about the origin that best matches the estimate's first 10 m to the
@@ -64,6 +70,7 @@ __all__ = [
     "run_engine",
     "simulate",
     "measure_compute_costs",
+    "learn_profile",
 ]
 
 COST_CLASSES: tuple[str, ...] = ("zupt", "pdr", "idle")
@@ -326,10 +333,11 @@ def run_engine(
     profile: PowerProfile,
     truth_t_ns: np.ndarray,
     truth_pos: np.ndarray,
-    batch_seconds: float = 1.0,
+    batch_seconds: float | None = 1.0,
     measure: bool = True,
     encode: Encoder | None = None,
     components: bool = False,
+    user_profile: dict[str, Any] | None = None,
 ) -> RunResult:
     """Replay ``batch`` through a fresh ``Engine(mode=mode)`` and account its energy on ``profile``.
 
@@ -342,8 +350,8 @@ def run_engine(
         Device profile; its ``compute`` costs are used only when ``measure`` is False.
     truth_t_ns, truth_pos : ndarray
         Truth times [ns] and NED positions [m].
-    batch_seconds : float
-        Upload batch duration [s].
+    batch_seconds : float or None
+        Upload batch duration [s]; None: as long as the engine's ``SensorConfig.batch_s`` says.
     measure : bool
         Account the computation this run actually took (thread CPU time per cost class, see the module
         docstring). False: use the stored per-sample costs of ``profile.compute`` (deterministic).
@@ -351,13 +359,15 @@ def run_engine(
         ``batch -> uploaded bytes`` (default :func:`model_bytes`).
     components : bool
         Also split the CPU time by engine component (:func:`component_meter`).
+    user_profile : dict, optional
+        Per-user calibration profile handed to the engine (a returning user, see :func:`learn_profile`).
     """
     from energy.device import replay
     from energy.engine import Engine
 
     ctx = component_meter() if components else contextlib.nullcontext()
     with ctx as meter:
-        eng = MeteredEngine(Engine(mode=mode), encode, meter)
+        eng = MeteredEngine(Engine(mode=mode, profile=user_profile), encode, meter)
         res = replay(eng, batch, batch_seconds=batch_seconds)  # type: ignore[arg-type]
     t_end = int(batch.t_end_ns or 0)
     intervals, classes = [], []
@@ -397,7 +407,21 @@ def run_engine(
     return RunResult(mode, res, tl, rep, errs, cpu, samples, comp, eng.records, classes)
 
 
-def _warm_up(batch: SensorBatch, batch_seconds: float, seconds: float = 120.0) -> None:
+def learn_profile(batch: SensorBatch, batch_seconds: float | None = 1.0) -> dict[str, Any]:
+    """The per-user calibration profile the scheduler hands out after one session on ``batch``.
+
+    A returning user (the product's normal case) starts the next session with it: calibrated behaviours
+    resume in Gait-DR after one examination stride instead of a full L0 initialisation (004 Table 2).
+    """
+    from energy.device import replay
+    from energy.engine import Engine
+
+    eng = Engine(mode="auto")
+    replay(eng, batch, batch_seconds=batch_seconds)
+    return eng.profile_dict()
+
+
+def _warm_up(batch: SensorBatch, batch_seconds: float | None, seconds: float = 120.0) -> None:
     """Run both engines over the first ``seconds`` of ``batch`` so one-off costs (numba compilation of the
     ZUPT-KF kernel, imports, caches) are not charged to the measured run as if they were per-sample work."""
     from energy.device import replay
@@ -449,11 +473,12 @@ def simulate(
     truth_t_ns: np.ndarray,
     truth_pos: np.ndarray,
     truth_steps: int,
-    batch_seconds: float = 1.0,
+    batch_seconds: float | None = 1.0,
     measure: bool = True,
     encode: Encoder | None = None,
     components: bool = True,
     repeats: int = 1,
+    user_profile: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Scheduler (``auto``) vs always-on baseline (``zupt``) on one recording with truth.
 
@@ -469,8 +494,9 @@ def simulate(
         Truth NED positions [m].
     truth_steps : int
         Number of true strides (denominator of the compute per step).
-    batch_seconds : float
-        Upload batch duration [s].
+    batch_seconds : float or None
+        Upload batch duration [s]; None: each device batches as long as its engine's ``SensorConfig.batch_s``
+        says (the baseline's is always 1 s).
     measure : bool
         Charge the computation measured in this run (default); False uses the stored costs of
         ``profile.compute`` (deterministic, for tests).
@@ -482,6 +508,9 @@ def simulate(
         With ``measure``: replay each engine this many times, interleaved, and keep for each the run with the
         least total CPU time (timing noise on a shared machine only ever adds time). Positions and sensor
         schedules are identical across repeats (the engine is deterministic).
+    user_profile : dict, optional
+        Calibration profile of a returning user for the scheduler (:func:`learn_profile`); the baseline
+        ZUPT-KF needs none. None: a new user (the scheduler initialises every behaviour on this day).
 
     Returns
     -------
@@ -496,7 +525,8 @@ def simulate(
     runs: dict[str, RunResult] = {}
     for _ in range(max(int(repeats), 1) if measure else 1):
         for m in ("auto", "zupt"):
-            r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components)
+            r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components,
+                           user_profile if m == "auto" else None)
             if m not in runs or sum(r.cpu_us_by_class.values()) < sum(runs[m].cpu_us_by_class.values()):
                 runs[m] = r
     sched, base = runs["auto"], runs["zupt"]

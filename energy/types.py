@@ -22,12 +22,17 @@ class SensorConfig:
     acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
         Output data rates [Hz]; ``gyr_rate_hz`` is 0 when the gyroscope is off, ``mag_rate_hz`` 0 when the
         magnetometer is not needed.
+    batch_s : float
+        How much data the device should collect before its next upload [s] (its sensor FIFO / batching
+        period): fewer, larger uploads cost less radio wake-up and per-batch computation, at the price of
+        a longer delay before the engine sees the data and answers with a new configuration.
     """
 
     gyro_on: bool
     acc_rate_hz: float
     gyr_rate_hz: float
     mag_rate_hz: float
+    batch_s: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -9,11 +9,13 @@ from pathlib import Path
 
 __all__ = ["register"]
 
+PREVIOUS_DAY_SEED_OFFSET = 1000  # --user returning: the profile comes from the same scenario with seed + this
+
 
 def _simulate(args: argparse.Namespace) -> int:
     from clients.synth import synthesize
     from energy.power import load_profile
-    from energy.simulate import measure_compute_costs, simulate
+    from energy.simulate import learn_profile, measure_compute_costs, simulate
 
     if args.measure_costs:
         costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch)
@@ -24,16 +26,26 @@ def _simulate(args: argparse.Namespace) -> int:
     rec = synthesize(args.scenario, seed=args.seed)
     truth = rec.truth
     assert truth is not None and truth.t_ns is not None and truth.positions is not None
-    doc = {"scenario": args.scenario, "seed": args.seed}
+    doc: dict = {"scenario": args.scenario, "seed": args.seed, "user": args.user}
+    user_profile = None
+    if args.user == "returning":
+        # An earlier day of the same synthetic person (another seed: other strides, noise and field), not this
+        # day's data: the profile the scheduler handed out at the end of that session.
+        prev_seed = args.seed + PREVIOUS_DAY_SEED_OFFSET
+        user_profile = learn_profile(synthesize(args.scenario, seed=prev_seed).batch, args.batch_seconds)
+        doc["user_profile_from"] = {"scenario": args.scenario, "seed": prev_seed, "calibrated": sorted(
+            b for b, c in user_profile.get("behaviours", {}).items() if c.get("calibrated"))}
+    doc["batching"] = (f"fixed {args.batch_seconds} s" if args.batch_seconds else
+                       "as the engine's SensorConfig.batch_s says (the baseline's is 1 s)")
     doc["radio_bytes"] = "SDK msgpack upload body, float32 values (clients.sdk.encode_batch), one request per batch"
     doc.update(
         simulate(
             profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds,
-            measure=not args.stored_costs, encode=_upload_bytes, repeats=args.repeats,
+            measure=not args.stored_costs, encode=_upload_bytes, repeats=args.repeats, user_profile=user_profile,
         )
     )
     if args.plot:
-        _plot(args.plot, rec, profile, args.batch_seconds)
+        _plot(args.plot, rec, args.batch_seconds, user_profile)
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
@@ -45,7 +57,7 @@ def _simulate(args: argparse.Namespace) -> int:
     rows.append(
         ("mean position error [m]", f"{doc['position_error_m']['scheduler']:.2f}", f"{doc['position_error_m']['baseline']:.2f}")
     )
-    print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), profile {profile.name}")
+    print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), {args.user} user, profile {profile.name}")
     for r in rows:
         print(f"{r[0]:<26}{r[1]:>12}{r[2]:>12}")
     print(f"energy ratio {doc['energy_ratio']:.3f}   compute reduction {doc['compute_reduction_pct']:.1f} %   "
@@ -73,7 +85,7 @@ def _upload_bytes(batch: object) -> int:
     return len(encode_batch(batch, "msgpack", "<f4")[0])  # type: ignore[arg-type]
 
 
-def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None:
+def _plot(path: str, rec: object, batch_seconds: float | None, user_profile: dict | None) -> None:
     """Mode / behaviour / gyroscope timelines of the scheduler on the scenario (PNG)."""
     import matplotlib
 
@@ -84,7 +96,8 @@ def _plot(path: str, rec: object, profile: object, batch_seconds: float) -> None
     from energy.device import replay
     from energy.engine import Engine
 
-    res = replay(Engine(mode="auto", trace=True), rec.batch, batch_seconds=batch_seconds)  # type: ignore[attr-defined]
+    eng = Engine(mode="auto", profile=user_profile, trace=True)
+    res = replay(eng, rec.batch, batch_seconds=batch_seconds)  # type: ignore[attr-defined]
     tr = res.trace
     t_origin = int(rec.batch.t_start_ns)  # type: ignore[attr-defined]
     t = (tr.t_ns - t_origin) / 1e9
@@ -120,7 +133,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--scenario", default="mixed-day", help="synthetic scenario (clients.synth.scenario_names())")
     s.add_argument("--seed", type=int, default=0, help="synthesiser seed")
     s.add_argument("--profile", default="foot-004", help="device power profile (energy/profiles/NAME.json) or a path")
-    s.add_argument("--batch-seconds", type=float, default=1.0, help="upload batch duration [s]")
+    s.add_argument(
+        "--batch-seconds",
+        type=float,
+        default=None,
+        help="fixed upload batch duration [s] (default: as long as the engine's sensor configuration says)",
+    )
+    s.add_argument(
+        "--user",
+        choices=("new", "returning"),
+        default="new",
+        help="new: the scheduler initialises every behaviour on this day (default); returning: it starts from the "
+        "calibration profile it handed out after an earlier day (same scenario, seed + 1000)",
+    )
     s.add_argument("--plot", metavar="PNG", help="write mode/behaviour/gyroscope timelines of the scheduler")
     s.add_argument(
         "--repeats",

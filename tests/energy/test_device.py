@@ -69,3 +69,47 @@ def test_rate_change_never_sends_time_backwards() -> None:
     c = dev.emit(int(4e9), int(6e9), FULL)
     t = np.concatenate([a.acc_t_ns, b.acc_t_ns, c.acc_t_ns])
     assert np.all(np.diff(t) > 0)
+
+
+class _ScriptedEngine:
+    """Stands in for an engine: asks for the configurations of ``script`` in turn, records what it was fed."""
+
+    def __init__(self, script: list[SensorConfig]) -> None:
+        self.script = script
+        self.fed: list[SensorBatch] = []
+        self.trace = None
+
+    @property
+    def sensor_config(self) -> SensorConfig:
+        return self.script[min(len(self.fed), len(self.script) - 1)]
+
+    def feed(self, batch: SensorBatch):  # noqa: ANN201
+        from energy.types import Update
+
+        self.fed.append(batch)
+        return Update([], [], self.sensor_config, "walk", "pdr")
+
+    def flush(self):  # noqa: ANN201
+        from energy.types import Update
+
+        return Update([], [], self.sensor_config, "walk", "pdr")
+
+
+def test_replay_batches_as_long_as_the_configuration_says() -> None:
+    from dataclasses import replace
+
+    from energy.device import replay
+
+    script = [FULL, replace(LOW, batch_s=2.5), replace(LOW, batch_s=2.5), FULL]
+    eng = _ScriptedEngine(script)
+    res = replay(eng, recording(seconds=6.0), batch_seconds=None)  # type: ignore[arg-type]
+    starts = [t for t, _ in res.configs]
+    assert starts == [0, 1_000_000_000, 3_500_000_000, 6_000_000_000][: len(starts)]
+    assert len(starts) == 3 and res.batches == 3  # 1 s + 2.5 s + 2.5 s covers the 6 s recording
+    assert len(eng.fed[0]) == 200 and eng.fed[0].gyr_t_ns.size == 200  # 1 s at 200 Hz, gyroscope on
+    for b in eng.fed[1:]:  # then 25 Hz with the gyroscope off ...
+        assert b.gyr_t_ns.size == 0 and np.diff(b.acc_t_ns) == pytest.approx(40_000_000)
+    # ... for 2.5 s each (the decimator's output lags its input by its group delay)
+    assert eng.fed[2].acc_t_ns[-1] - eng.fed[1].acc_t_ns[-1] == pytest.approx(2.5e9, abs=40e6)
+    fixed = replay(_ScriptedEngine(script), recording(seconds=6.0), batch_seconds=1.0)  # type: ignore[arg-type]
+    assert fixed.batches == 6  # a fixed duration overrides the configuration's

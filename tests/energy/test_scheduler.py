@@ -187,3 +187,25 @@ def test_an_interrupted_initialisation_continues_where_it_stopped() -> None:
     assert s.calibrating == "walk" and s.l_zupt_m == done
     walk_to(s, 0.4 * CFG.l0_m + 1.0)
     assert s.ready_for_pdr()
+
+
+# ---------------------------------------------------------------- upload period
+def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() -> None:
+    from energy.scheduler import BATCH_S, LOW_POWER_BATCH_S
+
+    assert LOW_POWER_BATCH_S > BATCH_S
+    s = Scheduler("auto", CFG, calibrated("walk"))
+    assert s.sensor_config().batch_s == BATCH_S  # not aligned yet: the start of the walk must be heard at once
+    s.nav_ready = True
+    s.on_behaviour("stand", 1.0, 1)
+    assert not s.sensor_config().gyro_on and s.sensor_config().batch_s == LOW_POWER_BATCH_S
+    s.on_behaviour("walk", 2.0, 2)  # calibrated: Gait-DR with a one-stride examination
+    assert s.working == "pdr" and s.exam_active
+    assert s.sensor_config().gyro_on and s.sensor_config().batch_s == BATCH_S
+    s.on_exam_result(True, 1.3, 1.3, 3.0, 3)
+    assert not s.sensor_config().gyro_on and s.sensor_config().batch_s == LOW_POWER_BATCH_S
+    for mode in ("zupt", "pdr"):  # the fixed schemes keep 1-s uploads
+        f = aligned(mode, CFG, calibrated("walk"))
+        f.working = "pdr"
+        assert f.sensor_config().batch_s == BATCH_S
+

@@ -141,3 +141,4 @@ def test_default_byte_model_counts_every_stream_sample():
     acc = np.tile([0.0, 0.0, 9.81], (25, 1))
     b = SensorBatch(acc_t_ns=t, acc=acc, mag_t_ns=t[::5], mag=np.tile([20.0, 0.0, 40.0], (5, 1)))
     assert model_bytes(b) == 30 * (SAMPLE_BYTES + TIMESTAMP_BYTES) + REQUEST_OVERHEAD_BYTES
+
