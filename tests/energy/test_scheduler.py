@@ -209,3 +209,20 @@ def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() ->
         f.working = "pdr"
         assert f.sensor_config().batch_s == BATCH_S
 
+
+def test_standing_at_session_start_gyro_sleeps_once_aligned_only_for_a_returning_user() -> None:
+    for profile, sleeps in ((calibrated("walk"), True), (Profile(), False)):
+        s = Scheduler("auto", CFG, profile)
+        assert s.behaviour == "stand" and s.gyro_wanted()  # the ZUPT-KF must level on the still foot first
+        s.zupt_aligned = True
+        assert s.gyro_wanted() is not sleeps  # a new user: no model could place the first steps
+        if sleeps:
+            assert s.sensor_config().acc_rate_hz == CFG.stand_rate_hz
+            s.on_behaviour("walk", 5.0, 5)  # the profile resumes after a one-stride examination
+            assert s.working == "pdr" and s.exam_active and s.gyro_wanted()
+        restored = Scheduler.from_state(s.get_state())
+        assert restored.zupt_aligned and restored.gyro_wanted() == s.gyro_wanted()
+    failed = Scheduler("auto", CFG, calibrated("walk"))
+    failed.failed.add("walk")  # an examination failed in this session: not resumable
+    failed.zupt_aligned = True
+    assert failed.gyro_wanted()

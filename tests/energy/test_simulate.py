@@ -142,3 +142,27 @@ def test_default_byte_model_counts_every_stream_sample():
     b = SensorBatch(acc_t_ns=t, acc=acc, mag_t_ns=t[::5], mag=np.tile([20.0, 0.0, 40.0], (5, 1)))
     assert model_bytes(b) == 30 * (SAMPLE_BYTES + TIMESTAMP_BYTES) + REQUEST_OVERHEAD_BYTES
 
+
+@pytest.mark.slow
+def test_returning_user_resumes_from_the_profile():
+    """A profile learned on an earlier day (another seed): the day starts in Gait-DR, not with an L0
+    initialisation, and the gyroscope sleeps through the first stand once the ZUPT-KF has levelled."""
+    pytest.importorskip("energy.engine")
+    from clients.synth import synthesize
+    from energy.power import load_profile
+    from energy.simulate import learn_profile, run_engine
+
+    r = synthesize("demo", seed=0)  # starts with 10 s of standing
+    prof = learn_profile(synthesize("demo", seed=1).batch)
+    assert prof["behaviours"]["walk"]["calibrated"]
+    p = load_profile("foot-004")
+    runs = [run_engine("auto", r.batch, p, r.truth.t_ns, r.truth.positions, None, measure=False, user_profile=u)
+            for u in (None, prof)]
+    t0 = int(r.batch.t_start_ns)
+    for run, returning in zip(runs, (False, True)):
+        switches = [e.detail for u in run.replay.updates for e in u.events if e.kind == "mode_switch"]
+        assert ("profile" in switches[0]["reason"]) is returning
+        stand = [c.gyro_on for t, c in run.replay.configs if 5e9 <= t - t0 < 9e9]  # levelled by 5 s
+        assert stand and all(g is not returning for g in stand)
+    new, ret = runs
+    assert abs(len(ret.replay.positions) - len(new.replay.positions)) <= 2  # no steps lost at the start
