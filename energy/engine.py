@@ -426,6 +426,7 @@ class Engine:
                     self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
                 out = nav.process(op[1], op[2], op[3], op[4])
+                self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
                 if len(out.t_s):
                     self._nav_t = float(out.t_s[-1])
                 self._ops[0:1] = self._nav_ops(out)
