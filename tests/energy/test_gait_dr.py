@@ -1,0 +1,43 @@
+"""Gait-DR pipeline: KF II turn gate, compass following in dead reckoning, state round trip."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from energy.codec import dumps, loads
+from energy.gait_dr import GaitPipeline
+from models.steps import StepEvent
+from models.zupt_nav import Stance
+
+
+def _pair(k: int, heading: float, walk_dir: float, d: float = 1.3, period: float = 1.2) -> tuple[Stance, StepEvent]:
+    t = 1.0 + k * period
+    delta = np.array([d * math.cos(walk_dir), d * math.sin(walk_dir), 0.0])
+    st = Stance(t, t + 0.3, np.zeros(3), heading, delta, 1.5, 60, False)
+    e = StepEvent(t, period, 1.0 / period, 12.0, 25.0, 5.0, (0.0, 0.0, -9.81), False, k)
+    return st, e
+
+
+def test_kf2_skips_turning_strides() -> None:
+    gp = GaitPipeline(25.0)
+    dev = math.radians(5.0)
+    k = 0
+    for _ in range(12):  # straight north: walking direction = heading + 5 deg
+        gp.learn(*_pair(k, 0.0, dev), "walk")
+        k += 1
+    n = gp.kf2["walk"].n_updates
+    # a 20 deg turn over one stride: the chord points half-way, gamma - psi = -5 deg (inside the innovation
+    # gate, 10 deg from the deviation) but it is not an observation of the deviation
+    gp.learn(*_pair(k, math.radians(20.0), math.radians(15.0)), "walk")
+    k += 1
+    assert gp.kf2["walk"].n_updates == n
+    for _ in range(5):  # straight again in the new direction: observed again
+        gp.learn(*_pair(k, math.radians(20.0), math.radians(20.0) + dev), "walk")
+        k += 1
+    assert gp.kf2["walk"].n_updates == n + 5
+    assert gp.kf2["walk"].deviation == pytest.approx(dev, abs=math.radians(0.5))
+    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    assert back._prev_stance == gp._prev_stance
