@@ -37,6 +37,9 @@ class EngineConfig:
         holding the last good compass heading. Off: on gdin it cost gyroscope time and made positions worse
         (the ZUPT-KF restarts from the held heading, so a turn missed before the gyroscope woke stays missed,
         and the compass no longer re-anchors the heading while the gyroscope runs).
+    pdr_conventional : bool
+        Evaluation baseline: Gait-DR as "conventional PDR" (004 Table 6: generic step model, no heading-deviation
+        compensation), see :class:`energy.gait_dr.GaitPipeline`. Off in the product.
     """
 
     full_rate_hz: float = 200.0
@@ -48,6 +51,7 @@ class EngineConfig:
     max_sample_age_s: float = 0.05
     exam_timeout_s: float = 10.0
     heading_assist: bool = False
+    pdr_conventional: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # flat: no deep copy

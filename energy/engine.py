@@ -261,7 +261,7 @@ class Engine:
         self._nav = ZuptNavigator()
         self._behaviour = BehaviourRecognizer()
         self._labels = _LabelHistory()
-        self._gait = GaitPipeline(self.config.pdr_rate_hz) if mode != "zupt" else None
+        self._gait = GaitPipeline(self.config.pdr_rate_hz, self.config.pdr_conventional) if mode != "zupt" else None
         if self._gait is not None:
             for b, cal in prof.behaviours.items():
                 if cal.calibrated:
