@@ -125,10 +125,16 @@ class GaitPipeline:
     ----------
     rate_hz : float
         Rate of the low-rate stream the step segmentation runs on [Hz].
+    conventional : bool
+        "Conventional PDR" of 004 Table 6, the baseline that shows what the online calibration buys: the
+        generic step model (:func:`models.step_length.default_prior`, never fitted to this person) and no
+        heading-deviation compensation (KF II still runs, its estimate is not applied). Same hand-over and
+        heading as Gait-PDR.
     """
 
-    def __init__(self, rate_hz: float) -> None:
+    def __init__(self, rate_hz: float, conventional: bool = False) -> None:
         self.rate_hz = float(rate_hz)
+        self.conventional = bool(conventional)
         self._low = _LowRate(rate_hz)
         self._seg = StepSegmenter(rate_hz)
         self.cal = StepLengthCalibrator()
@@ -275,6 +281,8 @@ class GaitPipeline:
         (a person's stride is far better known from their own last strides than from a generic prior).
         """
         b = _behaviour(behaviour)
+        if self.conventional:
+            return StepLengthCalibrator(self.cal.model).predict(b, _features(e))  # generic model (never fitted)
         if not self.cal.calibrated(b) and self.recent_d[b]:
             return float(np.median(self.recent_d[b])), float("nan")
         return self.cal.predict(b, _features(e))
@@ -312,7 +320,7 @@ class GaitPipeline:
 
     def start(self, position: np.ndarray, heading: float) -> None:
         """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m], sensor heading [rad]."""
-        self.dr = GaitDeadReckoner(position)
+        self.dr = GaitDeadReckoner(position, compensate=not self.conventional)
         self.heading = float(heading)
 
     def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
@@ -353,6 +361,7 @@ class GaitPipeline:
     def get_state(self) -> dict[str, Any]:
         return {
             "rate_hz": self.rate_hz,
+            "conventional": self.conventional,
             "low": self._low.get_state(),
             "seg": self._seg.get_state(),
             "cal": self.cal.get_state(),
@@ -369,7 +378,7 @@ class GaitPipeline:
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> GaitPipeline:
-        obj = cls(d["rate_hz"])
+        obj = cls(d["rate_hz"], bool(d.get("conventional", False)))
         obj._low = _LowRate.from_state(d["low"])
         obj._seg = StepSegmenter.from_state(d["seg"])
         obj.cal = StepLengthCalibrator.from_state(d["cal"])

@@ -3,7 +3,7 @@
 Forms (DESIGN.md "Evaluation contracts")::
 
     pednav eval vicon DIR --json
-    pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] --json
+    pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] --json
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
@@ -37,11 +37,11 @@ def _progress(items: list[Any], desc: str) -> Any:
     return tqdm(items, desc=desc, unit="rec", file=sys.stderr, disable=None, leave=False)
 
 
-def _runner(batch_seconds: float) -> Any:
+def _runner(batch_seconds: float, conventional: bool = False) -> Any:
     from clients.evaluation.harness import run_engine
 
     def run(batch: Any, mode: str, l0_m: float | None) -> Any:
-        return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds)
+        return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds, conventional=conventional)
 
     return run
 
@@ -101,15 +101,15 @@ def _run_vicon(args: argparse.Namespace) -> int:
 def _run_gdin(args: argparse.Namespace) -> int:
     from clients.evaluation import harness
 
-    if args.l0 is not None and args.mode == "zupt":
-        print("pednav eval gdin: --l0 applies to --mode pdr/auto only", file=sys.stderr)
+    if (args.l0 is not None or args.conventional) and args.mode == "zupt":
+        print("pednav eval gdin: --l0 and --conventional apply to --mode pdr/auto only", file=sys.stderr)
         return 2
     directory = Path(args.dir) if args.dir else _default_dir("gdin")
     if directory is None or not directory.is_dir():
         print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
         return 2
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
-    runner = _runner(args.batch_seconds)
+    runner = _runner(args.batch_seconds, args.conventional)
     rows: list[dict[str, Any]] = []
     failed = 0
     for e in _progress(entries, f"gdin {args.mode}"):
@@ -130,6 +130,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
         "dataset": "gdin",
         "mode": args.mode,
         "l0_m": args.l0,
+        "conventional": args.conventional,
         "recordings": rows,
         "excluded_from_summary": excluded,
         "summary": harness.gdin_summary(rows),
@@ -173,4 +174,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(pg)
     pg.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
     pg.add_argument("--l0", type=float, default=None, metavar="METERS", help="ZUPT-KF initialisation distance before Gait-PDR (pdr/auto)")
+    pg.add_argument("--conventional", action="store_true",
+                    help="conventional PDR baseline (004 Table 6): generic step model, no heading-deviation compensation (pdr/auto)")
     pg.set_defaults(func=_run_gdin)

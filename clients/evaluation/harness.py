@@ -101,12 +101,17 @@ class Runner(Protocol):
     def __call__(self, batch: SensorBatch, mode: str, l0_m: float | None) -> EngineRun: ...
 
 
-def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float = 1.0) -> EngineRun:
-    """Replay ``batch`` through a fresh engine (``trace=True``) in ``mode``; ``l0_m`` sets ``EngineConfig.l0_m``."""
+def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float = 1.0,
+               conventional: bool = False) -> EngineRun:
+    """Replay ``batch`` through a fresh engine (``trace=True``) in ``mode``; ``l0_m`` sets ``EngineConfig.l0_m``,
+    ``conventional`` the conventional-PDR baseline (``EngineConfig.pdr_conventional``)."""
     from energy.device import replay  # lazy: keeps `pednav --help` fast
     from energy.engine import Engine, EngineConfig
 
-    config = EngineConfig() if l0_m is None else EngineConfig(l0_m=float(l0_m))
+    kw: dict[str, Any] = {"pdr_conventional": bool(conventional)}
+    if l0_m is not None:
+        kw["l0_m"] = float(l0_m)
+    config = EngineConfig(**kw)
     engine = Engine(mode=mode, config=config, profile=None, trace=True)
     res = replay(engine, batch, batch_seconds=batch_seconds)
     tr = res.trace

@@ -167,3 +167,4 @@ def test_cli_eval_gdin_table_and_l0_rule(gdin_dir: Path, capsys: pytest.CaptureF
     out = capsys.readouterr().out
     assert "exp34" in out and "summary" in out
     assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--l0", "10"]) == 2
+    assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--conventional"]) == 2

@@ -41,3 +41,21 @@ def test_kf2_skips_turning_strides() -> None:
     assert gp.kf2["walk"].deviation == pytest.approx(dev, abs=math.radians(0.5))
     back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
     assert back._prev_stance == gp._prev_stance
+
+
+def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None:
+    from models.step_length import StepFeatures, StepLengthCalibrator
+
+    gps = {c: GaitPipeline(25.0, conventional=c) for c in (False, True)}
+    for gp in gps.values():
+        for k in range(12):  # a person with 1.6 m strides walking 20 deg off the sensor's x axis
+            gp.learn(*_pair(k, 0.0, math.radians(20.0), d=1.6), "walk")
+        gp.fit("walk")
+        gp.start(np.zeros(3), 0.0)
+    e = _pair(20, 0.0, 0.0)[1]
+    generic = StepLengthCalibrator().predict("walk", StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min))[0]
+    assert gps[True].step_length(e, "walk")[0] == pytest.approx(generic)
+    assert gps[False].step_length(e, "walk")[0] == pytest.approx(1.6, abs=0.05)
+    assert gps[False].kf2["walk"].deviation == pytest.approx(math.radians(20.0), abs=math.radians(0.5))
+    assert gps[True].dr is not None and not gps[True].dr.compensate
+    assert GaitPipeline.from_state(loads(dumps(gps[True].get_state()))).conventional
