@@ -17,6 +17,7 @@ from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
 from server.ingest import EngineHost, IngestConflict
 from server.settings import Settings
+from server.upload import Uploader
 
 __all__ = ["create_app", "BodyLimit"]
 
@@ -60,6 +61,8 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         # stop the engine helper processes with the server (they are spawned again if the app is reused)
         if app.state.host.pool is not None:
             app.state.host.pool.shutdown()
+        if app.state.uploader is not None:
+            app.state.uploader.close()
 
     app = FastAPI(
         lifespan=lifespan,
@@ -73,16 +76,15 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.settings = settings
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
-    # PostgreSQL uploads run in autocommit mode with one atomic write statement (see server.ingest.apply_batch)
-    app.state.upload_sessionmaker = (
-        make_sessionmaker(db_engine.execution_options(isolation_level="AUTOCOMMIT"))
-        if db_engine.dialect.name == "postgresql" and settings.pg_one_statement_writes else None
-    )
     app.state.limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
-                                engine_processes=settings.engine_processes)
+                                engine_processes=settings.engine_processes, channels=settings.ingest_threads)
+    # batch uploads on driver connections (SQLite: group commit; PostgreSQL: one statement), see server.upload
+    sqlite = db_engine.dialect.name == "sqlite"
+    app.state.uploader = Uploader(db_engine, app.state.host, app.state.limiter) if (
+        sqlite or settings.pg_one_statement_writes) else None
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
 

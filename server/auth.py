@@ -13,6 +13,7 @@ import math
 import threading
 import time
 from datetime import datetime, timezone
+from typing import Any
 
 from fastapi import HTTPException, status
 from sqlalchemy import select
@@ -21,7 +22,7 @@ from sqlalchemy.orm import Session
 from server.models import Token
 from server.security import hash_token
 
-__all__ = ["RateLimiter", "authenticate"]
+__all__ = ["RateLimiter", "admit", "authenticate", "require_token"]
 
 _T = Token.__table__
 
@@ -77,6 +78,13 @@ def _unauthorized(detail: str) -> HTTPException:
     return HTTPException(status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"})
 
 
+def require_token(token: str | None) -> str:
+    """``token`` itself, or 401 when the request carried none."""
+    if not token:
+        raise _unauthorized("missing bearer token (header 'Authorization: Bearer <token>')")
+    return token
+
+
 def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) -> int:
     """The user id of a valid token, after taking one request from its rate limit.
 
@@ -85,16 +93,23 @@ def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) ->
     HTTPException
         401 missing / invalid / revoked / expired token; 429 rate limit exceeded (``Retry-After`` set).
     """
-    if not token:
-        raise _unauthorized("missing bearer token (header 'Authorization: Bearer <token>')")
-    h = hash_token(token)
+    h = hash_token(require_token(token))
     row = db.execute(select(_T.c.user_id, _T.c.revoked, _T.c.expires_at).where(_T.c.token_hash == h)).first()
-    if row is None:
+    return admit(h, row, limiter)
+
+
+def admit(h: str, row: Any, limiter: RateLimiter | None) -> int:
+    """The user id of the token whose hash is ``h`` and whose row ``(user_id, revoked, expires_at)`` was read
+    (``None``: no such token), after taking one request from its rate limit; raises as :func:`authenticate`."""
+    if row is None or row[0] is None:
         raise _unauthorized("invalid token")
-    if row.revoked:
+    user_id, revoked, expires_at = row[0], row[1], row[2]
+    if revoked:
         raise _unauthorized("token revoked")
-    if row.expires_at is not None:
-        exp = row.expires_at if row.expires_at.tzinfo else row.expires_at.replace(tzinfo=timezone.utc)
+    if expires_at is not None:
+        if isinstance(expires_at, str):  # raw SQLite rows: SQLAlchemy's text form of a UTC datetime
+            expires_at = datetime.fromisoformat(expires_at)
+        exp = expires_at if expires_at.tzinfo else expires_at.replace(tzinfo=timezone.utc)
         if exp <= datetime.now(timezone.utc):
             raise _unauthorized(
                 f"token expired at {exp.isoformat(timespec='seconds')}; mint a new one (POST /v1/tokens with a valid "
@@ -109,4 +124,4 @@ def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) ->
                 f"retry in {wait:.2f} s",
                 headers={"Retry-After": str(max(1, math.ceil(wait)))},
             )
-    return int(row.user_id)
+    return int(user_id)

@@ -2,50 +2,59 @@
 
 The worker keeps HTTP, authentication and the database; a helper process (one per ``engine_processes``,
 chosen by session id so a session always meets its cached engine) restores, feeds and serialises the engine
-and sends back the answer and the new state bytes. Helpers cache engines by ``(session id, version)``; on a
+and sends back everything the worker stores: the answer (as a dict and as its JSON text), the canonical raw
+batch and its digest, and the new (compressed) state. Helpers cache engines by ``(session id, version)``; on a
 miss the worker sends the stored state. Results are identical to in-process feeding (same engine code, same
 bytes), and the worker still commits state and outputs in one versioned write transaction.
+
+Each worker thread talks to a helper over its own pipe (a fixed set of ``channels`` per helper, one per
+ingest thread): a request is one ``send`` and one blocking ``recv`` in the calling thread, both without the
+GIL while they wait. (A ``ProcessPoolExecutor`` needs a feeder thread, a result thread and a future per call:
+three more GIL hand-overs per batch in a worker whose GIL is its bottleneck.)
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import queue
 import threading
 import time
 from collections import OrderedDict
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
 
-__all__ = ["EnginePool"]
+__all__ = ["EngineHelperError", "EnginePool"]
 
 _CACHE: OrderedDict[int, tuple[int, Any]] = OrderedDict()
 _CACHE_SIZE = 512
 
 
-def _init(cache_size: int) -> None:
-    global _CACHE_SIZE
-    _CACHE_SIZE = cache_size
+class EngineHelperError(RuntimeError):
+    """The helper process died or failed outside the engine's own validation."""
+
+
+def _watch_parent() -> None:
     parent = os.getppid()
 
-    def watch_parent() -> None:  # a helper never outlives its server process (e.g. after SIGKILL)
+    def watch() -> None:  # a helper never outlives its server process (e.g. after SIGKILL)
         while True:
             time.sleep(1.0)
             if os.getppid() != parent:
                 os._exit(0)
 
-    threading.Thread(target=watch_parent, daemon=True, name="watch-parent").start()
+    threading.Thread(target=watch, daemon=True, name="watch-parent").start()
 
 
 def _feed(
     session_id: int, version: int, state: bytes | None, seq: int, streams: dict[str, np.ndarray]
 ) -> tuple[Any, ...]:
-    """In the helper: feed one batch; ("ok", response, state, behaviour, mode) | ("miss",) | ("batch_error", field, problem)."""
+    """In the helper: feed one batch; ("ok", Fed) | ("miss",) | ("batch_error", field, problem)."""
     from energy.engine import Engine
     from models.batch import BatchError, SensorBatch
-    from server.ingest import _update_dict
+    from server.ingest import feed_engine
+    from server.statecodec import unpack_state
 
     hit = _CACHE.pop(session_id, None)
     if hit is not None and hit[0] == version:
@@ -53,21 +62,63 @@ def _feed(
     elif state is None:
         return ("miss",)
     else:
-        engine = Engine.from_bytes(state)
+        engine = Engine.from_bytes(unpack_state(state))
     try:
-        upd = engine.feed(SensorBatch(**streams))
+        fed = feed_engine(engine, SensorBatch(**streams), session_id, seq)
     except BatchError as exc:  # sent back as plain values (the worker raises its own BatchError from them)
         return ("batch_error", exc.field, exc.problem)
-    resp = _update_dict(session_id, seq, seq + 1, upd)
-    blob = engine.to_bytes()
     _CACHE[session_id] = (version + 1, engine)
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.popitem(last=False)
-    return ("ok", resp, blob, upd.behaviour, upd.mode)
+    return ("ok", fed)
+
+
+def _serve(conns: list[Any], cache_size: int) -> None:
+    """Helper process main loop: answer requests on any of ``conns`` until all are closed."""
+    from multiprocessing.connection import wait
+
+    global _CACHE_SIZE
+    _CACHE_SIZE = cache_size
+    _watch_parent()
+    live = list(conns)
+    while live:
+        for c in wait(live):
+            try:
+                args = c.recv()
+            except (EOFError, OSError):
+                live.remove(c)
+                continue
+            try:
+                out: tuple[Any, ...] = _feed(*args)
+            except Exception as exc:  # noqa: BLE001 - answered, so the channel stays in step
+                out = ("error", f"{type(exc).__name__}: {exc}")
+            c.send(out)
+
+
+class _Helper:
+    def __init__(self, ctx: Any, channels: int, cache_size: int) -> None:
+        pairs = [ctx.Pipe(duplex=True) for _ in range(channels)]
+        self.proc = ctx.Process(target=_serve, args=([b for _, b in pairs], cache_size), daemon=True,
+                                name="pednav-engine")
+        self.proc.start()
+        for _, b in pairs:
+            b.close()
+        self.free: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.conns = [a for a, _ in pairs]
+        for a in self.conns:
+            self.free.put(a)
+
+    def stop(self) -> None:
+        for c in self.conns:
+            c.close()
+        self.proc.join(timeout=10)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
 
 
 class EnginePool:
-    """``processes`` single-process executors (spawned lazily on first use).
+    """``processes`` helper processes (spawned lazily on first use), ``channels`` pipes to each.
 
     Parameters
     ----------
@@ -75,29 +126,51 @@ class EnginePool:
         Helper processes (>= 1).
     cache_size : int
         Engines each helper keeps in memory.
+    channels : int
+        Pipes per helper: the most requests in flight to one helper (one per ingest thread); further callers
+        wait for a free pipe.
     """
 
-    def __init__(self, processes: int, cache_size: int) -> None:
+    def __init__(self, processes: int, cache_size: int, channels: int = 16) -> None:
         self.processes = processes
         self.cache_size = cache_size
-        self._pools: list[ProcessPoolExecutor] | None = None
+        self.channels = channels
+        self._helpers: list[_Helper | None] | None = None
         self._lock = threading.Lock()
 
-    def _pool(self, session_id: int) -> ProcessPoolExecutor:
+    def _helper(self, session_id: int) -> _Helper:
+        i = session_id % self.processes
         with self._lock:  # ingest threads may arrive together on the first request
-            if self._pools is None:
+            if self._helpers is None:
+                self._helpers = [None] * self.processes
+            h = self._helpers[i]
+            if h is None or not h.proc.is_alive():
+                if h is not None:
+                    h.stop()
                 ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
-                self._pools = [
-                    ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_init, initargs=(self.cache_size,))
-                    for _ in range(self.processes)
-                ]
-            return self._pools[session_id % self.processes]
+                h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
+            return h
 
     def feed(self, session_id: int, version: int, state: bytes | None, seq: int, streams: dict[str, np.ndarray]) -> tuple[Any, ...]:
-        return self._pool(session_id).submit(_feed, session_id, version, state, seq, streams).result()
+        """Feed one batch in the session's helper: ("ok", Fed) | ("miss",) | ("batch_error", field, problem)."""
+        h = self._helper(session_id)
+        try:
+            conn = h.free.get(timeout=120.0)
+        except queue.Empty:
+            raise EngineHelperError("no engine helper channel free for 120 s") from None
+        try:
+            conn.send((session_id, version, state, seq, streams))
+            out: tuple[Any, ...] = conn.recv()
+        except (EOFError, OSError) as exc:  # the helper died: this pipe is out of step, do not reuse it
+            raise EngineHelperError(f"engine helper process failed: {type(exc).__name__}") from None
+        h.free.put(conn)
+        if out[0] == "error":
+            raise EngineHelperError(f"engine helper: {out[1]}")
+        return out
 
     def shutdown(self) -> None:
-        if self._pools is not None:
-            for p in self._pools:
-                p.shutdown(wait=True, cancel_futures=True)
-            self._pools = None
+        with self._lock:
+            helpers, self._helpers = self._helpers, None
+        for h in helpers or []:
+            if h is not None:
+                h.stop()

@@ -16,10 +16,10 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
-from sqlalchemy import insert, select, text, update
+from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session
 from sqlalchemy.orm.exc import StaleDataError
@@ -29,14 +29,17 @@ from server import crud
 from server.engine_pool import EnginePool
 from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
+from server.statecodec import pack_state, unpack_state
 from server.timing import phase, since
 
 __all__ = [
     "EngineHost",
+    "Fed",
     "IngestConflict",
     "apply_batch",
     "close_session",
     "engine_profile_in",
+    "feed_engine",
     "json_safe",
     "validate_calibration",
 ]
@@ -76,6 +79,8 @@ class EngineHost:
         Serialise this process's write transactions (SQLite).
     engine_processes : int
         Helper processes that run the engines of batch uploads (0 = in this process).
+    channels : int
+        Requests in flight to one helper process (one per ingest thread).
     """
 
     def __init__(
@@ -84,10 +89,11 @@ class EngineHost:
         engine_cls: Any | None = None,
         serialize_writes: bool = False,
         engine_processes: int = 0,
+        channels: int = 16,
     ) -> None:
         self.cache_size = cache_size
         # engines in helper processes (only for the default engine class: helpers import it themselves)
-        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size) if engine_processes > 0 and engine_cls is None else None
+        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels) if engine_processes > 0 and engine_cls is None else None
         # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
         # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
         self.serialize_writes = serialize_writes
@@ -122,7 +128,7 @@ class EngineHost:
         blob = load_state()
         if blob is None:
             return self.new(mode, profile)
-        return self.engine_cls.from_bytes(blob)
+        return self.engine_cls.from_bytes(unpack_state(blob))
 
     def remember(self, session_id: int, version: int, engine: EngineLike) -> None:
         if self.cache_size <= 0:
@@ -183,6 +189,12 @@ def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:
 
 def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:
     """The answer to a batch (flat copies of the engine's frozen dataclasses; NaN -> None)."""
+    return _answer(session_id, seq, next_seq, upd)[0]
+
+
+def _answer(session_id: int, seq: int, next_seq: int, upd: Any) -> tuple[dict[str, Any], str]:
+    """The answer to a batch and its compact JSON text (NaN/inf -> null: they are invalid JSON and invalid in
+    PostgreSQL's json)."""
     d = {
         "session_id": session_id,
         "seq": seq,
@@ -194,10 +206,34 @@ def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str
         "sensor_config": dict(vars(upd.sensor_config)),
     }
     try:
-        json.dumps(d, allow_nan=False)  # NaN/inf would be invalid JSON (and invalid in PostgreSQL's json)
+        text = json.dumps(d, allow_nan=False, separators=(",", ":"))
     except ValueError:
         d = json_safe(d)
-    return d
+        text = json.dumps(d, allow_nan=False, separators=(",", ":"))
+    return d, text
+
+
+class Fed(NamedTuple):
+    """What the worker stores and answers after the engine took a batch (built where the engine runs)."""
+
+    resp: dict[str, Any]  # the answer
+    resp_json: str  # the answer as compact JSON (stored as the batch's response and sent)
+    raw: bytes  # canonical raw batch (lossless msgpack)
+    digest: str  # SHA-256 of raw (retries must match it)
+    state: bytes  # the engine's new state, stored form (server.statecodec)
+    n_acc: int
+    n_gyr: int
+    n_mag: int
+
+
+def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int) -> Fed:
+    """Feed ``batch`` as number ``seq`` and encode everything that is stored for it (``BatchError`` from the
+    engine's validation passes through; the engine is then unchanged)."""
+    upd = engine.feed(batch)
+    resp, text = _answer(session_id, seq, seq + 1, upd)
+    raw = canonical_bytes(batch)
+    return Fed(resp, text, raw, digest(raw), pack_state(engine.to_bytes()), len(batch.acc_t_ns), len(batch.gyr_t_ns),
+               len(batch.mag_t_ns))
 
 
 def _store_outputs(db: Session, sess: TrackSession, seq: int, upd: Any) -> None:
@@ -231,15 +267,9 @@ def apply_batch(
     batch: SensorBatch,
     attempts: int = 5,
     also: Callable[[Session], None] | None = None,
-    one_statement: bool = False,
 ) -> tuple[dict[str, Any], bool] | None:
     """Apply ``batch`` as number ``seq`` of the session; returns ``(response, replayed)`` or None (no session
     of this user).
-
-    ``one_statement`` (PostgreSQL, ``db`` in autocommit mode, no ``also``): the whole write — versioned session
-    update, raw batch, positions, events — is ONE atomic statement (data-modifying CTE), so an upload costs
-    three round trips (auth, read, write) instead of eight (BEGIN, auth, read, update, three inserts, COMMIT);
-    under CPU contention every round trip waits for the database process to be scheduled.
 
     A retry of an applied sequence number with the same content returns the stored response
     (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
@@ -252,7 +282,7 @@ def apply_batch(
     h = digest(raw)
     for i in range(attempts):
         try:
-            return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also, one_statement and also is None)
+            return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also)
         except (OperationalError, _Raced):
             db.rollback()
             host.forget(session_id)
@@ -301,7 +331,6 @@ def _apply_once(
     raw: bytes,
     h: str,
     also: Callable[[Session], None] | None,
-    one_statement: bool = False,
 ) -> tuple[dict[str, Any], bool] | None:
     # Core statements on the hot path: one read transaction, the engine outside any transaction, one short
     # write transaction whose version check makes concurrent workers unable to apply a batch twice.
@@ -355,7 +384,8 @@ def _apply_once(
                     out = host.pool.feed(session_id, row.version, blob, seq, streams)
             if out[0] == "batch_error":
                 raise BatchError(out[1], out[2])
-            _, resp, state, behaviour, mode = out
+            fed: Fed = out[1]
+            resp, state, behaviour, mode = fed.resp, fed.state, fed.resp["behaviour"], fed.resp["mode"]
         else:
             with phase("load_state"):
                 engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
@@ -364,21 +394,9 @@ def _apply_once(
             with phase("engine"):
                 upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
                 resp = _update_dict(session_id, seq, seq + 1, upd)
-                state = engine.to_bytes()
+                state = pack_state(engine.to_bytes())
             behaviour, mode = upd.behaviour, upd.mode
         next_seq = seq + 1
-        if one_statement:
-            try:
-                with phase("write"):
-                    n = db.execute(_PG_WRITE, _pg_write_params(
-                        session_id, seq, row.version, state, behaviour, mode, resp, raw, h, batch)).scalar_one()
-                if n != 1:
-                    raise StaleDataError("session changed since it was read")
-            except (StaleDataError, IntegrityError):
-                return _answer_as_retry(db, session_id, seq, h), True
-            if engine is not None:
-                host.remember(session_id, row.version + 1, engine)
-            return resp, False
         try:
             t_wl = time.perf_counter()
             with host.write_lock, phase("write"):
@@ -412,48 +430,6 @@ def _apply_once(
         return resp, False
 
 
-# PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement; the inserts take the
-# session id from the update's RETURNING, so when the version check fails nothing at all is written
-_PG_WRITE = text("""
-WITH u AS (
-    UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = :state, behaviour = :behaviour,
-        mode = :mode, sensor_config = CAST(:sensor_config AS json), n_positions = n_positions + :n_new
-    WHERE id = :sid AND version = :v0
-    RETURNING id
-), b AS (
-    INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at)
-    SELECT u.id, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, CAST(:response AS json), :received_at FROM u
-), p AS (
-    INSERT INTO positions (session_id, seq, t_ns, north, east, down, heading_rad, behaviour, mode, step_length_m, gyro_on)
-    SELECT u.id, :seq, x.* FROM u, unnest(CAST(:p_t AS bigint[]), CAST(:p_n AS float8[]), CAST(:p_e AS float8[]),
-        CAST(:p_d AS float8[]), CAST(:p_h AS float8[]), CAST(:p_b AS text[]), CAST(:p_m AS text[]),
-        CAST(:p_l AS float8[]), CAST(:p_g AS boolean[])) AS x
-), e AS (
-    INSERT INTO events (session_id, seq, t_ns, kind, detail)
-    SELECT u.id, :seq, x.* FROM u, unnest(CAST(:e_t AS bigint[]), CAST(:e_k AS text[]), CAST(:e_d AS json[])) AS x
-)
-SELECT count(*) FROM u
-""")
-
-
-def _pg_write_params(session_id: int, seq: int, version: int, state: bytes, behaviour: str, mode: str,
-                     resp: dict[str, Any], raw: bytes, h: str, batch: SensorBatch) -> dict[str, Any]:
-    ps, es = resp["positions"], resp["events"]
-
-    def col(k: str) -> list[Any]:
-        return [p[k] for p in ps]
-
-    return {
-        "sid": session_id, "v0": version, "v1": version + 1, "next_seq": seq + 1, "state": state,
-        "behaviour": behaviour, "mode": mode, "sensor_config": json.dumps(resp["sensor_config"]), "n_new": len(ps),
-        "seq": seq, "sha": h, "raw": raw, "n_acc": len(batch.acc_t_ns), "n_gyr": len(batch.gyr_t_ns),
-        "n_mag": len(batch.mag_t_ns), "response": json.dumps(resp, allow_nan=False), "received_at": utcnow(),
-        "p_t": col("t_ns"), "p_n": col("north"), "p_e": col("east"), "p_d": col("down"), "p_h": col("heading_rad"),
-        "p_b": col("behaviour"), "p_m": col("mode"), "p_l": col("step_length_m"), "p_g": col("gyro_on"),
-        "e_t": [e["t_ns"] for e in es], "e_k": [e["kind"] for e in es], "e_d": [json.dumps(e["detail"]) for e in es],
-    }
-
-
 def close_session(db: Session, host: EngineHost, user: User, session_id: int) -> TrackSession | None:
     """Flush the engine, store the last positions and the updated calibration profiles, mark closed.
 
@@ -471,7 +447,7 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int) ->
             cur = crud.current_profiles(db, user).get(behaviour)
             if cur is None or cur.data != data:
                 crud.add_profile_version(db, user, behaviour, data, source=f"session:{sess.id}")
-        sess.engine_state = engine.to_bytes()
+        sess.engine_state = pack_state(engine.to_bytes())
         sess.status = "closed"
         sess.closed_at = utcnow()
         with host.write_lock:

@@ -26,6 +26,7 @@ from models.batch import BatchError
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import EngineHost, _update_dict
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
+from server.statecodec import pack_state
 
 __all__ = ["ReprocessConflict", "ReprocessResult", "reprocess_session"]
 
@@ -88,7 +89,7 @@ def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] |
         take(row.seq, upd)
     if closed:
         take(next_seq, engine.flush())
-    return positions, events, last, engine.to_bytes()
+    return positions, events, last, pack_state(engine.to_bytes())
 
 
 def _compare(old: list[Any], new: list[dict[str, Any]]) -> tuple[bool, float | None]:

@@ -91,6 +91,7 @@ class SensorConfigOut(BaseModel):
     acc_rate_hz: float
     gyr_rate_hz: float
     mag_rate_hz: float
+    batch_s: float = 1.0  # seconds of data per upload (rows stored before the engine had it: 1 s)
 
 
 class SessionOut(_Out):

@@ -33,7 +33,8 @@ class Settings(BaseSettings):
     engine_processes : int
         Helper processes per server process that run the navigation engines (0 = in the server process).
     ingest_threads : int
-        Worker threads of one process that handle batch uploads.
+        Worker threads of one process that handle batch uploads (uploads in flight; a thread waiting for the
+        engine helper or the commit holds no GIL).
     sensorlogger_hold_s : float
         Sensor Logger pushes may arrive out of order: samples are held back this long [s] before being
         fed to the engine in time order.
@@ -47,7 +48,8 @@ class Settings(BaseSettings):
         Requests a token may make at once after being idle.
     pg_one_statement_writes : bool
         PostgreSQL: write an upload (session update, raw batch, positions, events) as one atomic statement in
-        autocommit mode (3 round trips per upload instead of 8).
+        autocommit mode, on a driver connection (2 round trips per upload: token and session read, write);
+        false: the ORM transaction of ``server.ingest.apply_batch``.
     """
 
     model_config = SettingsConfigDict(env_prefix="PEDNAV_", extra="ignore")
@@ -60,7 +62,7 @@ class Settings(BaseSettings):
     migrate_on_startup: bool = True
     engine_cache_size: int = Field(default=512, ge=0)
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
-    ingest_threads: int = Field(default=4, ge=1, le=64)
+    ingest_threads: int = Field(default=16, ge=1, le=64)
     engine_processes: int = Field(default=1, ge=0, le=64)
     token_ttl_s: int = Field(default=30 * 86_400, ge=0)
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)

@@ -37,32 +37,36 @@ async def _body(request: Request) -> bytes:
 
 
 def _put_batch_sync(request: Request, session_id: int, seq: int, body: bytes, queued_at: float) -> Response:
-    """The whole upload in ONE worker thread: auth, decode, validate, apply (no connection is held while a
-    request waits for a thread)."""
+    """The whole upload in ONE worker thread: auth, decode, validate, apply, encode (no connection is held
+    while a request waits for a thread)."""
     with Phases() as ph:
         ph.add("queue", time.perf_counter() - queued_at)  # waiting for an ingest thread
         app = request.app
-        settings, host = app.state.settings, app.state.host
+        settings = app.state.settings
         cred = _bearer_of(request)
         token = cred.credentials if cred is not None else request.query_params.get("token")
-        one = app.state.upload_sessionmaker is not None
-        with (app.state.upload_sessionmaker if one else app.state.sessionmaker)() as db:
-            with phase("auth"):
-                user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
-            if seq < 0:
-                raise BatchError("seq", "must be >= 0")
-            with phase("decode"):
-                batch = decode_batch(body, request.headers.get("content-type"), settings.max_samples_per_stream)
-            try:
-                out = apply_batch(db, host, user_id, session_id, seq, batch, one_statement=one)
-            except BatchError:
-                db.rollback()
-                raise
-        if out is None:
-            raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
-        resp, replayed = out
-        with phase("encode"):
-            content = json.dumps(resp, separators=(",", ":"))
+        ctype = request.headers.get("content-type")
+        if app.state.uploader is not None:  # driver connections, group commit / one statement
+            content, replayed = app.state.uploader.upload(token, session_id, seq, body, ctype,
+                                                          settings.max_samples_per_stream)
+        else:  # PostgreSQL with PEDNAV_PG_ONE_STATEMENT_WRITES=false: the ORM transaction
+            with app.state.sessionmaker() as db:
+                with phase("auth"):
+                    user_id = authenticate(db, token, app.state.limiter)  # 401 / 429
+                if seq < 0:
+                    raise BatchError("seq", "must be >= 0")
+                with phase("decode"):
+                    batch = decode_batch(body, ctype, settings.max_samples_per_stream)
+                try:
+                    out = apply_batch(db, app.state.host, user_id, session_id, seq, batch)
+                except BatchError:
+                    db.rollback()
+                    raise
+            if out is None:
+                raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+            resp, replayed = out
+            with phase("encode"):
+                content = json.dumps(resp, separators=(",", ":"))
         return Response(
             content=content, media_type="application/json",
             headers={"X-Pednav-Replayed": "true" if replayed else "false", "Server-Timing": ph.header()},

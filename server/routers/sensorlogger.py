@@ -24,6 +24,7 @@ from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
 from server.ingest import apply_batch, engine_profile_in
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
+from server.statecodec import pack_state
 
 __all__ = ["router", "samples_to_batch"]
 
@@ -82,7 +83,7 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
     engine = host.new(settings.engine_mode, profile)
     sess = crud.create_session(
         db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=profile,
-        engine_state=engine.to_bytes(), sensor_config=engine.sensor_config.to_dict(),
+        engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id)
     db.add(link)

@@ -118,7 +118,7 @@ def test_postgresql_one_statement_write_stores_what_the_transactional_write_stor
     for flag in (True, False):
         a = create_app(settings.model_copy(update={"migrate_on_startup": False, "pg_one_statement_writes": flag}))
         try:
-            assert (a.state.upload_sessionmaker is not None) is flag
+            assert (a.state.uploader is not None) is flag
             _, tok = make_user()
             with TestClient(a) as c:
                 api = PednavClient(token=tok, http=c)

@@ -1,0 +1,384 @@
+"""The batch-upload hot path on plain driver connections (sqlite3 / psycopg), without ORM or Core compilation.
+
+One upload costs, in the server worker: one read (token and session in ONE statement), the engine (in a helper
+process, which also encodes the answer, the canonical raw batch, its digest and the compressed state), and
+one durable write:
+
+- SQLite: a single writer thread commits the writes of all uploads waiting at that moment in ONE transaction
+  (group commit; each upload in its own savepoint, so a failed version check drops only that upload). The
+  database runs ``synchronous=FULL`` in WAL mode: a commit is on disk (fsync of the WAL) before any of its
+  uploads is answered, and under load one fsync covers many uploads.
+- PostgreSQL: one atomic statement in autocommit mode (versioned session update, raw batch, positions and
+  events in a data-modifying CTE whose inserts take the session id from the update's RETURNING, so a failed
+  version check writes nothing): two round trips per upload.
+
+Semantics are those of :func:`server.ingest.apply_batch` (same refusals, same stored rows, same answers): a
+retried sequence number is answered from the stored batch and never applied twice; a concurrent writer that
+applied it first makes this upload answer as a retry.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from typing import Any, NamedTuple
+
+from fastapi import HTTPException, status
+
+from models.batch import STREAMS, BatchError, SensorBatch
+from server.auth import RateLimiter, admit, require_token
+from server.formats import canonical_bytes, digest
+from server.ingest import EngineHost, Fed, IngestConflict, feed_engine
+from server.security import hash_token
+from server.statecodec import pack_state
+from server.timing import phase, since
+
+__all__ = ["SqliteGroupWriter", "Uploader"]
+
+_DT_FORMAT = "%Y-%m-%d %H:%M:%S.%f"  # SQLAlchemy's SQLite text form of a datetime (read back by the ORM)
+
+
+class _Raced(Exception):
+    """Another writer changed the session between the read and the write; start over."""
+
+
+class _Session(NamedTuple):
+    version: int
+    next_seq: int
+    status: str
+
+
+def _utc_text() -> str:
+    from server.models import utcnow
+
+    return utcnow().strftime(_DT_FORMAT)
+
+
+def _write_params(session_id: int, version: int, seq: int, fed: Fed) -> dict[str, Any]:
+    r = fed.resp
+    return {
+        "sid": session_id, "v0": version, "v1": version + 1, "next_seq": seq + 1, "state": fed.state,
+        "behaviour": r["behaviour"], "mode": r["mode"], "sensor_config": json.dumps(r["sensor_config"]),
+        "n_new": len(r["positions"]), "seq": seq, "sha": fed.digest, "raw": fed.raw, "n_acc": fed.n_acc,
+        "n_gyr": fed.n_gyr, "n_mag": fed.n_mag, "response": fed.resp_json,
+    }
+
+
+_POS_COLS = ("t_ns", "north", "east", "down", "heading_rad", "behaviour", "mode", "step_length_m", "gyro_on")
+
+_SQLITE_UPDATE = (
+    "UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = :state, behaviour = :behaviour, "
+    "mode = :mode, sensor_config = :sensor_config, n_positions = n_positions + :n_new WHERE id = :sid AND version = :v0"
+)
+_SQLITE_BATCH = (
+    "INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at) "
+    "VALUES (:sid, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, :response, :received_at)"
+)
+_SQLITE_POS = (
+    "INSERT INTO positions (session_id, seq, " + ", ".join(_POS_COLS) + ") VALUES (?, ?, " + ", ".join("?" * len(_POS_COLS)) + ")"
+)
+_SQLITE_EVENT = "INSERT INTO events (session_id, seq, t_ns, kind, detail) VALUES (?, ?, ?, ?, ?)"
+
+
+def _sqlite_write(cur: Any, job: tuple[int, int, int, Fed]) -> bool:
+    """One upload's rows inside the open transaction; False when the version check failed (nothing written)."""
+    session_id, version, seq, fed = job
+    p = _write_params(session_id, version, seq, fed)
+    cur.execute(_SQLITE_UPDATE, p)
+    if cur.rowcount != 1:
+        return False
+    cur.execute(_SQLITE_BATCH, {**p, "received_at": _utc_text()})
+    ps, es = fed.resp["positions"], fed.resp["events"]
+    if ps:
+        cur.executemany(_SQLITE_POS, [(session_id, seq, *(x[k] for k in _POS_COLS)) for x in ps])
+    if es:
+        cur.executemany(_SQLITE_EVENT, [(session_id, seq, e["t_ns"], e["kind"], json.dumps(e["detail"])) for e in es])
+    return True
+
+
+class SqliteGroupWriter:
+    """One thread that commits the uploads' writes, all waiting ones in one transaction (group commit).
+
+    Parameters
+    ----------
+    db_engine : sqlalchemy.Engine
+        The SQLite engine (its connections carry the WAL/synchronous pragmas).
+    write_lock : lock
+        Held during each transaction (the process's other writers queue on it instead of SQLite's busy wait).
+    """
+
+    def __init__(self, db_engine: Any, write_lock: Any) -> None:
+        self.db_engine = db_engine
+        self.write_lock = write_lock
+        self._q: queue.SimpleQueue[list[Any] | None] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._start = threading.Lock()
+
+    def write(self, job: tuple[int, int, int, Fed]) -> bool:
+        """Commit ``job`` (session id, read version, seq, fed) durably; False when its version check failed."""
+        if self._thread is None:
+            with self._start:
+                if self._thread is None:
+                    self._thread = threading.Thread(target=self._run, daemon=True, name="sqlite-writer")
+                    self._thread.start()
+        box: list[Any] = [job, threading.Event(), None]
+        self._q.put(box)
+        box[1].wait()
+        if isinstance(box[2], BaseException):
+            raise box[2]
+        return bool(box[2])
+
+    def stop(self) -> None:
+        if self._thread is not None:
+            self._q.put(None)
+            self._thread.join(timeout=30)
+            self._thread = None
+
+    def _run(self) -> None:
+        import sqlite3
+
+        conn = None
+        while True:
+            first = self._q.get()
+            if first is None:
+                break
+            boxes = [first]
+            stop = False
+            while True:
+                try:
+                    nxt = self._q.get_nowait()
+                except queue.Empty:
+                    break
+                if nxt is None:
+                    stop = True
+                    break
+                boxes.append(nxt)
+            try:
+                if conn is None:
+                    conn = self.db_engine.raw_connection()
+                with self.write_lock:
+                    cur = conn.cursor()
+                    cur.execute("BEGIN IMMEDIATE")
+                    for b in boxes:
+                        cur.execute("SAVEPOINT upload")
+                        try:
+                            b[2] = _sqlite_write(cur, b[0])
+                        except sqlite3.IntegrityError:
+                            b[2] = False  # (session, seq) already stored: answered as a retry
+                        if not b[2]:
+                            cur.execute("ROLLBACK TO upload")
+                        cur.execute("RELEASE upload")
+                    conn.commit()
+                    cur.close()
+            except Exception as exc:  # noqa: BLE001 - every upload of the group gets the error (nothing committed)
+                for b in boxes:
+                    b[2] = exc
+                try:
+                    conn.rollback()  # type: ignore[union-attr]
+                except Exception:  # noqa: BLE001 - a broken connection is replaced
+                    try:
+                        conn.invalidate()  # type: ignore[union-attr]
+                    except Exception:  # noqa: BLE001
+                        pass
+                    conn = None
+            for b in boxes:
+                b[1].set()
+            if stop:
+                break
+        if conn is not None:
+            conn.close()
+
+
+# PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement (see module docstring)
+_PG_WRITE = """
+WITH u AS (
+    UPDATE sessions SET version = %(v1)s, next_seq = %(next_seq)s, engine_state = %(state)s, behaviour = %(behaviour)s,
+        mode = %(mode)s, sensor_config = CAST(%(sensor_config)s AS json), n_positions = n_positions + %(n_new)s
+    WHERE id = %(sid)s AND version = %(v0)s
+    RETURNING id
+), b AS (
+    INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at)
+    SELECT u.id, %(seq)s, %(sha)s, %(raw)s, %(n_acc)s, %(n_gyr)s, %(n_mag)s, CAST(%(response)s AS json), now() FROM u
+), p AS (
+    INSERT INTO positions (session_id, seq, t_ns, north, east, down, heading_rad, behaviour, mode, step_length_m, gyro_on)
+    SELECT u.id, %(seq)s, x.* FROM u, unnest(CAST(%(p_t)s AS bigint[]), CAST(%(p_n)s AS float8[]),
+        CAST(%(p_e)s AS float8[]), CAST(%(p_d)s AS float8[]), CAST(%(p_h)s AS float8[]), CAST(%(p_b)s AS text[]),
+        CAST(%(p_m)s AS text[]), CAST(%(p_l)s AS float8[]), CAST(%(p_g)s AS boolean[])) AS x
+), e AS (
+    INSERT INTO events (session_id, seq, t_ns, kind, detail)
+    SELECT u.id, %(seq)s, x.* FROM u, unnest(CAST(%(e_t)s AS bigint[]), CAST(%(e_k)s AS text[]), CAST(%(e_d)s AS json[])) AS x
+)
+SELECT count(*) FROM u
+"""
+
+
+def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed) -> bool:
+    p = _write_params(session_id, version, seq, fed)
+    ps, es = fed.resp["positions"], fed.resp["events"]
+    for key, col in zip(("p_t", "p_n", "p_e", "p_d", "p_h", "p_b", "p_m", "p_l", "p_g"), _POS_COLS):
+        p[key] = [x[col] for x in ps]
+    p["e_t"] = [e["t_ns"] for e in es]
+    p["e_k"] = [e["kind"] for e in es]
+    p["e_d"] = [json.dumps(e["detail"]) for e in es]
+    cur.execute(_PG_WRITE, p)
+    return bool(cur.fetchone()[0] == 1)
+
+
+class Uploader:
+    """Applies batch uploads on driver connections (see the module docstring).
+
+    Parameters
+    ----------
+    db_engine : sqlalchemy.Engine
+        SQLite or PostgreSQL engine (connections from its pool).
+    host : EngineHost
+        Engines (helper processes or in-process) and the per-session locks.
+    limiter : RateLimiter
+        Per-token rate limit.
+    """
+
+    def __init__(self, db_engine: Any, host: EngineHost, limiter: RateLimiter | None) -> None:
+        self.db_engine = db_engine
+        self.host = host
+        self.limiter = limiter
+        self.sqlite = db_engine.dialect.name == "sqlite"
+        self.writer = SqliteGroupWriter(db_engine, host.write_lock) if self.sqlite else None
+        ph = "?" if self.sqlite else "%s"
+        self._read_sql = (
+            "SELECT t.user_id, t.revoked, t.expires_at, s.version, s.next_seq, s.status FROM tokens t "
+            f"LEFT JOIN sessions s ON s.id = {ph} AND s.user_id = t.user_id WHERE t.token_hash = {ph}"
+        )
+        self._session_sql = f"SELECT version, next_seq, status FROM sessions WHERE id = {ph}"
+        self._state_sql = f"SELECT version, engine_state, engine_mode, profile_in FROM sessions WHERE id = {ph}"
+        self._replay_sql = f"SELECT body_sha256, response FROM batches WHERE session_id = {ph} AND seq = {ph}"
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.stop()
+
+    def _connect(self) -> Any:
+        conn = self.db_engine.raw_connection()
+        if not self.sqlite:
+            conn.driver_connection.autocommit = True  # every statement is its own transaction (no BEGIN trips)
+        return conn
+
+    def _release(self, conn: Any) -> None:
+        if not self.sqlite:
+            try:
+                conn.driver_connection.autocommit = False  # back to the pool as the ORM expects it
+            except Exception:  # noqa: BLE001 - a broken connection is dropped by the pool
+                conn.invalidate()
+        conn.close()
+
+    def upload(self, token: str | None, session_id: int, seq: int, body: bytes, content_type: str | None,
+               max_samples: int) -> tuple[str, bool]:
+        """Apply one upload; returns (answer JSON text, replayed). Raises HTTPException (401/404/429),
+        BatchError (422), PayloadTooLarge (413), IngestConflict (409)."""
+        from server.formats import decode_batch
+
+        h_tok = hash_token(require_token(token))  # 401 when missing
+        t_lock = time.perf_counter()
+        with self.host.lock(session_id):
+            since("lock", t_lock)
+            conn = self._connect()
+            try:
+                cur = conn.cursor()
+                with phase("read"):
+                    cur.execute(self._read_sql, (session_id, h_tok))
+                    row = cur.fetchone()
+                admit(h_tok, row, self.limiter)  # 401 / 429
+                if seq < 0:
+                    raise BatchError("seq", "must be >= 0")
+                with phase("decode"):
+                    batch = decode_batch(body, content_type, max_samples)
+                if row[3] is None:
+                    raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+                sess = _Session(row[3], row[4], row[5])
+                for attempt in range(5):
+                    try:
+                        return self._apply(cur, session_id, seq, batch, sess)
+                    except _Raced:
+                        self.host.forget(session_id)
+                        if attempt == 4:
+                            raise
+                        time.sleep(0.01 * (attempt + 1))
+                        cur.execute(self._session_sql, (session_id,))
+                        sess = _Session(*cur.fetchone())
+                raise AssertionError("unreachable")
+            finally:
+                self._release(conn)
+
+    def _apply(self, cur: Any, session_id: int, seq: int, batch: SensorBatch, sess: _Session) -> tuple[str, bool]:
+        if seq < sess.next_seq:
+            return self._replay(cur, session_id, seq, digest(canonical_bytes(batch)), sess.next_seq), True
+        if sess.status != "open":
+            raise IngestConflict(f"session {session_id} is closed; no more batches accepted", sess.next_seq)
+        if seq > sess.next_seq:
+            raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {sess.next_seq}", sess.next_seq)
+
+        def load_state() -> tuple[bytes | None, str, Any]:
+            # version and state in ONE statement (separate reads need not see the same commit)
+            cur.execute(self._state_sql, (session_id,))
+            v, blob, mode, profile = cur.fetchone()
+            if v != sess.version:
+                raise _Raced()
+            if isinstance(profile, str):
+                profile = json.loads(profile)
+            return (None if blob is None else bytes(blob)), mode, profile
+
+        def stored_state() -> bytes:
+            blob, mode, profile = load_state()  # a session that never stored a state gets a new engine
+            return pack_state(self.host.new(mode, profile).to_bytes()) if blob is None else blob
+
+        host = self.host
+        engine = None
+        if host.pool is not None:
+            streams = {}
+            for name in STREAMS:
+                streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
+            with phase("engine"):
+                out = host.pool.feed(session_id, sess.version, None, seq, streams)
+            if out[0] == "miss":
+                with phase("load_state"):
+                    blob = stored_state()
+                with phase("engine"):
+                    out = host.pool.feed(session_id, sess.version, blob, seq, streams)
+            if out[0] == "batch_error":
+                raise BatchError(out[1], out[2])
+            fed: Fed = out[1]
+        else:
+            with phase("load_state"):
+                engine = host.restore_at(session_id, sess.version, stored_state, "auto", None)
+            host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
+            with phase("engine"):
+                fed = feed_engine(engine, batch, session_id, seq)
+        with phase("write"):
+            if self.writer is not None:
+                ok = self.writer.write((session_id, sess.version, seq, fed))
+            else:
+                try:
+                    ok = _pg_write(cur, session_id, sess.version, seq, fed)
+                except Exception as exc:
+                    import psycopg
+
+                    if not isinstance(exc, psycopg.IntegrityError):
+                        raise
+                    ok = False
+        if not ok:  # another worker applied this sequence number first: answer as for a retry
+            cur.execute(self._session_sql, (session_id,))
+            return self._replay(cur, session_id, seq, fed.digest, cur.fetchone()[1]), True
+        if engine is not None:
+            host.remember(session_id, sess.version + 1, engine)
+        return fed.resp_json, False
+
+    def _replay(self, cur: Any, session_id: int, seq: int, h: str, expected: int) -> str:
+        cur.execute(self._replay_sql, (session_id, seq))
+        row = cur.fetchone()
+        if row is None:
+            raise IngestConflict(f"sequence {seq} is in the past; expected {expected}", expected)
+        if row[0] != h:
+            raise IngestConflict(f"sequence {seq} was already used by a different batch; expected sequence {expected}", expected)
+        resp = row[1]
+        return resp if isinstance(resp, str) else json.dumps(resp, separators=(",", ":"))
