@@ -59,8 +59,8 @@ def _proc_stats() -> dict[int, tuple[int, str, float]]:
 
 
 def _cpu_probe(server_pid: int) -> dict[str, float]:
-    """CPU seconds used so far by the server process, its descendants (the engine helper) and all postgres
-    processes (on a shared machine the latter include other clients of the database)."""
+    """CPU seconds used so far by this load generator, the server process, its descendants (the engine helper)
+    and all postgres processes (on a shared machine the latter include other clients of the database)."""
     if not os.path.isdir("/proc"):
         return {}
     st = _proc_stats()
@@ -72,7 +72,9 @@ def _cpu_probe(server_pid: int) -> dict[str, float]:
         p = todo.pop()
         desc.append(p)
         todo += kids.get(p, [])
+    me = os.times()
     return {
+        "load_generator": me.user + me.system,  # this process (all its threads)
         "server_worker": st.get(server_pid, (0, "", 0.0))[2],
         "engine_helpers": sum(st[p][2] for p in desc if p in st),
         "postgres_all": sum(c for _, n, c in st.values() if n.startswith("postgres")),
@@ -221,8 +223,16 @@ def _phase_report(lat_ms: np.ndarray, timings: list[dict[str, float]]) -> dict[s
     }
 
 
+def _by_window(sent_s: np.ndarray, lat_ms: np.ndarray, window_s: float) -> list[float]:
+    """p99 latency [ms] of the requests sent in each ``window_s`` of the run (where in time the tail is)."""
+    if not len(lat_ms):
+        return []
+    k = (sent_s // window_s).astype(int)
+    return [round(float(np.percentile(lat_ms[k == i], 99)), 1) for i in range(int(k.max()) + 1) if np.any(k == i)]
+
+
 async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
-                  lat: list[float], stats: dict[str, int], timings: list[dict[str, float]]) -> None:
+                  lat: list[float], stats: dict[str, int], timings: list[dict[str, float]], sent: list[float]) -> None:
     conn = _Conn("127.0.0.1", port)
     for k, (body, ctype) in enumerate(bodies):
         due = t0 + phase + k
@@ -244,6 +254,7 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
                 continue
             if status == 200:
                 lat.append(time.perf_counter() - start)
+                sent.append(start - t0)
                 timings.append(_server_timing(hdrs.get("server-timing", "")))
                 stats["acked"] += 1
                 if hdrs.get("x-pednav-replayed") == "true":
@@ -279,12 +290,14 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
             sids.append(r.json()["id"])
         lat: list[float] = []
         timings: list[dict[str, float]] = []
+        sent: list[float] = []
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
         n = len(bodies) - _SPREAD_S
         cpu0 = cpu()
         await asyncio.gather(*[
-            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats, timings)
+            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats, timings,
+                    sent)
             for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
@@ -312,6 +325,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
         "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
         "server_phases_ms": _phase_report(a, timings),
+        "latency_p99_ms_by_10s": _by_window(np.array(sent), a, 10.0),
         # CPU time per acknowledged batch [ms]: the cost that decides capacity, independent of other load
         "cpu_ms_per_batch": {k: round(1e3 * (cpu1[k] - cpu0[k]) / max(stats["acked"], 1), 3) for k in cpu1},
         "throughput_rps": stats["acked"] / wall if wall > 0 else None,
