@@ -51,6 +51,7 @@ class Scheduler:
         self.assist_active = False  # gyroscope carries the heading through a magnetic disturbance
         self.failed: set[str] = set()  # behaviours whose examination failed in this session
         self.zupt_aligned = False  # the ZUPT-KF has levelled on a still foot once in this session
+        self.step_t_s = 0.0  # time of the latest Gait-DR step [s]
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -129,6 +130,7 @@ class Scheduler:
 
     def tick(self, t_s: float, t_ns: int) -> list[Event]:
         """Data time advanced to ``t_s`` (a Gait-DR step): start a due examination, give up a stale one."""
+        self.step_t_s = t_s
         if self.exam_due(t_s):
             return self.start_exam(t_s, t_ns)
         if self.exam_active and t_s - self.exam_started_s > self.config.exam_timeout_s:
@@ -190,9 +192,15 @@ class Scheduler:
         and each answer may switch the gyroscope off) or before the navigation is ready (the start of the walk
         must reach the scheduler quickly); long in auto mode once the gyroscope is off and Gait-DR can navigate
         (fewer radio wake-ups and fewer per-batch computations; nothing is waiting for the answer)."""
-        if self.mode == "auto" and not gyro_on and self._gait_dr_can_start():
+        if self.mode == "auto" and not gyro_on and self._gait_dr_can_start() and not self._exam_near():
             return LOW_POWER_BATCH_S
         return BATCH_S
+
+    def _exam_near(self) -> bool:
+        """An examination falls due within one long upload: upload briefly again so that the gyroscope
+        arrives within about a second of the request (a late examination stride lands more often at the end
+        of a walk, where it fails more often and a failure costs a whole L0 re-initialisation)."""
+        return self.behaviour in _MOVING and self.step_t_s - self.last_exam_s >= self.config.t0_s - LOW_POWER_BATCH_S
 
     def sensor_config(self) -> SensorConfig:
         c = self.config
@@ -248,6 +256,7 @@ class Scheduler:
             "compass_ready": self.compass_ready,
             "assist_active": self.assist_active,
             "zupt_aligned": self.zupt_aligned,
+            "step_t_s": self.step_t_s,
             "failed": sorted(self.failed),
             "progress_m": dict(self.progress_m),
         }
@@ -259,6 +268,7 @@ class Scheduler:
                     "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
         obj.zupt_aligned = bool(d.get("zupt_aligned", False))  # absent in states stored before it existed
+        obj.step_t_s = float(d.get("step_t_s", 0.0))
         obj.failed = set(d["failed"])
         obj.progress_m = {str(k): float(v) for k, v in d["progress_m"].items()}
         return obj

@@ -226,3 +226,16 @@ def test_standing_at_session_start_gyro_sleeps_once_aligned_only_for_a_returning
     failed.failed.add("walk")  # an examination failed in this session: not resumable
     failed.zupt_aligned = True
     assert failed.gyro_wanted()
+
+
+def test_short_uploads_again_when_an_examination_falls_due() -> None:
+    from energy.scheduler import BATCH_S, LOW_POWER_BATCH_S
+
+    s = aligned("auto", CFG, calibrated("walk"))
+    s.on_behaviour("walk", 0.0, 0)
+    s.on_exam_result(True, 1.3, 1.3, 1.0, 1)  # last examination at 1 s
+    s.tick(1.0 + CFG.t0_s - LOW_POWER_BATCH_S - 0.5, 2)
+    assert s.sensor_config().batch_s == LOW_POWER_BATCH_S
+    s.tick(1.0 + CFG.t0_s - LOW_POWER_BATCH_S + 0.5, 3)  # due within one long upload
+    assert not s.sensor_config().gyro_on and s.sensor_config().batch_s == BATCH_S
+    assert Scheduler.from_state(s.get_state()).sensor_config() == s.sensor_config()
