@@ -216,7 +216,17 @@ def test_vicon_walk_vs_run(vicon_dir, factor):
 
 
 @pytest.mark.slow
-def test_gdin_walks_not_run(gdin_dir):
+@pytest.mark.parametrize(
+    "factor",
+    [
+        1,
+        pytest.param(8, marks=pytest.mark.xfail(
+            strict=True,
+            reason="measured 2026-11-22 at 25 Hz: exp21 10.6 % run (24.0-29.25 s; its windows all overlap its "
+            "fastest ZUPT-KF strides, see test_gdin_run_labels_fall_in_fast_stretches), every other walk 0 %")),
+    ],
+)
+def test_gdin_walks_not_run(gdin_dir, factor):
     """No run labels on the gdin walking recordings apart from the fastest (truth mean speed >= 1.5 m/s)."""
     from clients.importers import list_recordings, load
 
@@ -228,13 +238,13 @@ def test_gdin_walks_not_run(gdin_dir):
         dur = (r.batch.acc_t_ns[-1] - r.batch.acc_t_ns[0]) / 1e9
         if path_m is None or path_m / dur >= 1.5:
             continue
-        dec = [d for _, d in label_recording(r.batch.acc_t_ns / 1e9, r.batch.acc)]
+        dec = [d for _, d in label_recording(r.batch.acc_t_ns[::factor] / 1e9, r.batch.acc[::factor])]
         frac = dec.count("run") / len(dec)
         print(f"{r.name}: {path_m / dur:.2f} m/s, run fraction {frac:.3f}")
         if frac > MAX_RUN_FRACTION_WALKING:
             failing.append(r.name)
-    # Measured 2026-11-22 after the recency-weighted duty factor: exp21 8.7 % (run decisions 24.0-28.25 s, on
-    # and just after its fastest ZUPT-KF strides, see the next test), every other walk 0 %.
+    # Measured 2026-11-22 after the recency-weighted duty factor, 200 Hz: exp21 8.7 % (run decisions 24.0-28.25 s,
+    # on and just after its fastest ZUPT-KF strides, see the next test), every other walk 0 %.
     assert failing == []
 
 
@@ -260,12 +270,13 @@ def _fast_strides(r) -> tuple[np.ndarray, np.ndarray, str]:
 
 
 @pytest.mark.slow
-def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir):
+@pytest.mark.parametrize("factor", [1, 8])
+def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir, factor):
     """Run decisions on gdin must fall in fast stretches: a stride of >= FAST_STRIDE_MPS overlapping the
     decision's window. Stride speeds from the footprints (exp 31-43) or, where gdin has only corner GCPs, from
-    the ZUPT-KF (see _fast_strides). Measured 2026-11-22: exp34 64/64, exp35 78/78, exp43 97/98 in fast
-    stretches (footprints), exp21 18/18 (ZUPT-KF: its fastest strides, 22.0-24.7 s at 1.68-1.76 m/s); no run
-    decision elsewhere."""
+    the ZUPT-KF (see _fast_strides). Measured 2026-11-22, 200 Hz / 25 Hz: exp34 63/66 / 63/63, exp35 78/78 /
+    83/84, exp43 109/113 / 105/110 (footprints), exp21 18/18 / 22/22 (ZUPT-KF: its fastest strides are
+    22.0-24.7 s at 1.68-1.76 m/s, then 25.7-26.7 s at 1.56 m/s); no run decision on any other recording."""
     from clients.importers import list_recordings, load
     from models.behaviour import WINDOW_S
 
@@ -274,7 +285,8 @@ def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir):
     for p in list_recordings(gdin_dir):
         r = load(p)
         t0 = r.batch.acc_t_ns[0]
-        runs_t = [td for td, lab in label_recording((r.batch.acc_t_ns - t0) / 1e9, r.batch.acc) if lab == "run"]
+        dec = label_recording((r.batch.acc_t_ns[::factor] - t0) / 1e9, r.batch.acc[::factor])
+        runs_t = [td for td, lab in dec if lab == "run"]
         if not runs_t:
             continue
         ts, v, src = _fast_strides(r)
@@ -284,7 +296,7 @@ def test_gdin_run_labels_fall_in_fast_stretches(gdin_dir):
             fast += bool(m.any() and v[m].max() >= FAST_STRIDE_MPS)
         rows.append(f"{r.name} {fast}/{len(runs_t)} ({src})")
         n_run, n_fast = n_run + len(runs_t), n_fast + fast
-    print("gdin run decisions in fast stretches:", "; ".join(rows))
+    print(f"200/{factor} Hz gdin run decisions in fast stretches:", "; ".join(rows))
     assert n_run and n_fast / n_run >= 0.9
 
 
