@@ -321,11 +321,24 @@ def _latencies(scenarios, factor):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("factor", [1, 8])
-def test_every_synthetic_transition_within_2s_over_seeds(factor):
-    """Every behaviour change of 12 synthetic days at 200 Hz and 25 Hz recognised within 2 s (issue 4).
-    Measured 2026-11-22: worst 2.00 s (run->walk) at 200 Hz, 1.75 s at 25 Hz."""
-    scen = [(sc, seed) for sc in ("demo", "mixed-day") for seed in range(6)]
+@pytest.mark.parametrize(
+    "factor,seeds",
+    [
+        (1, range(6)),
+        (8, range(6)),
+        (1, range(6, 14)),  # seeds not looked at while the recogniser was designed
+        pytest.param(8, range(6, 14), marks=pytest.mark.xfail(
+            strict=True,
+            reason="measured 2026-11-22: 3 of 104 transitions over 2 s at 25 Hz (walk->run 2.06 s demo/6 and "
+            "2.31 s demo/9, run->walk_fast 2.54 s demo/10: the synthetic walk_fast's duty factor 0.46 reads "
+            "like a jog right after a run)")),
+    ],
+)
+def test_every_synthetic_transition_within_2s_over_seeds(factor, seeds):
+    """Every behaviour change of synthetic days at 200 Hz and 25 Hz recognised within 2 s (issue 4).
+    Measured 2026-11-22: seeds 0-5 worst 2.00 s (run->walk) at 200 Hz, 1.75 s at 25 Hz; seeds 6-13 worst
+    1.82 s at 200 Hz."""
+    scen = [(sc, seed) for sc in ("demo", "mixed-day") for seed in seeds]
     lat = _latencies(scen, factor)
     summary = {k: (len(v), round(max(v), 2), round(float(np.median(v)), 2)) for k, v in sorted(lat.items())}
     print(f"200/{factor} Hz transition latency (n, max s, median s): {summary}")
