@@ -77,9 +77,15 @@ def _serve(conns: list[Any], cache_size: int) -> None:
     """Helper process main loop: answer requests on any of ``conns`` until all are closed."""
     from multiprocessing.connection import wait
 
+    import gc
+
+    import energy.engine  # noqa: F401 - loaded before the freeze below
+
     global _CACHE_SIZE
     _CACHE_SIZE = cache_size
     _watch_parent()
+    gc.collect()
+    gc.freeze()  # module objects out of the collector's reach (full collections stall every session's feed)
     live = list(conns)
     while live:
         for c in wait(live):
