@@ -111,11 +111,31 @@ def test_table3_examination_outcome(passed: bool, working: str) -> None:
     walk_to(s, CFG.l0_m)
     s.on_calibrated(10.0, 10)
     s.start_exam(40.0, 40)
+    if not passed:  # a miss is confirmed on the next stride (EXAM_STRIDES_TO_FAIL = 2)
+        events = s.on_exam_result(passed, 1.4, 1.2, 40.5, 40)
+        assert [e.kind for e in events] == ["examination_repeated"]
+        assert s.working == "pdr" and s.exam_active and s.gyro_wanted()
     events = s.on_exam_result(passed, 1.4, 1.2, 41.0, 41)
     assert s.working == working and not s.exam_active and s.last_exam_s == 41.0
     assert events[0].kind == ("examination_passed" if passed else "examination_failed")
     if not passed:
         assert s.calibrating == "walk" and s.l_zupt_m == 0.0
+
+
+def test_table3_a_single_missed_stride_followed_by_a_good_one_keeps_gait_dr() -> None:
+    from energy.scheduler import EXAM_STRIDES_TO_FAIL
+
+    assert EXAM_STRIDES_TO_FAIL == 2
+    s = aligned("auto", CFG, calibrated("walk"))
+    s.on_behaviour("walk", 1.0, 1)
+    assert s.exam_active and s.working == "pdr"
+    assert [e.kind for e in s.on_exam_result(False, 1.35, 1.61, 3.0, 3)] == ["examination_repeated"]
+    r = Scheduler.from_state(s.get_state())  # the miss survives a restore
+    for sched in (s, r):
+        assert [e.kind for e in sched.on_exam_result(True, 1.36, 1.38, 4.2, 4)] == ["examination_passed"]
+        assert sched.working == "pdr" and not sched.exam_active and sched.exam_misses == 0
+    s.start_exam(40.0, 40)  # a new examination starts with no miss
+    assert s.exam_misses == 0
 
 
 def test_state_round_trip() -> None:
