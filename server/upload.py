@@ -29,7 +29,7 @@ from fastapi import HTTPException, status
 
 from models.batch import STREAMS, BatchError, SensorBatch
 from server.auth import RateLimiter, admit, require_token
-from server.formats import canonical_bytes, digest
+from server.formats import canonical_bytes, decode_batch, digest
 from server.ingest import EngineHost, Fed, IngestConflict, feed_engine
 from server.security import hash_token
 from server.statecodec import pack_state
@@ -265,6 +265,9 @@ class Uploader:
         return conn
 
     def _release(self, conn: Any) -> None:
+        if conn.dbapi_connection is None:  # invalidated
+            conn.close()
+            return
         if not self.sqlite:
             try:
                 conn.driver_connection.autocommit = False  # back to the pool as the ORM expects it
@@ -276,8 +279,6 @@ class Uploader:
                max_samples: int) -> tuple[str, bool]:
         """Apply one upload; returns (answer JSON text, replayed). Raises HTTPException (401/404/429),
         BatchError (422), PayloadTooLarge (413), IngestConflict (409)."""
-        from server.formats import decode_batch
-
         h_tok = hash_token(require_token(token))  # 401 when missing
         t_lock = time.perf_counter()
         with self.host.lock(session_id):
@@ -296,10 +297,11 @@ class Uploader:
                 if row[3] is None:
                     raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
                 sess = _Session(row[3], row[4], row[5])
+                busy = self.db_engine.dialect.dbapi.OperationalError  # e.g. SQLite busy beyond its timeout
                 for attempt in range(5):
                     try:
                         return self._apply(cur, session_id, seq, batch, sess)
-                    except _Raced:
+                    except (_Raced, busy):  # nothing was committed: read again and start over
                         self.host.forget(session_id)
                         if attempt == 4:
                             raise
@@ -307,6 +309,9 @@ class Uploader:
                         cur.execute(self._session_sql, (session_id,))
                         sess = _Session(*cur.fetchone())
                 raise AssertionError("unreachable")
+            except (self.db_engine.dialect.dbapi.OperationalError, self.db_engine.dialect.dbapi.InterfaceError):
+                conn.invalidate()  # possibly broken: the pool opens a new connection instead
+                raise
             finally:
                 self._release(conn)
 
