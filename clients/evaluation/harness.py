@@ -67,6 +67,7 @@ GDIN_SUMMARY_KEYS: tuple[str, ...] = (
     "strides_truth",
     "gyro_on_fraction",
     "mean_rate_hz",
+    "pdr_distance_err_pct",
 )
 _NED_TO_VICON = np.array([1.0, 1.0, -1.0])  # (north, east, down) -> truth (x, y, z up); see module docstring
 
@@ -87,6 +88,8 @@ class EngineRun:
         Per reported position: time [ns] (as float), north, east, down [m].
     gyro_on_fraction, mean_rate_hz : float
         As reported by the replay.
+    mode : ndarray of str, shape (n,) or None
+        Navigation mode per sample (``zupt``, ``pdr``, ``idle``); None when the runner does not say.
     """
 
     t_ns: np.ndarray
@@ -95,6 +98,7 @@ class EngineRun:
     stances: np.ndarray
     gyro_on_fraction: float
     mean_rate_hz: float
+    mode: np.ndarray | None = None
 
 
 class Runner(Protocol):
@@ -123,6 +127,7 @@ def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None
         stances=stances,
         gyro_on_fraction=float(res.gyro_on_fraction),
         mean_rate_hz=float(res.mean_rate_hz),
+        mode=np.asarray(tr.mode).astype(str),
     )
 
 
@@ -218,6 +223,13 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         se = metrics.stride_errors(est[:, :2], gcp[: n + 1])
         row["stride_mean_err_m"] = se.mean_m
         row["stride_rmse_m"] = se.rmse_m
+        if run.mode is not None:
+            # the strides Gait-DR placed: every trace sample from stride k-1 to stride k is in "pdr"
+            not_pdr = np.concatenate([[0], np.cumsum(run.mode != "pdr")])
+            idx = np.searchsorted(run.t_ns, np.asarray(x["stride_t_ns"])[: n + 1], side="right")
+            inside = (not_pdr[idx[1:]] - not_pdr[idx[:-1]] == 0) & (idx[1:] > idx[:-1])
+            row["pdr_distance_err_pct"], row["pdr_strides"] = metrics.segment_distance_error_pct(
+                est[:, :2], gcp[: n + 1], inside)
         plot.update(aligned_strides_xy=se.aligned_xy, angle_rad=se.angle_rad, gcp_xy=gcp[: n + 1])
     est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
     row["distance_err_pct"] = metrics.distance_error_pct(est_len, truth_len)

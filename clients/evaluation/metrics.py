@@ -25,6 +25,7 @@ __all__ = [
     "StrideErrors",
     "stride_errors",
     "summarise",
+    "segment_distance_error_pct",
 ]
 
 
@@ -242,6 +243,33 @@ def stride_errors(est_xy: np.ndarray, gcp_xy: np.ndarray, n_fit: int = 5) -> Str
         aligned_xy=aligned,
         angle_rad=float(theta),
     )
+
+
+def segment_distance_error_pct(est_xy: np.ndarray, truth_xy: np.ndarray, inside: np.ndarray) -> tuple[float | None, int]:
+    """Distance error over chosen strides only (e.g. those Gait-DR navigated).
+
+    Parameters
+    ----------
+    est_xy, truth_xy : ndarray, shape (K, 2)
+        Estimated and true horizontal foot positions at the K stride samples [m] (any frames: only the lengths
+        of consecutive differences are used).
+    inside : ndarray of bool, shape (K - 1,)
+        Which strides (k-1 -> k) count.
+
+    Returns
+    -------
+    (float or None, int)
+        ``|sum est - sum true| / sum true`` over the counted strides in % (None without any), and their number.
+    """
+    e = np.linalg.norm(np.diff(np.asarray(est_xy, dtype=np.float64)[:, :2], axis=0), axis=1)
+    t = np.linalg.norm(np.diff(np.asarray(truth_xy, dtype=np.float64)[:, :2], axis=0), axis=1)
+    m = np.asarray(inside, dtype=bool)
+    if m.shape != e.shape:
+        raise ValueError(f"inside: expected {e.shape[0]} stride flags, got {m.shape}")
+    n = int(m.sum())
+    if n == 0 or not t[m].sum() > 0:
+        return None, n
+    return distance_error_pct(float(e[m].sum()), float(t[m].sum())), n
 
 
 def summarise(values: list[float | None]) -> dict[str, float | int | None]:

@@ -206,3 +206,15 @@ def test_summarise_skips_missing_values() -> None:
     s = metrics.summarise([1.0, None, 3.0, 8.0])
     assert s == {"mean": 4.0, "median": 3.0, "n": 3}
     assert metrics.summarise([None]) == {"mean": None, "median": None, "n": 0}
+
+
+def test_segment_distance_error_counts_only_the_chosen_strides() -> None:
+    truth = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [4.0, 0.0]])
+    est = truth.copy()
+    est[3:] += [0.5, 0.0]  # stride 2 -> 3 is 50 % long
+    assert metrics.segment_distance_error_pct(est, truth, np.array([True, True, False, True])) == (0.0, 3)
+    pct, n = metrics.segment_distance_error_pct(est, truth, np.array([False, False, True, True]))
+    assert n == 2 and pct == pytest.approx(25.0)
+    assert metrics.segment_distance_error_pct(est, truth, np.zeros(4, dtype=bool)) == (None, 0)
+    with pytest.raises(ValueError, match="inside"):
+        metrics.segment_distance_error_pct(est, truth, np.ones(3, dtype=bool))
