@@ -263,8 +263,9 @@ class GaitPipeline:
         return self.mag.ready
 
     def heading_source(self) -> bool:
-        """Gait-DR can follow turns with the gyroscope off: a magnetometer with a fitted calibration."""
-        return self.has_mag and self.compass_ready()
+        """Gait-DR can follow turns with the gyroscope off: a magnetometer with a fitted calibration that agrees
+        with the ZUPT-KF heading (:attr:`models.compass.MagCalibrator.trusted`)."""
+        return self.has_mag and self.compass_ready() and self.mag.trusted
 
     def fit(self, behaviour: str) -> dict:
         self._fit_compass()

@@ -81,6 +81,34 @@ def test_state_round_trip() -> None:
     assert back.heading(acc, mag) == cal.heading(acc, mag)
 
 
+@pytest.mark.parametrize(("field_error_ut", "trusted"), [(0.0, True), (25.0, False)])
+def test_compass_is_trusted_only_where_it_agrees_with_the_zupt_kf(field_error_ut: float, trusted: bool) -> None:
+    """A building's local fields (a different disturbance at every stance) make the compass disagree with the
+    ZUPT-KF heading on its own calibration stances; such a compass must not replace the gyroscope."""
+    rng = np.random.default_rng(21)
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, 40):
+        acc, mag = _stance(rng, yaw, np.zeros(3), np.eye(3))
+        cal.add(acc, mag + rng.normal(scale=field_error_ut, size=3) * np.array([1.0, 1.0, 0.0]), float(yaw))
+    assert cal.fit()
+    assert cal.trusted is trusted
+    assert (cal.heading_rms < math.radians(2.0)) is trusted
+    back = MagCalibrator.from_state(loads(dumps(cal.get_state())))
+    assert back.trusted is trusted and back.heading_rms == cal.heading_rms
+
+
+def test_calibration_stored_before_the_agreement_was_measured_counts_as_trusted() -> None:
+    rng = np.random.default_rng(4)
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, 30):
+        cal.add(*_stance(rng, yaw, np.zeros(3), np.eye(3)), float(yaw))
+    cal.fit()
+    old = cal.get_state()
+    old["params"] = old["params"][:8]
+    del old["heading_rms"]
+    assert MagCalibrator.from_state(old).trusted
+
+
 def test_vertical_hard_iron_prior_keeps_pitched_stances_right() -> None:
     """Level calibration stances cannot separate b_z from the field's vertical part; the prior fixes the split.
 
