@@ -21,7 +21,7 @@ from models.compass import MagCalibrator, follow_compass
 from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
-from models.step_length import StepFeatures, StepLengthCalibrator
+from models.step_length import FORM, StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
 
@@ -304,6 +304,8 @@ class GaitPipeline:
             state["fits"] = {k: v for k, v in state["fits"].items() if not (k == b or k.startswith(b + "/"))}
             state["fits"].update({k: v for k, v in stored.get("fits", {}).items() if k == b or k.startswith(b + "/")})
             self.cal = StepLengthCalibrator.from_state(state)
+            if stored.get("form") != FORM:
+                self.cal.refit_stale()  # a profile fitted with the older eq. (15) regressors
         compass = step_model.get("compass")
         if isinstance(compass, dict) and not self.mag.ready:
             self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration

@@ -2,14 +2,24 @@
 
 Models (``d`` in metres, one step = one stance-to-stance interval of the instrumented foot):
 
-* ``"eq15"`` — 004 eq. (15) walking: ``d = K0 + K1 f^-1/2 + K2 f^-1 + K3 max(a~)``;
-* ``"eq15_run"`` — 004 eq. (15) running: ``d = K4 cbrt(mean(a~))``;
+* ``"eq15"`` — 004 eq. (15) walking: ``d = K0 + K1 f^-1/2 + K2 f^-1 + K3 (a_bar - g)``;
+* ``"eq15_run"`` — 004 eq. (15) running: ``d = K4 cbrt(a_bar)``;
 * ``"weinberg"`` — 000 eq. (35): ``d = K (a_max - a_min)^(1/4)``;
 * ``"height_freq"`` — 003 eq. (28): ``d = h (j f + l) + q``; for one user ``h`` is fixed, so ``h l`` and
   ``q`` are not separately identifiable: the prior keeps them apart.
 
-``a~`` is the Hamming-window FIR filtered specific-force magnitude [m/s^2] (004 Section 2.2), ``f`` the
-step frequency [Hz] (see :mod:`models.steps`).
+``a~`` is the Hamming-window FIR filtered specific-force magnitude [m/s^2] (004 Section 2.2), ``a_bar`` its
+mean over the step, ``f`` the step frequency [Hz] (see :mod:`models.steps`).
+
+The walking term K3 acts on ``a_bar``: 004 writes it ``max(a_bar_k)`` with ``a_bar_k`` "the mean value of
+a~_k", the symbol the running form uses too. It was first read as the peak ``max(a~)``, which carries little
+of the stride at a given cadence: over the gdin per-stride recordings (exp31-43, truth strides, cadence
+terms regressed out) the partial correlation of the true stride with the peak is -0.21..+0.82 (the same at
+the native rate and at 25 Hz), with the mean +0.33..+0.92 on 9 of 10 (exp34 ~0). A K3 fitted on the peak
+followed the noise of ~30 calibration strides (K3 -0.017..+0.024 m per m/s^2) and moved every Gait-DR
+stride by 1-2 % where the walk's peaks drifted (exp41, exp42). The regressor is ``a_bar - g`` (zero for a
+still foot): with the intercept this only re-parametrises K0, but it keeps K0's prior about the stride
+instead of about ``K3 g``.
 
 Calibration (004 Section 2.3 and 5): pairs (features, d_KF) collected while the ZUPT-KF runs are fitted by
 Huber-weighted iteratively re-weighted least squares with a Gaussian prior on the coefficients (so a
@@ -26,10 +36,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MODELS", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
+from models.steps import G0
+
+__all__ = ["MODELS", "FORM", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
            "StepLengthCalibrator"]
 
 MODELS: tuple[str, ...] = ("eq15", "eq15_run", "weinberg", "height_freq")
+FORM = "eq15-abar"  # regressor form the stored fits were made with (states without it: eq. 15 on the peak)
 
 
 @dataclass(frozen=True)
@@ -68,7 +81,7 @@ def regressors(model: str, x: StepFeatures, height_m: float = 1.75) -> np.ndarra
     """
     f = max(x.f_s, 1e-3)
     if model == "eq15":
-        return np.array([1.0, f ** -0.5, 1.0 / f, x.acc_max])  # 004 eq. (15), walking
+        return np.array([1.0, f ** -0.5, 1.0 / f, x.acc_mean - G0])  # 004 eq. (15), walking
     if model == "eq15_run":
         return np.array([np.cbrt(x.acc_mean)])  # 004 eq. (15), running
     if model == "weinberg":
@@ -82,7 +95,7 @@ def _regressor_list(model: str, x: StepFeatures, height_m: float) -> list[float]
     """:func:`regressors` as plain floats (the per-step prediction path; no array overhead)."""
     f = max(x.f_s, 1e-3)
     if model == "eq15":
-        return [1.0, f ** -0.5, 1.0 / f, x.acc_max]  # 004 eq. (15), walking
+        return [1.0, f ** -0.5, 1.0 / f, x.acc_mean - G0]  # 004 eq. (15), walking
     if model == "eq15_run":
         return [math.copysign(abs(x.acc_mean) ** (1.0 / 3.0), x.acc_mean)]  # 004 eq. (15), running
     if model == "weinberg":
@@ -100,8 +113,10 @@ def default_prior(model: str) -> tuple[np.ndarray, np.ndarray]:
     (stride ~ sqrt(speed) and speed = stride x frequency), i.e. ``dd/df ~ d/f ~ 1.5 m/Hz`` there. For 004
     eq. (15) that shape is ``K0 + K2 / f`` with ``K2 = -1.5 * 0.85^2 = -1.08`` and ``K0 = 1.3 + 1.08 / 0.85 =
     2.57``. Standard deviations: K0 loose (the person's level), K1 and K2 0.3 (about 30 % of the slope: people
-    differ), K3 0.01 m per m/s^2 (the peak acceleration moves a stride by at most a few cm over its usual
-    range). A calibration walk spans a narrow range of paces, so its strides fix the level but hardly the
+    differ), K3 (on the mean filtered acceleration ``a_bar``) mean 0, std 0.2 m per m/s^2: at a given cadence
+    the swing's accelerations grow with the stride, and if all of ``a_bar - g`` (~3.5 m/s^2 at a 1.3 m
+    stride) did, ``dd/da_bar`` would be ~0.35; half of that is the scale. A calibration walk spans a narrow
+    range of paces, so its strides fix the level but hardly the
     slope, and the prior decides how the model extrapolates: the earlier constant-speed prior (``d ~ 1.3 / f``,
     longer strides at a slower cadence, K3 0.05) over-predicted the later, slower strides of gdin walks.
     A tighter shape prior (0.1) fitted gdin better still but overrode clear data (a 0.7-1.3 Hz calibration
@@ -112,7 +127,7 @@ def default_prior(model: str) -> tuple[np.ndarray, np.ndarray]:
     mean, std : ndarray, shape (p,)
     """
     if model == "eq15":
-        return np.array([2.57, 0.0, -1.08, 0.0]), np.array([1.0, 0.3, 0.3, 0.01])
+        return np.array([2.57, 0.0, -1.08, 0.0]), np.array([1.0, 0.3, 0.3, 0.2])
     if model == "eq15_run":
         return np.array([0.7]), np.array([1.0])
     if model == "weinberg":
@@ -313,7 +328,7 @@ class StepLengthCalibrator:
 
     def get_state(self) -> dict:
         """Plain-data state (this is the per-user calibration profile content)."""
-        return {"model": self.model, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
+        return {"model": self.model, "form": FORM, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
                 "height_m": self.height_m, "sigma_floor": self.sigma_floor, "band_prior_scale": self.band_prior_scale,
                 "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
                 "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
@@ -328,4 +343,22 @@ class StepLengthCalibrator:
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
         obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                      for k, v in d["fits"].items()}
+        if d.get("form") != FORM:
+            obj.refit_stale()
         return obj
+
+    def refit_stale(self) -> None:
+        """Refit the behaviours' models from their stored pairs (fits made with an older regressor form).
+
+        Each behaviour is refitted on the pairs its pooled fit used (the first ``n``), so the result is what
+        the current form would have fitted at that moment.
+        """
+        for b in sorted({k.split("/")[0] for k in self._fits}):
+            pairs = self._pairs.get(b, [])
+            n = int(self._fits[b]["n"]) if b in self._fits else len(pairs)
+            for k in [k for k in self._fits if k == b or k.startswith(b + "/")]:
+                del self._fits[k]
+            if n > 0 and pairs:
+                self._pairs[b] = pairs[:n]
+                self.fit(b)
+                self._pairs[b] = pairs

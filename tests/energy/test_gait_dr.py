@@ -59,3 +59,20 @@ def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None
     assert gps[False].kf2["walk"].deviation == pytest.approx(math.radians(20.0), abs=math.radians(0.5))
     assert gps[True].dr is not None and not gps[True].dr.compensate
     assert GaitPipeline.from_state(loads(dumps(gps[True].get_state()))).conventional
+
+
+def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> None:
+    """A profile whose walking fit predates K3 on the mean acceleration is refitted from its pairs."""
+    src = GaitPipeline(25.0)
+    for k in range(20):
+        src.learn(*_pair(k, 0.0, 0.0, d=1.25 + 0.01 * (k % 3)), "walk")
+    src.fit("walk")
+    fresh = src.calibration_state()
+    old = loads(dumps(fresh))
+    del old["calibrator"]["form"]
+    for v in old["calibrator"]["fits"].values():
+        v["coef"][3] = -0.014  # a K3 fitted on the ~30 m/s^2 peak
+    gp = GaitPipeline(25.0)
+    gp.load_calibration("walk", old, 0.0, 1e-4)
+    e = _pair(30, 0.0, 0.0)[1]
+    assert gp.step_length(e, "walk") == src.step_length(e, "walk")

@@ -158,3 +158,39 @@ def test_narrow_pace_calibration_extrapolates_with_the_cadence() -> None:
     d_slow, d_base = cal.predict("walk", slow)[0], cal.predict("walk", base)[0]
     assert d_slow < d_base
     assert d_slow == pytest.approx(1.25 * 0.72 / 0.85, abs=0.08)
+
+
+def test_walking_model_follows_the_mean_acceleration_at_one_cadence() -> None:
+    """004 eq. (15)'s K3 acts on the mean filtered acceleration: at one cadence, strides that grow with it
+    (as the gdin strides do) are followed; the peak acceleration does not enter the walking model."""
+    rng = np.random.default_rng(21)
+    cal = StepLengthCalibrator("eq15")
+    for x in _features(rng, 40, 0.84, 0.86):
+        cal.add("walk", x, 1.3 + 0.15 * (x.acc_mean - 13.5) + float(rng.normal(scale=0.02)))
+    cal.fit("walk")
+    lo, hi = StepFeatures(0.85, 12.5, 30.0, 5.0), StepFeatures(0.85, 14.5, 30.0, 5.0)
+    assert cal.predict("walk", hi)[0] - cal.predict("walk", lo)[0] == pytest.approx(0.30, abs=0.06)
+    peak = StepFeatures(0.85, 12.5, 55.0, 5.0)
+    assert cal.predict("walk", peak)[0] == cal.predict("walk", lo)[0]
+
+
+def test_state_from_an_older_regressor_form_is_refitted() -> None:
+    """Profiles stored before K3 moved to the mean acceleration: their fits are redone from the stored pairs
+    (those the pooled fit used), not applied to the new regressor."""
+    rng = np.random.default_rng(22)
+    cal = StepLengthCalibrator("eq15")
+    xs = _features(rng, 30, 0.8, 0.9)
+    for x in xs[:24]:
+        cal.add("walk", x, 1.3 + float(rng.normal(scale=0.03)))
+    cal.fit("walk")
+    for x in xs[24:]:
+        cal.add("walk", x, 1.3)  # pairs gathered after the fit
+    old = cal.get_state()
+    del old["form"]
+    for v in old["fits"].values():
+        v["coef"][3] = -0.014  # a peak-acceleration K3 (m per m/s^2 of a ~30 m/s^2 peak)
+    back = StepLengthCalibrator.from_state(old)
+    assert back.n_pairs("walk") == 30
+    x = StepFeatures(0.85, 13.5, 30.0, 5.0)
+    assert back.predict("walk", x) == cal.predict("walk", x)
+    assert back.get_state()["fits"] == cal.get_state()["fits"]
