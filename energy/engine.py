@@ -282,6 +282,8 @@ class Engine:
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
         self._await_rest = False  # a restarting segment waits for a still foot
         self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
+        self._pre_rot = np.zeros(3)  # sum of gyro rate x interval over the segment's samples before it [rad]
+        self._pre_t = math.nan  # time of the last sample summed into _pre_rot [s]
         self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
         self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
@@ -409,6 +411,7 @@ class Engine:
                 self._seg_t = t_b
                 self._await_rest = nav.initialised  # a restart waits for the foot to be still
                 self._pre = None
+                self._pre_rot, self._pre_t = np.zeros(3), math.nan
                 self._in_seg, self._seg_first = True, True
                 self._ops.pop(0)
             elif kind == "samples" and self._await_rest:
@@ -421,8 +424,8 @@ class Engine:
                     self._pre = None
                     self._await_rest = False
                     acc_rest = pre[1][i : j + 1].mean(axis=0)
-                    head = self._restart_heading(acc_rest, None if pre[3] is None else pre[3][i : j + 1])
-                    nav.restart(nav.position, head, acc_rest)
+                    self._sum_rotation(pre[0][:i], pre[2][:i])
+                    nav.restart(nav.position, self._restart_heading(acc_rest), acc_rest)
                     self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
                 out = nav.process(op[1], op[2], op[3], op[4])
@@ -487,23 +490,30 @@ class Engine:
         if end >= 0:
             self._pre = (t, a, g, m)
             return start, end
+        self._sum_rotation(t[:start], g[:start])
         self._pre = (t[start:], a[start:], g[start:], None if m is None else m[start:])
         return None
 
-    def _restart_heading(self, acc_rest: np.ndarray, mag_rest: np.ndarray | None) -> float:
-        """Sensor heading [rad] for a restarting ZUPT-KF: the compass on the still foot where the field is clean.
+    def _sum_rotation(self, t: np.ndarray, gyr: np.ndarray) -> None:
+        """Add the rotation of samples a restarting segment drops (before its still foot) to ``_pre_rot``."""
+        if len(t):
+            dt = np.diff(np.concatenate([[self._pre_t if math.isfinite(self._pre_t) else t[0]], t]))
+            self._pre_rot = self._pre_rot + (gyr * dt[:, None]).sum(axis=0)
+            self._pre_t = float(t[-1])
 
-        The foot may have turned since Gait-DR's last step (a segment often starts mid-turn), so the last
-        step's heading is only the fallback (disturbed or no field, compass not calibrated).
+    def _restart_heading(self, acc_rest: np.ndarray) -> float:
+        """Sensor heading [rad] for a restarting ZUPT-KF: Gait-DR's last heading turned by what the gyroscope
+        saw from the segment's first sample to the still foot.
+
+        A segment often starts mid-turn. The rotation is projected on the vertical of the still foot (the
+        pitch of the swing, about the body's y axis, does not leak into it). The compass on the still foot
+        was tried instead: better in 11 of 14 synthetic sessions, but a steel disturbance that passed the
+        field test put 35 deg into a whole 80-s segment (mixed-day seed 1, returning user: 46 m mean error).
         """
-        gait = self._gait
-        if gait is not None and mag_rest is not None and gait.mag.ready:
-            ok = np.isfinite(mag_rest).all(axis=1)
-            if ok.any():
-                m = mag_rest[ok].mean(axis=0)
-                if not gait.mag.disturbed(acc_rest, m):
-                    return gait.mag.heading(acc_rest, m)
-        return self._head if math.isfinite(self._head) else self._nav.heading
+        held = self._head if math.isfinite(self._head) else self._nav.heading
+        down = -np.asarray(acc_rest, dtype=float) / max(float(np.linalg.norm(acc_rest)), 1e-9)  # NED down, body
+        h = held + float(self._pre_rot @ down)
+        return math.atan2(math.sin(h), math.cos(h))
 
     def _nav_ops(self, out: NavOutput) -> list[tuple]:
         """ZUPT-KF output as queue entries: per-sample trace pieces and stances, in time order."""
@@ -685,6 +695,8 @@ class Engine:
             "seg_t": self._seg_t,
             "await_rest": self._await_rest,
             "pre": None if self._pre is None else list(self._pre),
+            "pre_rot": self._pre_rot,
+            "pre_t": self._pre_t,
             "disturbed_run": self._disturbed_run,
             "clean_run": self._clean_run,
             "nav_t": self._nav_t,
@@ -721,6 +733,8 @@ class Engine:
         obj._pre = None if pre is None else (
             np.asarray(pre[0], dtype=float), np.asarray(pre[1], dtype=float).reshape(-1, 3),
             np.asarray(pre[2], dtype=float).reshape(-1, 3), None if pre[3] is None else np.asarray(pre[3], dtype=float).reshape(-1, 3))
+        obj._pre_rot = np.asarray(d.get("pre_rot", np.zeros(3)), dtype=float).reshape(3)  # absent in older states
+        obj._pre_t = float(d.get("pre_t", math.nan))
         obj._disturbed_run = int(d["disturbed_run"])
         obj._clean_run = int(d["clean_run"])
         obj._nav_t = float(d["nav_t"])

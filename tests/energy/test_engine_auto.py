@@ -131,7 +131,7 @@ def test_returning_user_follows_the_truth(readme_profile, seed) -> None:
     """A second walk on the stored profile is held to the first walk's bound (5 % of the path at the end).
 
     Segments often start mid-turn; restarting the ZUPT-KF with the last Gait-DR step's heading left 23 deg
-    of heading error for a whole segment (demo seed 1: 9.4 m at the end); the compass on the still foot fixes it.
+    of heading error for a whole segment (demo seed 1: 9.4 m at the end).
     """
     rec = synthesize("demo", seed=seed)
     res = replay(Engine(mode="auto", profile=readme_profile, trace=True), rec.batch, batch_seconds=1.0)
