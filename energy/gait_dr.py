@@ -304,8 +304,8 @@ class GaitPipeline:
             state["fits"] = {k: v for k, v in state["fits"].items() if not (k == b or k.startswith(b + "/"))}
             state["fits"].update({k: v for k, v in stored.get("fits", {}).items() if k == b or k.startswith(b + "/")})
             self.cal = StepLengthCalibrator.from_state(state)
-            if stored.get("form") != FORM:
-                self.cal.refit_stale()  # a profile fitted with the older eq. (15) regressors
+            if stored.get("form") != FORM or stored.get("run_model", "eq15_run") != self.cal.run_model:
+                self.cal.refit_stale()  # a profile fitted with other regressors than this session's
         compass = step_model.get("compass")
         if isinstance(compass, dict) and not self.mag.ready:
             self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration

@@ -198,8 +198,13 @@ class StepLengthCalibrator:
     Parameters
     ----------
     model : str
-        Walking model, one of :data:`MODELS` (``"eq15_run"`` is used for behaviour ``"run"`` when
-        ``model == "eq15"``).
+        Walking model, one of :data:`MODELS`.
+    run_model : str
+        Model of behaviour ``"run"`` when ``model == "eq15"``: ``"eq15"`` (default: the walking form, fitted on
+        the running strides) or ``"eq15_run"`` (004's ``K4 cbrt(a_bar)``). The one-coefficient cube root has a
+        fixed elasticity of 1/3 and no cadence term; the gdin strides labelled running (1.0-1.3 Hz) span
+        1.5-3.1 m while ``a_bar`` grows by x1.7, so it over-predicted the slower ones (exp35's Gait-DR strides
+        at 1.0 Hz: 1.92 m for 1.58 m true, 23 %). States without the key used ``"eq15_run"``.
     band_hz : float
         Half-width of a walking-pattern step-frequency band [Hz] (004: 0.2).
     min_pairs : int
@@ -215,10 +220,11 @@ class StepLengthCalibrator:
     """
 
     def __init__(self, model: str = "eq15", band_hz: float = 0.2, min_pairs: int = 8, height_m: float = 1.75,
-                 sigma_floor: float = 0.03, band_prior_scale: float = 0.5) -> None:
-        if model not in MODELS:
-            raise ValueError(f"unknown step-length model {model!r}; expected one of {MODELS}")
+                 sigma_floor: float = 0.03, band_prior_scale: float = 0.5, run_model: str = "eq15") -> None:
+        if model not in MODELS or run_model not in ("eq15", "eq15_run"):
+            raise ValueError(f"unknown step-length model {model!r}/{run_model!r}; expected one of {MODELS}")
         self.model = model
+        self.run_model = run_model
         self.band_hz = float(band_hz)
         self.min_pairs = int(min_pairs)
         self.height_m = float(height_m)
@@ -228,8 +234,8 @@ class StepLengthCalibrator:
         self._fits: dict[str, dict] = {}  # key -> {"coef": [...], "sigma_d": s, "n": n}
 
     def model_for(self, behaviour: str) -> str:
-        """Model used for a behaviour (running uses 004 eq. 15 running form)."""
-        return "eq15_run" if (behaviour == "run" and self.model == "eq15") else self.model
+        """Model used for a behaviour (running: :attr:`run_model` when the walking model is eq. 15)."""
+        return self.run_model if (behaviour == "run" and self.model == "eq15") else self.model
 
     def band(self, f_s: float) -> int:
         """Walking-pattern band index of a step frequency [Hz] (bands of width ``2 band_hz``)."""
@@ -328,7 +334,7 @@ class StepLengthCalibrator:
 
     def get_state(self) -> dict:
         """Plain-data state (this is the per-user calibration profile content)."""
-        return {"model": self.model, "form": FORM, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
+        return {"model": self.model, "run_model": self.run_model, "form": FORM, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
                 "height_m": self.height_m, "sigma_floor": self.sigma_floor, "band_prior_scale": self.band_prior_scale,
                 "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
                 "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
@@ -339,7 +345,8 @@ class StepLengthCalibrator:
         """Rebuild from :meth:`get_state` output."""
         obj = cls(d["model"], float(d["band_hz"]), int(d["min_pairs"]), float(d["height_m"]),
                   float(d["sigma_floor"]),
-                  float(d.get("band_prior_scale", math.inf)))  # older profiles: independent bands
+                  float(d.get("band_prior_scale", math.inf)),  # older profiles: independent bands
+                  str(d.get("run_model", "eq15_run")))  # older profiles: 004's running form
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
         obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                      for k, v in d["fits"].items()}

@@ -194,3 +194,26 @@ def test_state_from_an_older_regressor_form_is_refitted() -> None:
     x = StepFeatures(0.85, 13.5, 30.0, 5.0)
     assert back.predict("walk", x) == cal.predict("walk", x)
     assert back.get_state()["fits"] == cal.get_state()["fits"]
+
+
+def test_running_model_follows_the_cadence_and_older_states_keep_the_cube_root() -> None:
+    """Running strides over 1.0-1.3 Hz (1.5-2.6 m, as gdin's): the eq. (15) walking form fitted on them
+    predicts the slower ones; 004's K4 cbrt(a_bar) (elasticity 1/3, no cadence) cannot."""
+    rng = np.random.default_rng(23)
+    f = rng.uniform(1.0, 1.3, 30)
+    d = 1.5 + 3.5 * (f - 1.0)
+    amean = 16.0 + 30.0 * (f - 1.0)
+    out = {}
+    for run_model in ("eq15", "eq15_run"):
+        cal = StepLengthCalibrator("eq15", run_model=run_model)
+        for fi, ai, di in zip(f, amean, d):
+            cal.add("run", StepFeatures(float(fi), float(ai), 40.0, 5.0), float(di + rng.normal(scale=0.03)))
+        cal.fit("run")
+        out[run_model] = cal.predict("run", StepFeatures(1.02, 16.6, 40.0, 5.0))[0]
+        back = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
+        assert back.run_model == run_model and back.get_state() == cal.get_state()
+    assert out["eq15"] == pytest.approx(1.57, abs=0.06)
+    assert out["eq15_run"] > 1.57 + 0.1
+    old = StepLengthCalibrator().get_state()
+    del old["run_model"]
+    assert StepLengthCalibrator.from_state(old).model_for("run") == "eq15_run"
