@@ -9,7 +9,7 @@ processing see identical samples).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -73,30 +73,30 @@ class DeviceSimulator:
     ----------
     recording : Recording or SensorBatch
         Native-rate streams (SI units, int64 ns timestamps).
-    batch_seconds : float
-        Duration of each uploaded batch [s].
+    batch_seconds : float or None
+        Duration of each uploaded batch [s]; None: as long as the server's sensor configuration says
+        (``SensorConfig.batch_s``: longer uploads while the gyroscope is off).
     """
 
     kind = "foot"
 
-    def __init__(self, recording: Recording | SensorBatch, batch_seconds: float = 1.0) -> None:
+    def __init__(self, recording: Recording | SensorBatch, batch_seconds: float | None = 1.0) -> None:
         self.batch = recording.batch if isinstance(recording, Recording) else recording
         if self.batch.t_start_ns is None:
             raise ValueError("recording: no samples")
-        if batch_seconds <= 0:
+        if batch_seconds is not None and batch_seconds <= 0:
             raise ValueError("batch_seconds must be positive")
         self.batch_seconds = batch_seconds
 
-    def _windows(self) -> list[tuple[int, int]]:
+    def _windows(self, config: Callable[[], SensorConfig]) -> Iterator[tuple[int, int]]:
+        """Upload windows ``[t0, t1)`` [ns]; ``config`` is read before each (it may change the length)."""
         t0, t_end = self.batch.t_start_ns, self.batch.t_end_ns
         assert t0 is not None and t_end is not None
-        step = int(round(self.batch_seconds * 1e9))
-        out = []
         while t0 <= t_end:
-            t1 = min(t0 + step, t_end + 1)
-            out.append((t0, t1))
+            seconds = self.batch_seconds if self.batch_seconds is not None else config().batch_s
+            t1 = min(t0 + max(int(round(seconds * 1e9)), 1), t_end + 1)
+            yield t0, t1
             t0 = t1
-        return out
 
     def _start_kwargs(self, start: dict[str, Any] | None) -> dict[str, Any]:
         return {"device_kind": self.kind, **(start or {})}
@@ -127,10 +127,9 @@ class DeviceSimulator:
         stream = client.stream(sess["id"], sess.get("next_seq", 0))
         config = SensorConfig(**sess["sensor_config"])
         device = DeviceEmulator(self.batch)
-        wins = self._windows()
-        span = wins[-1][1] - wins[0][0]
+        start_ns, span = int(self.batch.t_start_ns or 0), int(self.batch.t_end_ns or 0) + 1 - int(self.batch.t_start_ns or 0)
         res.duration_s = span / 1e9
-        for t0, t1 in wins:
+        for t0, t1 in self._windows(lambda: config):
             res.configs.append((t0, config.to_dict()))
             out = device.emit(t0, t1, config)
             if config.gyro_on:
@@ -146,7 +145,7 @@ class DeviceSimulator:
             if stream.sensor_config is not None:
                 config = SensorConfig(**stream.sensor_config)
             if progress is not None:
-                progress((t1 - wins[0][0]) / span, new)
+                progress((t1 - start_ns) / span, new)
         res.bytes_sent = stream.bytes_sent
         if stream.pending:
             raise ConnectionError(f"{len(stream.pending)} batches could not be delivered")
@@ -169,9 +168,8 @@ class DeviceSimulator:
         stream = client.stream(sess["id"], sess.get("next_seq", 0))
         config = SensorConfig(**sess["sensor_config"])
         device = DeviceEmulator(self.batch)
-        wins = self._windows()
-        res.duration_s = (wins[-1][1] - wins[0][0]) / 1e9
-        for t0, t1 in wins:
+        res.duration_s = (int(self.batch.t_end_ns or 0) + 1 - int(self.batch.t_start_ns or 0)) / 1e9
+        for t0, t1 in self._windows(lambda: config):
             out = device.emit(t0, t1, config)
             for a in await stream.send(out):
                 res.responses.append(a)
@@ -201,7 +199,7 @@ class WatchSimulator(DeviceSimulator):
     kind = "watch"
 
 
-def simulator_for(kind: str, recording: Recording | SensorBatch, batch_seconds: float = 1.0) -> DeviceSimulator:
+def simulator_for(kind: str, recording: Recording | SensorBatch, batch_seconds: float | None = 1.0) -> DeviceSimulator:
     """The simulator class for a device kind (``foot``, ``phone``, ``watch``)."""
     classes = {"foot": FootSensorSimulator, "phone": PhoneSimulator, "watch": WatchSimulator}
     try:

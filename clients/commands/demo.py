@@ -165,7 +165,7 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
                 bar.refresh()
 
             start = {"latitude_deg": 43.6629, "longitude_deg": -79.3957, "altitude_m": 100.0}
-            sim = FootSensorSimulator(rec, batch_seconds=1.0)
+            sim = FootSensorSimulator(rec, batch_seconds=None)
             res = sim.run(api, start=start, progress=progress)
             bar.close()
             res.stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")  # type: ignore[attr-defined]
@@ -175,7 +175,7 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
             rec2 = synthesize(scenario, seed=seed + 1)
             if not quiet:
                 print("second walk, same user (the server now has their calibration profile) ...", file=sys.stderr)
-            res2 = FootSensorSimulator(rec2, batch_seconds=1.0).run(api, start=start)
+            res2 = FootSensorSimulator(rec2, batch_seconds=None).run(api, start=start)
             res2.stored = api._json("GET", f"/v1/sessions/{res2.session_id}/batches")  # type: ignore[attr-defined]
     pos = np.array([[p["t_ns"], p["north"], p["east"], p["down"]] for p in res.positions]).reshape(-1, 4)
     steps = np.linalg.norm(np.diff(pos[:, 1:3], axis=0), axis=1) if len(pos) > 1 else np.zeros(0)

@@ -7,6 +7,7 @@ import pytest
 
 from clients.sdk import PednavClient
 from clients.simulators import FootSensorSimulator, PhoneSimulator, WatchSimulator, simulator_for
+from energy.scheduler import BATCH_S, LOW_POWER_BATCH_S
 from tests.server.conftest import app, backend, client, make_user, settings  # noqa: F401 - fixtures
 
 
@@ -57,3 +58,15 @@ def test_simulator_for_kinds(walk_recording) -> None:  # type: ignore[no-untyped
         simulator_for("toaster", walk_recording)
     with pytest.raises(ValueError):
         FootSensorSimulator(walk_recording, batch_seconds=0)
+
+
+def test_simulator_uploads_as_long_as_the_server_says(client, make_user, walk_recording) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    _, tok = make_user()
+    api = PednavClient(token=tok, http=client)
+    res = FootSensorSimulator(walk_recording, batch_seconds=None).run(api)
+    spans = [(b - a) / 1e9 for (a, _), (b, _) in zip(res.configs, res.configs[1:])]
+    wanted = [c["batch_s"] for _, c in res.configs[:-1]]
+    assert spans == pytest.approx(wanted, abs=1e-9)
+    assert {BATCH_S, LOW_POWER_BATCH_S} <= set(wanted)  # the scheduler asked for both, so this proves something
+    stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")
+    assert len(stored) == len(res.configs) and sum(b["n_acc"] for b in stored) == res.samples_sent["acc"]
