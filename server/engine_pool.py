@@ -147,13 +147,13 @@ class EnginePool:
     def _helper(self, session_id: int) -> _Helper:
         i = session_id % self.processes
         with self._lock:  # ingest threads may arrive together on the first request
-            if self._helpers is None:
-                self._helpers = [None] * self.processes
+            ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
+            if self._helpers is None:  # all helpers start together (each imports the engine at start)
+                self._helpers = [_Helper(ctx, self.channels, self.cache_size) for _ in range(self.processes)]
             h = self._helpers[i]
             if h is None or not h.proc.is_alive():
                 if h is not None:
                     h.stop()
-                ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
                 h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
             return h
 

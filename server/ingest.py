@@ -4,6 +4,10 @@ The server holds no navigation math; it restores the session's engine (from an i
 cached copy is at the stored version, else from the persisted bytes), feeds it the batch, and commits the raw
 batch, the new positions/events and the new engine state in one transaction. The session row carries an
 optimistic-concurrency version, so two workers can never both apply the same batch.
+
+Batch uploads take the driver-level path of :mod:`server.upload` (same rules, fewer statements); the ORM path
+here serves Sensor Logger pushes (whose watermark moves inside the same transaction) and PostgreSQL with
+``PEDNAV_PG_ONE_STATEMENT_WRITES=false``.
 """
 
 from __future__ import annotations

@@ -87,6 +87,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+_WARM_SESSIONS = 4  # warm-up sessions (covers up to 4 engine helper processes)
 _SPREAD_S = 60  # devices start at different points of the recording (independent people, not in lockstep)
 
 
@@ -276,13 +277,17 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
     async with httpx.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
         token = tokens[-1]  # warm-up and set-up; every device has its own token (the per-token rate limit)
         h = {"Authorization": f"Bearer {token}"}
-        # warm-up session (engine JIT compilation), not measured
-        warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
-        for k, (body, ctype) in enumerate(bodies[: min(20, len(bodies))]):
-            # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
-            r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body, headers={**h, "content-type": ctype},
-                                 timeout=600.0)
-            r.raise_for_status()
+        # warm-up sessions (engine JIT compilation), not measured: consecutive session ids, so each of up to
+        # _WARM_SESSIONS engine helper processes (chosen by session id) runs its kernels once
+        async def warm_up() -> None:
+            warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
+            for k, (body, ctype) in enumerate(bodies[:_SPREAD_S]):  # every phase of the walk (stand, walk, turns)
+                # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
+                r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
+                                     headers={**h, "content-type": ctype}, timeout=600.0)
+                r.raise_for_status()
+
+        await asyncio.gather(*[warm_up() for _ in range(_WARM_SESSIONS)])
         sids = []
         for i in range(devices):
             r = await client.post("/v1/sessions", json={"device_kind": "foot"}, headers={"Authorization": f"Bearer {tokens[i]}"})
@@ -382,7 +387,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "body_bytes": len(bodies[0][0]),
         "database": backend,
         "server_workers": 1,
-        "engine_processes": int(os.environ.get("PEDNAV_ENGINE_PROCESSES", "1")),
+        "engine_processes": Settings(database_url=url).engine_processes,  # what the server read (env or default)
         "cpus": os.cpu_count(),
         "loadavg_1_5_15_at_start": [round(x, 2) for x in load_start],
         "loadavg_1_5_15_at_end": [round(x, 2) for x in os.getloadavg()],
