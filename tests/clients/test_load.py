@@ -1,0 +1,23 @@
+"""Helpers of the load benchmark (``pednav bench load``): Server-Timing parsing and the per-window tail."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clients.benchmarks.load import _by_window, _server_timing
+
+
+def test_server_timing_parses_phases_and_skips_malformed_parts() -> None:
+    assert _server_timing("queue;dur=0.12, engine;dur=3.5,write;dur=1") == {"queue": 0.12, "engine": 3.5, "write": 1.0}
+    assert _server_timing("") == {}
+    assert _server_timing("x;dur=abc, y;dur=2") == {"y": 2.0}
+
+
+def test_by_window_gives_the_p99_of_the_requests_sent_in_each_window() -> None:
+    sent = np.array([0.5, 1.0, 9.9, 10.0, 15.0, 31.0])
+    lat = np.array([10.0, 20.0, 30.0, 500.0, 40.0, 7.0])
+    # windows [0,10): 10, 20, 30; [10,20): 500, 40; [20,30): none (skipped); [30,40): 7
+    got = _by_window(sent, lat, 10.0)
+    assert got == [round(float(np.percentile([10.0, 20.0, 30.0], 99)), 1),
+                   round(float(np.percentile([500.0, 40.0], 99)), 1), 7.0]
+    assert _by_window(np.array([]), np.array([]), 10.0) == []
