@@ -3,7 +3,7 @@
 The worker keeps HTTP, authentication and the database; a helper process (one per ``engine_processes``,
 chosen by session id so a session always meets its cached engine) restores, feeds and serialises the engine
 and sends back everything the worker stores: the answer (as a dict and as its JSON text), the canonical raw
-batch and its digest, and the new (compressed) state. Helpers cache engines by ``(session id, version)``; on a
+batch and its digest, and the new state (the worker compresses it). Helpers cache engines by ``(session id, version)``; on a
 miss the worker sends the stored state. Results are identical to in-process feeding (same engine code, same
 bytes), and the worker still commits state and outputs in one versioned write transaction.
 

@@ -224,7 +224,7 @@ class Fed(NamedTuple):
     resp_json: str  # the answer as compact JSON (stored as the batch's response and sent)
     raw: bytes  # canonical raw batch (lossless msgpack)
     digest: str  # SHA-256 of raw (retries must match it)
-    state: bytes  # the engine's new state, stored form (server.statecodec)
+    state: bytes  # the engine's new state (Engine.to_bytes; compressed by the storing thread, server.statecodec)
     n_acc: int
     n_gyr: int
     n_mag: int
@@ -236,7 +236,7 @@ def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: in
     upd = engine.feed(batch)
     resp, text = _answer(session_id, seq, seq + 1, upd)
     raw = canonical_bytes(batch)
-    return Fed(resp, text, raw, digest(raw), pack_state(engine.to_bytes()), len(batch.acc_t_ns), len(batch.gyr_t_ns),
+    return Fed(resp, text, raw, digest(raw), engine.to_bytes(), len(batch.acc_t_ns), len(batch.gyr_t_ns),
                len(batch.mag_t_ns))
 
 
@@ -389,7 +389,7 @@ def _apply_once(
             if out[0] == "batch_error":
                 raise BatchError(out[1], out[2])
             fed: Fed = out[1]
-            resp, state, behaviour, mode = fed.resp, fed.state, fed.resp["behaviour"], fed.resp["mode"]
+            resp, state, behaviour, mode = fed.resp, pack_state(fed.state), fed.resp["behaviour"], fed.resp["mode"]
         else:
             with phase("load_state"):
                 engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)

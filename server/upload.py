@@ -359,6 +359,9 @@ class Uploader:
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
             with phase("engine"):
                 fed = feed_engine(engine, batch, session_id, seq)
+        # compressed here, not in the engine helper: zlib runs without the GIL, and the single helper process is
+        # the one whose CPU time limits throughput when the machine is busy
+        fed = fed._replace(state=pack_state(fed.state))
         with phase("write"):
             if self.writer is not None:
                 ok = self.writer.write((session_id, sess.version, seq, fed))
