@@ -44,6 +44,7 @@ __all__ = [
     "close_session",
     "engine_profile_in",
     "feed_engine",
+    "pool_feed",
     "json_safe",
     "validate_calibration",
 ]
@@ -240,6 +241,25 @@ def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: in
                len(batch.mag_t_ns))
 
 
+def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: SensorBatch,
+              load_blob: Callable[[], bytes]) -> Fed:
+    """Feed ``batch`` through the engine helper process: its cached engine when it holds ``version``, else the
+    stored state ``load_blob()`` (``BatchError`` from the engine's validation is raised here)."""
+    streams: dict[str, Any] = {}
+    for name in STREAMS:
+        streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
+    with phase("engine"):
+        out = pool.feed(session_id, version, None, seq, streams)
+    if out[0] == "miss":
+        with phase("load_state"):
+            blob = load_blob()
+        with phase("engine"):
+            out = pool.feed(session_id, version, blob, seq, streams)
+    if out[0] == "batch_error":
+        raise BatchError(out[1], out[2])
+    return out[1]
+
+
 def _store_outputs(db: Session, sess: TrackSession, seq: int, upd: Any) -> None:
     for p in upd.positions:
         db.add(PositionRecord(session_id=sess.id, seq=seq, **p.to_dict()))
@@ -375,20 +395,13 @@ def _apply_once(
         engine: EngineLike | None = None
         if host.pool is not None:  # the engine runs in a helper process
             end_read()
-            streams = {}
-            for name in STREAMS:
-                streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
-            with phase("engine"):
-                out = host.pool.feed(session_id, row.version, None, seq, streams)
-            if out[0] == "miss":
-                with phase("load_state"):
-                    blob = load_state()
-                    end_read()
-                with phase("engine"):
-                    out = host.pool.feed(session_id, row.version, blob, seq, streams)
-            if out[0] == "batch_error":
-                raise BatchError(out[1], out[2])
-            fed: Fed = out[1]
+
+            def blob_then_end_read() -> bytes:
+                blob = load_state()
+                end_read()
+                return blob
+
+            fed = pool_feed(host.pool, session_id, row.version, seq, batch, blob_then_end_read)
             resp, state, behaviour, mode = fed.resp, pack_state(fed.state), fed.resp["behaviour"], fed.resp["mode"]
         else:
             with phase("load_state"):

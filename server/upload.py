@@ -27,10 +27,10 @@ from typing import Any, NamedTuple
 
 from fastapi import HTTPException, status
 
-from models.batch import STREAMS, BatchError, SensorBatch
+from models.batch import BatchError, SensorBatch
 from server.auth import RateLimiter, admit, require_token
 from server.formats import canonical_bytes, decode_batch, digest
-from server.ingest import EngineHost, Fed, IngestConflict, feed_engine
+from server.ingest import EngineHost, Fed, IngestConflict, feed_engine, pool_feed
 from server.security import hash_token
 from server.statecodec import pack_state
 from server.timing import phase, since
@@ -340,19 +340,7 @@ class Uploader:
         host = self.host
         engine = None
         if host.pool is not None:
-            streams = {}
-            for name in STREAMS:
-                streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
-            with phase("engine"):
-                out = host.pool.feed(session_id, sess.version, None, seq, streams)
-            if out[0] == "miss":
-                with phase("load_state"):
-                    blob = stored_state()
-                with phase("engine"):
-                    out = host.pool.feed(session_id, sess.version, blob, seq, streams)
-            if out[0] == "batch_error":
-                raise BatchError(out[1], out[2])
-            fed: Fed = out[1]
+            fed: Fed = pool_feed(host.pool, session_id, sess.version, seq, batch, stored_state)
         else:
             with phase("load_state"):
                 engine = host.restore_at(session_id, sess.version, stored_state, "auto", None)
