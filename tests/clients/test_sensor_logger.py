@@ -128,7 +128,7 @@ def test_phyphox_export(tmp_path: Path, sep: str) -> None:
     t0 = b.acc_t_ns[0]
 
     def table(head: str, t: np.ndarray, v: np.ndarray) -> str:
-        cols = [f'"Time (s)"'] + [f'"{head} {a} ({u})"' for a, u in zip("xyz", [UNITS[head]] * 3)]
+        cols = ['"Time (s)"'] + [f'"{head} {a} ({u})"' for a, u in zip("xyz", [UNITS[head]] * 3)]
         rows = [sep.join(cols)]
         for ti, row in zip(t.tolist(), v.tolist()):
             vals = [repr((ti - int(t0)) / 1e9)] + [repr(float(x)) for x in row]
