@@ -78,3 +78,4 @@ def test_demo_runs_and_writes_plot(capsys, tmp_path: Path) -> None:  # type: ign
     back = s["returning_user"]  # the second walk starts from the profile the first one stored on the server
     assert back["session_id"] != s["session_id"] and np.isfinite(back["final_error_m"])
     assert back["gyro_duty_cycle"] < s["gyro_duty_cycle"]
+    assert Path(back["plot"]).stat().st_size > 10_000 and Path(back["plot"]).parent == plot.parent
