@@ -4,6 +4,8 @@ replaces it atomically, the session continues correctly afterwards, and refusals
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
@@ -106,8 +108,15 @@ class ShiftedEngine(Engine):
         return self._shift(super().flush())
 
 
-def _other_app(settings: Any, engine_cls: type) -> Any:
-    return create_app(settings.model_copy(update={"migrate_on_startup": False}), engine_cls=engine_cls)
+@contextmanager
+def _other_app(settings: Any, engine_cls: type) -> Iterator[TestClient]:
+    """A client of a second app instance on the same database whose sessions run ``engine_cls``."""
+    app2 = create_app(settings.model_copy(update={"migrate_on_startup": False}), engine_cls=engine_cls)
+    try:
+        with TestClient(app2) as c2:
+            yield c2
+    finally:
+        app2.state.db_engine.dispose()
 
 
 def test_newer_engine_replaces_the_trajectory_and_dry_run_stores_nothing(settings, client, app, make_user) -> None:  # type: ignore[no-untyped-def]
@@ -118,17 +127,13 @@ def test_newer_engine_replaces_the_trajectory_and_dry_run_stores_nothing(setting
     _, tok = make_user()
     sid = FootSensorSimulator(synthesize("walk", seed=4)).run(PednavClient(token=tok, http=client)).session_id
     before = _snapshot(client, app, tok, sid)
-    app2 = _other_app(settings, ShiftedEngine)
-    try:
-        with TestClient(app2) as c2:
-            dry = c2.post(f"/v1/sessions/{sid}/reprocess", json={"dry_run": True}, headers=auth(tok)).json()
-            assert dry["stored"] is False and dry["identical"] is False and dry["max_shift_m"] == pytest.approx(1.0)
-            assert _snapshot(client, app, tok, sid) == before  # nothing stored
-            r = c2.post(f"/v1/sessions/{sid}/reprocess", json={}, headers=auth(tok))
-            assert r.status_code == 200, r.text
-            assert r.json()["engine"].endswith("ShiftedEngine") and r.json()["stored"] is True
-    finally:
-        app2.state.db_engine.dispose()
+    with _other_app(settings, ShiftedEngine) as c2:
+        dry = c2.post(f"/v1/sessions/{sid}/reprocess", json={"dry_run": True}, headers=auth(tok)).json()
+        assert dry["stored"] is False and dry["identical"] is False and dry["max_shift_m"] == pytest.approx(1.0)
+        assert _snapshot(client, app, tok, sid) == before  # nothing stored
+        r = c2.post(f"/v1/sessions/{sid}/reprocess", json={}, headers=auth(tok))
+        assert r.status_code == 200, r.text
+        assert r.json()["engine"].endswith("ShiftedEngine") and r.json()["stored"] is True
     shifted = _snapshot(client, app, tok, sid)[0]
     assert len(shifted) == len(before[0])
     for a, b in zip(before[0], shifted):
@@ -184,12 +189,8 @@ def test_refused_stored_batch_is_409_and_changes_nothing(settings, client, app, 
     sid = _still_session(client, tok, 3)
     before = _snapshot(client, app, tok, sid)
     RefusingEngine.fed = 0
-    app2 = _other_app(settings, RefusingEngine)
-    try:
-        with TestClient(app2) as c2:
-            r = c2.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok))
-    finally:
-        app2.state.db_engine.dispose()
+    with _other_app(settings, RefusingEngine) as c2:
+        r = c2.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok))
     assert r.status_code == 409 and "stored batch 1" in r.json()["detail"] and "acc" in r.json()["detail"]
     assert _snapshot(client, app, tok, sid) == before
 
@@ -209,12 +210,8 @@ def test_upload_during_reprocessing_is_409_and_changes_nothing(settings, client,
             return super().feed(batch)
 
     before = _snapshot(client, app, tok, sid)
-    app2 = _other_app(settings, Interrupted)
-    try:
-        with TestClient(app2) as c2:
-            r = c2.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok))
-    finally:
-        app2.state.db_engine.dispose()
+    with _other_app(settings, Interrupted) as c2:
+        r = c2.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok))
     assert r.status_code == 409 and "retry" in r.json()["detail"]
     after = _snapshot(client, app, tok, sid)
     assert after[:3] == before[:3] and after[4] == before[4]  # only the (simulated) other worker's version bump
