@@ -147,6 +147,7 @@ _COMPONENTS: tuple[tuple[str, str, str, str], ...] = (
     ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "process"),
     ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "flush"),
     ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "reset"),
+    ("zupt_kf", "models.zupt_nav", "ZuptNavigator", "restart"),
     ("gait_stream", "energy.gait_dr", "GaitPipeline", "feed"),
     ("gait_calibration", "energy.gait_dr", "GaitPipeline", "learn"),
     ("gait_calibration", "energy.gait_dr", "GaitPipeline", "ready"),
