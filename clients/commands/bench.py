@@ -1,4 +1,4 @@
-"""``pednav bench speed|load``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
+"""``pednav bench speed|engine|load``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
 
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
     for name, help_text in (
         ("speed", "per-sample cost of each engine mode on real data vs ahrs Madgwick updateIMU"),
+        ("engine", "CPU per batch of the server's engine helper (restore, feed, serialise) on real data"),
         ("load", "many simulated devices against one server worker: latency percentiles, lost batches"),
     ):
         try:
