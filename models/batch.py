@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 __all__ = ["BatchError", "SensorBatch", "STREAMS"]
 
@@ -21,6 +22,49 @@ _ACC_G_LIKE = 2.5  # m/s^2; a median |a| below this is a batch in g (1 g reads 1
 _ACC_MEDIAN_MAX = 50.0  # m/s^2; even running keeps the median |a| far below this
 _GYR_MAX = 60.0  # rad/s; values beyond this almost certainly are deg/s
 _MAG_RANGE = (5.0, 200.0)  # uT, median |m| (Earth 20-70 uT, indoor disturbances widen it)
+
+
+_MEDIAN_NORM, _MAX_ABS = 0, 1  # statistic _scan returns for the unit check of each stream
+_STAT = {"acc": _MEDIAN_NORM, "gyr": _MAX_ABS, "mag": _MEDIAN_NORM}
+
+
+@njit(cache=True)
+def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
+    """Checks of one stream in one pass: ``(first non-finite row, first duplicated timestamp, first
+    backwards timestamp, statistic)``, indices -1 when there is none.
+
+    The statistic is the median of the row norms ``|v|`` (``stat == _MEDIAN_NORM``) or the largest absolute
+    value (``_MAX_ABS``), over all rows (meaningful only without non-finite rows). Timestamp steps are
+    ``t[i] - t[i - 1]`` in int64 (wrapping as ``np.diff`` does); a duplicate anywhere is reported before a
+    step backwards (as :meth:`SensorBatch.validate` always did).
+    """
+    n = v.shape[0]
+    bad = -1
+    for i in range(n):
+        if not (np.isfinite(v[i, 0]) and np.isfinite(v[i, 1]) and np.isfinite(v[i, 2])):
+            bad = i
+            break
+    dup = -1
+    back = -1
+    for i in range(1, t.shape[0]):
+        d = t[i] - t[i - 1]
+        if d == 0:
+            dup = i
+            break
+        if d < 0 and back < 0:
+            back = i
+    out = 0.0
+    if n and bad < 0:
+        if stat == _MEDIAN_NORM:
+            r = np.empty(n)
+            for i in range(n):
+                r[i] = np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+            out = np.median(r)
+        else:
+            for i in range(n):
+                for j in range(3):
+                    out = max(out, abs(v[i, j]))
+    return bad, dup, back, out
 
 
 class BatchError(ValueError):
@@ -77,16 +121,21 @@ class SensorBatch:
 
     def __post_init__(self) -> None:
         for name in STREAMS:
-            t = np.asarray(getattr(self, f"{name}_t_ns"))
-            v = np.asarray(getattr(self, name), dtype=np.float64)
-            if t.size and not np.issubdtype(t.dtype, np.integer):
-                raise BatchError(f"{name}_t_ns", f"timestamps must be integer nanoseconds, got {t.dtype}")
-            t = t.astype(np.int64, copy=False).reshape(-1)
-            v = v.reshape(-1, 3) if v.size else _empty_v()
+            tk, vk = f"{name}_t_ns", name
+            t, v = getattr(self, tk), getattr(self, vk)
+            # fast path: the arrays already have the stored form (decoded uploads, slices of batches)
+            if not (type(t) is np.ndarray and t.dtype == np.int64 and t.ndim == 1):
+                t = np.asarray(t)
+                if t.size and not np.issubdtype(t.dtype, np.integer):
+                    raise BatchError(tk, f"timestamps must be integer nanoseconds, got {t.dtype}")
+                t = t.astype(np.int64, copy=False).reshape(-1)
+            if not (type(v) is np.ndarray and v.dtype == np.float64 and v.ndim == 2 and v.shape[1] == 3 and v.size):
+                v = np.asarray(v, dtype=np.float64)
+                v = v.reshape(-1, 3) if v.size else _empty_v()
             if len(t) != len(v):
                 raise BatchError(name, f"{len(v)} samples but {len(t)} timestamps")
-            object.__setattr__(self, f"{name}_t_ns", t)
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, tk, t)
+            object.__setattr__(self, vk, v)
 
     # ------------------------------------------------------------------ basic properties
     def __len__(self) -> int:
@@ -186,21 +235,31 @@ class SensorBatch:
         errors), and with ``check_units`` plausible magnitudes (accelerometer in m/s^2 not g, gyroscope in
         rad/s not deg/s, magnetometer in uT not gauss or nT).
         """
+        scans = []
         for name in STREAMS:
             t, v = self.stream(name)
-            if not np.all(np.isfinite(v)):
-                bad = int(np.argmax(~np.all(np.isfinite(v), axis=1)))
+            bad, dup, back, stat = _scan(t, v, _STAT[name])  # one compiled pass, no temporaries
+            if bad >= 0:
                 raise BatchError(name, f"sample {bad} is not finite (NaN or inf)")
-            if t.size > 1:
-                d = np.diff(t)
-                if np.any(d == 0):
-                    i = int(np.argmax(d == 0)) + 1
-                    raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(t[i])} at sample {i}")
-                if np.any(d < 0):
-                    i = int(np.argmax(d < 0)) + 1
-                    raise BatchError(f"{name}_t_ns", f"timestamps go backwards at sample {i}")
+            if dup >= 0:
+                raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(t[dup])} at sample {dup}")
+            if back >= 0:
+                raise BatchError(f"{name}_t_ns", f"timestamps go backwards at sample {back}")
+            scans.append(stat)
         if not check_units:
             return self
+        med_acc, peak_gyr, med_mag = scans
+        if self.acc.shape[0] >= 10:
+            if med_acc < _ACC_G_LIKE:
+                raise BatchError("acc", f"median |a| = {med_acc:.3g}; looks like g, expected m/s^2 (about 9.81 at rest)")
+            if med_acc > _ACC_MEDIAN_MAX:
+                raise BatchError("acc", f"median |a| = {med_acc:.3g} m/s^2 is implausible (expected about 9.81 at rest)")
+        if self.gyr.shape[0] >= 10 and peak_gyr > _GYR_MAX:
+            raise BatchError("gyr", f"peak |w| = {peak_gyr:.3g}; looks like deg/s, expected rad/s")
+        if self.mag.shape[0] >= 10 and not (_MAG_RANGE[0] <= med_mag <= _MAG_RANGE[1]):
+            hint = "gauss (x100)" if med_mag < _MAG_RANGE[0] else "nT (/1000)"
+            raise BatchError("mag", f"median |m| = {med_mag:.3g} uT is outside {_MAG_RANGE}; looks like {hint}")
+        return self
         if self.acc.shape[0] >= 10:
             med = float(np.median(np.linalg.norm(self.acc, axis=1)))
             if med < _ACC_G_LIKE:
