@@ -27,6 +27,7 @@ the first sample), which makes the recogniser chunk-invariant.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -347,6 +348,79 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
     return still, mu, var, stance, gait_s, gait_std
 
 
+@njit(cache=True)
+def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int, hop: float, window: float, min_n: int,
+               min_span: float, g: float, still_s: float, stance_s: float, tol: float, max_stance_s: float,
+               min_gait_s: float, max_dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every decision instant ``t0 + j * hop`` (``j >= k``) whose window is complete (a sample at or after it
+    has arrived), its window ``[td - window, td)`` as index bounds, whether the window is decided (at least
+    ``min_n`` samples and ``td - t0 >= min_span``) and, for decided windows, the :func:`_cheap_features`.
+
+    One compiled call per batch instead of two ``searchsorted`` and one kernel call per decision.
+    """
+    t_last = t[t.size - 1]
+    m = 0
+    while t_last >= t0 + (k + m) * hop:
+        m += 1
+    td = np.empty(m)
+    lo = np.empty(m, dtype=np.int64)
+    hi = np.empty(m, dtype=np.int64)
+    ok = np.zeros(m, dtype=np.bool_)
+    feats = np.full((m, 6), np.nan)
+    for j in range(m):
+        d = t0 + (k + j) * hop
+        i0 = np.searchsorted(t, d - window)
+        i1 = np.searchsorted(t, d)
+        td[j], lo[j], hi[j] = d, i0, i1
+        if i1 - i0 >= min_n and d - t0 >= min_span:
+            ok[j] = True
+            feats[j, :] = _cheap_features(t[i0:i1], x[i0:i1], g, still_s, stance_s, tol, max_stance_s, min_gait_s,
+                                          max_dt)
+    return td, lo, hi, ok, feats
+
+
+def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, stance: float, gait_s: float,
+           gait_std: float) -> tuple[str, float, float]:
+    """The rule set of :func:`classify_window` on the cheap features, computing the stride period only when a
+    rule needs it; returns ``(label, stride period [s], periodicity)`` (``nan`` where not computed)."""
+    nan = float("nan")
+    if still < STILL_STD:
+        return "stand", nan, nan
+
+    def period() -> tuple[float, float]:
+        xu, fs = _uniform(t, x)
+        return _stride_period(xu - xu.mean(), fs) if np.isfinite(fs) else (float("nan"), 0.0)
+
+    if stance <= RUN_STANCE:
+        return "run", nan, nan
+    per, perio = nan, nan
+    if stance < JOG_STANCE:
+        per, perio = period()
+        if np.isfinite(per) and per <= JOG_PERIOD_S:
+            return "run", per, perio
+    if math.sqrt(var) < OTHER_MAX_STD:
+        if stance >= OTHER_MIN_STANCE:
+            return "other", per, perio
+        if gait_s >= PERIODICITY_MIN_GAIT_S:
+            if np.isnan(perio):
+                per, perio = period()
+            if perio < OTHER_MAX_PERIODICITY:
+                return "other", per, perio
+        elif gait_std < OTHER_MAX_STD:
+            return "other", per, perio
+    return "walk", per, perio
+
+
+def _features_of(label: str, still: float, dc: float, var: float, stance: float, gait_s: float, gait_std: float,
+                 per: float, perio: float) -> WindowFeatures:
+    """The :class:`WindowFeatures` :func:`decide_window` reports for a decision (``nan`` where not needed)."""
+    if label == "stand":
+        nan = float("nan")
+        return WindowFeatures(nan, nan, nan, still, nan, nan, nan, nan, nan)
+    energy = var + (dc - G) ** 2  # = mean((|a| - g)^2); not used by the rules, kept for the caller
+    return WindowFeatures(dc, var, energy, still, stance, per, perio, gait_s, gait_std)
+
+
 def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFeatures]:
     """Label one window computing only the features the rule set needs (same label as
     ``classify_window(window_features(t_s, acc_norm))``).
@@ -372,40 +446,10 @@ def decide_window(t_s: np.ndarray, acc_norm: np.ndarray) -> tuple[str, WindowFea
     """
     x = np.ascontiguousarray(acc_norm, dtype=np.float64)
     t = np.ascontiguousarray(t_s, dtype=np.float64)
-    nan = float("nan")
-    still, dc, var, stance, gait_s, gait_std = _cheap_features(t, x, G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL,
-                                                               MAX_STANCE_S, MIN_GAIT_S,
-                                                               MAX_SAMPLE_DT_S)
-    if still < STILL_STD:
-        return "stand", WindowFeatures(nan, nan, nan, still, nan, nan, nan, nan, nan)
-    energy = var + (dc - G) ** 2  # = mean((|a| - g)^2); not used by the rules, kept for the caller
-    std = float(np.sqrt(var))
-
-    def period() -> tuple[float, float]:
-        xu, fs = _uniform(t, x)
-        return _stride_period(xu - xu.mean(), fs) if np.isfinite(fs) else (float("nan"), 0.0)
-
-    def feats(per: float, perio: float) -> WindowFeatures:
-        return WindowFeatures(dc, var, energy, still, stance, per, perio, gait_s, gait_std)
-
-    if stance <= RUN_STANCE:
-        return "run", feats(nan, nan)
-    per, perio = nan, nan
-    if stance < JOG_STANCE:
-        per, perio = period()
-        if np.isfinite(per) and per <= JOG_PERIOD_S:
-            return "run", feats(per, perio)
-    if std < OTHER_MAX_STD:
-        if stance >= OTHER_MIN_STANCE:
-            return "other", feats(per, perio)
-        if gait_s >= PERIODICITY_MIN_GAIT_S:
-            if np.isnan(perio):
-                per, perio = period()
-            if perio < OTHER_MAX_PERIODICITY:
-                return "other", feats(per, perio)
-        elif gait_std < OTHER_MAX_STD:
-            return "other", feats(per, perio)
-    return "walk", feats(per, perio)
+    cheap = _cheap_features(t, x, G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S, MIN_GAIT_S,
+                            MAX_SAMPLE_DT_S)
+    label, per, perio = _rules(t, x, *cheap)
+    return label, _features_of(label, *cheap, per, perio)
 
 
 class BehaviourRecognizer:
@@ -451,18 +495,20 @@ class BehaviourRecognizer:
             self._t0 = float(t[0])
         self._t = np.concatenate([self._t, t])
         self._n = np.concatenate([self._n, n])
+        td, lo, hi, ok, feats = _decisions(self._t, self._n, self._t0, self._k, HOP_S, WINDOW_S, 8, min(WINDOW_S, 1.0), G,
+                                           STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S, MIN_GAIT_S,
+                                           MAX_SAMPLE_DT_S)
         out: list[tuple[float, str]] = []
-        while True:
-            td = self._t0 + self._k * HOP_S
-            if self._t[-1] < td:
-                break
-            i0 = int(np.searchsorted(self._t, td - WINDOW_S, side="left"))
-            i1 = int(np.searchsorted(self._t, td, side="left"))
-            if i1 - i0 >= 8 and td - self._t0 >= min(WINDOW_S, 1.0):
-                label, self.features = decide_window(self._t[i0:i1], self._n[i0:i1])
+        last = None
+        for d, i0, i1, decided, f in zip(td.tolist(), lo.tolist(), hi.tolist(), ok.tolist(), feats.tolist()):
+            if decided:
+                label, per, perio = _rules(self._t[i0:i1], self._n[i0:i1], *f)
+                last = (label, f, per, perio)
                 self._vote(label)
-            out.append((td, self.label))
-            self._k += 1
+            out.append((d, self.label))
+        if last is not None:
+            self.features = _features_of(last[0], *last[1], last[2], last[3])
+        self._k += len(td)
         keep = self._t >= self._t0 + self._k * HOP_S - WINDOW_S
         self._t, self._n = self._t[keep], self._n[keep]
         return out

@@ -118,6 +118,28 @@ def test_lazy_decision_equals_the_full_rule_set(scenario, factor):
 
 
 @pytest.mark.parametrize("factor", [1, 8])
+def test_streaming_decisions_are_decide_window_of_each_window(factor):
+    """The recogniser decides all the windows of a batch in one compiled pass; each decision must be
+    decide_window's (label and features) on the window [td - WINDOW_S, td) of the samples seen so far."""
+    rec = synthesize("mixed-day", seed=2)
+    t, a = rec.batch.acc_t_ns[::factor] / 1e9, rec.batch.acc[::factor]
+    n = np.linalg.norm(a, axis=1)
+    r = BehaviourRecognizer()
+    step = int(200 / factor)  # 1-s chunks
+    labels = set()
+    for i0 in range(0, len(t), step):
+        out = r.process(t[i0:i0 + step], a[i0:i0 + step])
+        decided = [td for td, _ in out if td - t[0] >= 1.0 and np.count_nonzero((t >= td - WINDOW_S) & (t < td)) >= 8]
+        if not decided:
+            continue
+        m = (t >= decided[-1] - WINDOW_S) & (t < decided[-1])
+        lab, f = decide_window(t[m], n[m])
+        assert repr(r.features) == repr(f), f"window ending {decided[-1]:.2f} s"
+        labels.add(lab)
+    assert {"stand", "walk", "run"} <= labels
+
+
+@pytest.mark.parametrize("factor", [1, 8])
 @pytest.mark.parametrize("at_s", [15.0, 20.0, 25.0, 45.0])
 def test_one_odd_stride_does_not_flip_walk(at_s, factor):
     """Hysteresis: one running stride (0.74 s of the synthetic run) spliced into a walk gives no run label."""
