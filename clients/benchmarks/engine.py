@@ -108,9 +108,12 @@ def _peer_us(acc: np.ndarray, gyr: np.ndarray, dt: float, m: int) -> float:
 def _helper_ms(mode: str, sess: list[list[dict[str, np.ndarray]]], cache: bool) -> dict[str, float]:
     """Feed every session's batches through one engine helper process; its CPU time per batch [ms]."""
     from server.engine_pool import EnginePool
+    from server.settings import Settings
     from server.statecodec import pack_state
 
-    pool = EnginePool(1, 512 if cache else 0, channels=1)
+    # as the server builds it: one channel per ingest thread, the configured engine cache
+    fields = Settings.model_fields
+    pool = EnginePool(1, fields["engine_cache_size"].default if cache else 0, fields["ingest_threads"].default)
     try:
         states: dict[int, bytes] = {}
 
