@@ -490,7 +490,8 @@ class BehaviourRecognizer:
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         if t.size == 0:
             return []
-        n = np.linalg.norm(np.asarray(acc, dtype=np.float64).reshape(-1, 3), axis=1)
+        a = np.asarray(acc, dtype=np.float64).reshape(-1, 3)
+        n = np.sqrt(np.add.reduce(a * a, axis=1))  # = np.linalg.norm(a, axis=1), bit for bit, without its checks
         if self._t0 is None:
             self._t0 = float(t[0])
         self._t = np.concatenate([self._t, t])
