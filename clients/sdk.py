@@ -537,7 +537,12 @@ class BatchStream:
 
     @property
     def sensor_config(self) -> dict[str, Any] | None:
-        """The sensor configuration of the latest answer (what the device must use next)."""
+        """The sensor configuration of the latest answer (what the device must use next).
+
+        Keys as :class:`energy.types.SensorConfig`; with ``gyro_wake_on_motion`` the gyroscope is off but the
+        device turns it on by itself on motion (``wake_threshold_ms2``, ``sleep_after_s``), see
+        :class:`energy.device.DeviceEmulator`.
+        """
         return None if self.last_response is None else self.last_response["sensor_config"]
 
     def send(self, batch: SensorBatch) -> list[dict[str, Any]]:

@@ -2,7 +2,8 @@
 
 Each simulator behaves like the real device talking to the server: it sends ``batch_seconds`` of samples
 per request and, after every answer, applies the server's sensor configuration from the next batch on —
-gyroscope off means no gyroscope samples are sent; a lower rate is produced by the anti-aliased decimation of
+gyroscope off means no gyroscope samples are sent (with wake-on-motion, until the device's accelerometer sees
+motion); a lower rate is produced by the anti-aliased decimation of
 :class:`energy.device.DeviceEmulator` (the same de-sampling the local replay uses, so streamed and local
 processing see identical samples).
 """
@@ -45,11 +46,16 @@ class SimulationResult:
     bytes_sent : int
         Request body bytes of all uploads.
     gyro_on_s : float
-        Time during which the gyroscope was on [s].
+        Time during which the gyroscope was on [s] (powered, as the device reports it: with
+        ``SensorConfig.gyro_wake_on_motion`` the device turns it on by itself on motion).
     duration_s : float
         Recording duration [s].
     configs : list of (int, dict)
         Batch start time [ns] and the sensor configuration used for it.
+    spans : list of list of tuple
+        Per batch (parallel to ``configs``), the device's stretches of constant sensor state
+        ``(t0_ns, t1_ns, acc_hz, gyr_hz, mag_hz)`` (:attr:`energy.device.DeviceEmulator.last_spans`; a
+        wake-on-motion gyroscope runs for part of a batch).
     """
 
     session_id: int
@@ -60,6 +66,7 @@ class SimulationResult:
     gyro_on_s: float = 0.0
     duration_s: float = 0.0
     configs: list[tuple[int, dict[str, Any]]] = field(default_factory=list)
+    spans: list[list[tuple[int, int, float, float, float]]] = field(default_factory=list)
 
     @property
     def gyro_on_fraction(self) -> float:
@@ -132,8 +139,9 @@ class DeviceSimulator:
         for t0, t1 in self._windows(lambda: config):
             res.configs.append((t0, config.to_dict()))
             out = device.emit(t0, t1, config)
-            if config.gyro_on:
-                res.gyro_on_s += (t1 - t0) / 1e9
+            res.spans.append(list(device.last_spans))
+            # powered time, a wake-on-motion gyroscope's included (it may start or stop within the batch)
+            res.gyro_on_s += sum(b - a for a, b, _, gyr, _ in device.last_spans if gyr > 0) / 1e9
             for name in STREAMS:
                 res.samples_sent[name] += len(out.stream(name)[0])
             answers = stream.send(out)

@@ -4,10 +4,17 @@ Replaying a recording through :func:`replay` behaves like a real phone or foot s
 samples go out in batches of ``batch_seconds`` (or as long as the engine's ``SensorConfig.batch_s`` says); after
 each batch the engine's :class:`~energy.types.SensorConfig` applies from the next batch on. A gyroscope switched off sends nothing; a lower output data rate is produced by
 anti-aliased decimation of the recorded stream (004 Section 4.3), as a sensor's own digital filter would.
+
+Wake-on-motion (``SensorConfig.gyro_wake_on_motion``): the device manages its gyroscope itself between
+uploads, as the LSM9DS1's activity/inactivity function does (register ``ACT_THS`` 04h: 7-bit inactivity
+threshold ``ACT_THS[6:0]`` and ``SLEEP_ON_INACT_EN``, "gyroscope operating mode during inactivity",
+0 = power-down, 1 = sleep; ``ACT_DUR`` 05h: inactivity duration, counted in output-data-rate cycles; the
+``INACT`` flag in ``STATUS_REG``), see :class:`DeviceEmulator`.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
@@ -21,7 +28,16 @@ from models.fir import Decimator
 if TYPE_CHECKING:
     from energy.engine import Engine, Trace
 
-__all__ = ["Desampler", "DeviceEmulator", "ReplayResult", "replay"]
+__all__ = ["GYRO_TURN_ON_S", "Desampler", "DeviceEmulator", "ReplayResult", "Span", "replay"]
+
+# Gyroscope turn-on time [s]: from power-down to the first valid sample. The LSM9DS1 datasheet (DocID025715
+# Rev 3) copies searched do not state it; the ST LSM6DS3 datasheet (same ST MEMS gyroscope family, its
+# Table 16 "turn-on time", quoted by ST's community answer "LSM6DS3 gyroscope current consumption while in
+# sleep mode", 2020) gives 80 ms maximum from power-down to active. The device below powers the gyroscope
+# down (SLEEP_ON_INACT_EN = 0: the power-down current the profiles charge), so it takes this maximum.
+GYRO_TURN_ON_S = 0.080
+
+Span = tuple[int, int, float, float, float]  # (t0_ns, t1_ns, acc, gyr, mag rate [Hz]) of constant sensor state
 
 
 class Desampler:
@@ -44,6 +60,13 @@ class Desampler:
     @property
     def factor(self) -> int:
         return self._dec.factor
+
+    @property
+    def latency_ns(self) -> int:
+        """How long after its time stamp an output sample exists [ns]: the filter's group delay."""
+        d = self._dec
+        half = d.taps_per_factor * d.factor / 2 if d.factor > 1 else 0.0  # (numtaps - 1) / 2, see models.fir.Decimator
+        return int(round(half / self.native_rate_hz * 1e9))
 
     def set_rate(self, target_rate_hz: float) -> None:
         """Change the output rate [Hz]; applies from the next call to :meth:`process`."""
@@ -68,20 +91,59 @@ class DeviceEmulator:
     ----------
     recording : SensorBatch
         The recorded streams at their native rates.
+    gyro_turn_on_s : float
+        Gyroscope turn-on time [s] after a wake-on-motion activity (:data:`GYRO_TURN_ON_S`).
+
+    Notes
+    -----
+    Wake-on-motion (``config.gyro_wake_on_motion``), per accelerometer output sample, in time order:
+
+    - asleep: the accelerometer samples at ``acc_rate_hz``. The first sample that departs from the reference
+      (the first sample after the gyroscope went down) by more than ``wake_threshold_ms2`` on any axis is the
+      activity: the gyroscope powers up there and is charged from that sample; its samples are delivered from
+      ``GYRO_TURN_ON_S`` later, and from then on the accelerometer shares its output data rate
+      (``gyr_rate_hz``, as the LSM9DS1's accelerometer does while its gyroscope runs). The on-chip detector
+      sees the sensor's own samples at ``acc_rate_hz``, each the mean of its output period, decided at the
+      period's end (causal: at most one period, 40 ms at 25 Hz, after the motion); the host receives the
+      emulator's anti-aliased decimation, whose group delay (:attr:`Desampler.latency_ns`, 0.32 s at 25 Hz
+      from 200 Hz) is compensated in its time stamps and has no place in an on-chip decision;
+    - awake: every departure from the reference moves the reference to that sample; ``sleep_after_s`` after
+      the last departure the gyroscope powers down (the device's inactivity), the accelerometer returns to
+      ``acc_rate_hz`` and the detector re-arms.
+
+    The decision is made by the device on the samples it actually produces, between uploads; the engine just
+    sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
+    the gyroscope awake; a switch to wake-on-motion then lets it sleep only after the inactivity duration.
+    :attr:`last_spans` holds the stretches of constant sensor state of the last batch (what the energy
+    accounting charges: the gyroscope from its activity sample on).
     """
 
-    def __init__(self, recording: SensorBatch) -> None:
+    def __init__(self, recording: SensorBatch, gyro_turn_on_s: float = GYRO_TURN_ON_S) -> None:
         self.recording = recording
+        self.gyro_turn_on_ns = int(round(float(gyro_turn_on_s) * 1e9))
         self._desamplers: dict[str, Desampler] = {}
         for name in STREAMS:
             t, _ = recording.stream(name)
             if t.size > 1:
                 self._desamplers[name] = Desampler(recording.rate_hz(name))
+        acc = self._desamplers.get("acc")
+        self._acc_fast = copy.deepcopy(acc)  # the accelerometer at the gyroscope's rate while it runs (wake mode)
+        self._awake = False  # wake-on-motion: gyroscope powered
+        self._deliver_ns = np.iinfo(np.int64).min  # ... delivering from this time [ns]
+        self._ref: np.ndarray | None = None  # activity reference sample [m/s^2]
+        self._quiet_ns = 0  # time of the last departure from the reference [ns]
+        self._armed_ns = np.iinfo(np.int64).min  # the activity detector looks at samples from this time on [ns]
+        self._blk_t = np.zeros(0, dtype=np.int64)  # native accelerometer samples of the unfinished ODR period
+        self._blk_v = np.zeros((0, 3))
+        self._last_acc_ns = np.iinfo(np.int64).min
+        self.last_spans: list[Span] = []
 
     def emit(self, t0_ns: int, t1_ns: int, config: SensorConfig) -> SensorBatch:
         """The batch the device sends for ``t0_ns <= t < t1_ns`` under ``config``."""
         piece = self.recording.time_slice(t0_ns, t1_ns)
-        rates = {"acc": config.acc_rate_hz, "gyr": config.gyr_rate_hz if config.gyro_on else 0.0, "mag": config.mag_rate_hz}
+        wake = bool(config.gyro_wake_on_motion)
+        rates = {"acc": config.acc_rate_hz, "gyr": config.gyr_rate_hz if (config.gyro_on or wake) else 0.0,
+                 "mag": config.mag_rate_hz}
         kw: dict[str, np.ndarray] = {}
         for name in STREAMS:
             t, v = piece.stream(name)
@@ -94,7 +156,128 @@ class DeviceEmulator:
             if rates[name] <= 0:
                 out_t, out_v = out_t[:0], out_v[:0]
             kw[f"{name}_t_ns"], kw[name] = out_t, out_v
+        fast_t, fast_v = kw["acc_t_ns"][:0], kw["acc"][:0]
+        if self._acc_fast is not None:  # runs on all the time, like the other filters
+            self._acc_fast.set_rate(config.gyr_rate_hz if config.gyr_rate_hz > 0 else self._acc_fast.native_rate_hz)
+            fast_t, fast_v = self._acc_fast.process(*piece.stream("acc"))
+        blk_t, blk_v = self._odr_samples(*piece.stream("acc"), config.acc_rate_hz)
+        if not wake:
+            self._awake = bool(config.gyro_on)
+            self._armed_ns = t1_ns
+            self._deliver_ns = np.iinfo(np.int64).min
+            self._ref = None
+            self.last_spans = [(t0_ns, t1_ns, config.acc_rate_hz, rates["gyr"], config.mag_rate_hz)]
+        else:
+            kw["acc_t_ns"], kw["acc"], windows = self._wake_on_motion(t0_ns, t1_ns, kw["acc_t_ns"], kw["acc"], fast_t, fast_v,
+                                                                      blk_t, blk_v, config)
+            g_t, g_v = kw["gyr_t_ns"], kw["gyr"]
+            keep = np.zeros(len(g_t), dtype=bool)
+            for _, deliver, off in windows:
+                keep |= (g_t >= deliver) & (g_t < off)
+            kw["gyr_t_ns"], kw["gyr"] = g_t[keep], g_v[keep]
+            self.last_spans = self._spans(t0_ns, t1_ns, windows, config)
+        newer = kw["acc_t_ns"] > self._last_acc_ns  # across a rate switch the outputs never go back in time
+        kw["acc_t_ns"], kw["acc"] = kw["acc_t_ns"][newer], kw["acc"][newer]
+        if len(kw["acc_t_ns"]):
+            self._last_acc_ns = int(kw["acc_t_ns"][-1])
         return SensorBatch(**kw)
+
+    # ------------------------------------------------------------------ wake-on-motion
+    def _departs(self, v: np.ndarray, thr: float) -> bool:
+        assert self._ref is not None
+        return bool(np.max(np.abs(v - self._ref)) > thr)
+
+    def _odr_samples(self, t: np.ndarray, v: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """The samples the sensor's own detector sees at ``rate_hz``: the mean of the native samples of each
+        output period, available at the period's last sample (causal). Returns ``(t_available_ns, mean)``."""
+        t = np.concatenate([self._blk_t, np.asarray(t, dtype=np.int64)])
+        v = np.concatenate([self._blk_v, np.asarray(v, dtype=np.float64).reshape(-1, 3)])
+        des = self._desamplers.get("acc")
+        k = 1 if des is None or rate_hz <= 0 else max(1, int(round(des.native_rate_hz / rate_hz)))
+        n = (len(t) // k) * k
+        self._blk_t, self._blk_v = t[n:], v[n:]
+        return t[k - 1 : n : k], v[:n].reshape(-1, k, 3).mean(axis=1)
+
+    def _wake_on_motion(
+        self, t0: int, t1: int, low_t: np.ndarray, low_v: np.ndarray, fast_t: np.ndarray, fast_v: np.ndarray,
+        blk_t: np.ndarray, blk_v: np.ndarray, config: SensorConfig,
+    ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+        """Splice the low-rate (asleep) and shared-rate (awake) accelerometer outputs and find the gyroscope's
+        windows ``(charged from, delivers from, off at)`` [ns] within ``[t0, t1)``."""
+        thr = float(config.wake_threshold_ms2)
+        dur = int(round(float(config.sleep_after_s) * 1e9))
+        out_t: list[np.ndarray] = []
+        out_v: list[np.ndarray] = []
+        windows: list[tuple[int, int, int]] = []
+        cur = self._last_acc_ns + 1  # output times never go back
+        charged = t0 if self._awake else None
+        assert self._acc_fast is not None
+        while True:
+            if not self._awake:
+                # the detector: the sensor's own samples at its rate, each decided when it exists
+                m = blk_t >= self._armed_ns
+                ts, vs = blk_t[m], blk_v[m]
+                hit = -1
+                for i in range(len(ts)):
+                    if self._ref is None:
+                        self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
+                    elif self._departs(vs[i], thr):
+                        self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
+                        hit = i
+                        break
+                if hit < 0:
+                    self._armed_ns = t1
+                    m = low_t >= cur
+                    out_t.append(low_t[m])
+                    out_v.append(low_v[m])
+                    break
+                self._awake = True
+                charged = max(int(ts[hit]), t0)
+                self._deliver_ns = charged + self.gyro_turn_on_ns
+            else:
+                # turning on: the accelerometer keeps its low rate until the gyroscope delivers
+                m = (low_t >= cur) & (low_t < self._deliver_ns)
+                out_t.append(low_t[m])
+                out_v.append(low_v[m])
+                m = fast_t >= max(cur, self._deliver_ns)
+                ts, vs = fast_t[m], fast_v[m]
+                hit = -1
+                for i in range(len(ts)):
+                    if self._ref is None or self._departs(vs[i], thr):
+                        self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
+                    elif int(ts[i]) - self._quiet_ns >= dur:
+                        hit = i
+                        break
+                if hit < 0:
+                    out_t.append(ts)
+                    out_v.append(vs)
+                    windows.append((int(charged if charged is not None else t0), self._deliver_ns, t1))
+                    break
+                out_t.append(ts[: hit + 1])
+                out_v.append(vs[: hit + 1])
+                off = min(max(int(ts[hit]) + self._acc_fast.latency_ns + 1, t0), t1)
+                windows.append((int(charged if charged is not None else t0), self._deliver_ns, off))
+                self._awake, charged = False, None
+                self._ref = None  # re-armed on the next sample
+                self._armed_ns = off
+                cur = int(ts[hit]) + 1
+        t = np.concatenate(out_t) if out_t else low_t[:0]
+        v = np.concatenate(out_v).reshape(-1, 3) if out_v else low_v[:0]
+        return t, v, windows
+
+    def _spans(self, t0: int, t1: int, windows: list[tuple[int, int, int]], config: SensorConfig) -> list[Span]:
+        """Stretches of constant sensor state in ``[t0, t1)``: gyroscope charged from activity to power-down,
+        accelerometer at the shared rate while the gyroscope delivers."""
+        cuts = sorted({t0, t1, *[min(max(x, t0), t1) for w in windows for x in w]})
+        spans: list[Span] = []
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if b <= a:
+                continue
+            charged = any(w[0] <= a and b <= w[2] for w in windows)
+            delivering = any(w[1] <= a and b <= w[2] for w in windows)
+            acc = config.gyr_rate_hz if delivering else config.acc_rate_hz
+            spans.append((a, b, acc, config.gyr_rate_hz if charged else 0.0, config.mag_rate_hz))
+        return spans
 
 
 @dataclass
@@ -110,7 +293,8 @@ class ReplayResult:
     trace : Trace
         Per processed accelerometer sample: time, NED position, behaviour, mode, gyroscope state.
     gyro_on_fraction : float
-        Fraction of the recording's time during which the gyroscope was on.
+        Fraction of the recording's time during which the gyroscope was on (powered: from a wake-on-motion
+        activity on, turn-on time included).
     mean_rate_hz : float
         Mean accelerometer rate actually sent [Hz] (samples sent / duration).
     samples_sent : dict of str to int
@@ -122,6 +306,9 @@ class ReplayResult:
         deterministic per-mode costs, see :mod:`energy.power`).
     configs : list of (int, SensorConfig)
         Batch start time [ns] and the configuration the device used for that batch.
+    spans : list of list of Span
+        Per batch (parallel to ``configs``), the stretches of constant sensor state the device really had
+        (:attr:`DeviceEmulator.last_spans`; with wake-on-motion the gyroscope runs for part of a batch).
     """
 
     updates: list[Update]
@@ -133,6 +320,7 @@ class ReplayResult:
     batches: int
     compute_s: float
     configs: list[tuple[int, SensorConfig]] = field(default_factory=list)
+    spans: list[list[Span]] = field(default_factory=list)
 
 
 def replay(
@@ -165,6 +353,7 @@ def replay(
     positions: list[Position] = []
     sent = {name: 0 for name in STREAMS}
     configs: list[tuple[int, SensorConfig]] = []
+    spans: list[list[Span]] = []
     gyro_on_ns = 0
     compute = 0.0
     t0 = t_start
@@ -176,10 +365,10 @@ def replay(
         t1 = min(t0 + step, t_end + 1)
         configs.append((t0, config))
         batch = device.emit(t0, t1, config)
+        spans.append(device.last_spans)
         for name in STREAMS:
             sent[name] += len(batch.stream(name)[0])
-        if config.gyro_on:
-            gyro_on_ns += t1 - t0
+        gyro_on_ns += sum(b - a for a, b, _, gyr, _ in device.last_spans if gyr > 0)
         c0 = time.perf_counter()
         upd = engine.feed(batch)
         compute += time.perf_counter() - c0
@@ -204,4 +393,5 @@ def replay(
         batches=len(updates) - 1,
         compute_s=compute,
         configs=configs,
+        spans=spans,
     )

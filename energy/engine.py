@@ -21,9 +21,12 @@ from energy.gait_dr import PAIR_TOL_S, GaitPipeline
 from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
+from models.attitude import align_at_rest
 from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
 from models.detectors import first_still_run
+from models.rotations import dcm_to_quat
+from models.strapdown import integrate
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
 
 __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-exported from energy.config
@@ -32,6 +35,7 @@ EngineMode = Literal["zupt", "pdr", "auto"]
 _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
 _STATE_VERSION = 2
 _GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
+_GYRO_OFF_S = 0.075  # ... so does a shorter one with accelerometer rows inside it (below the 80-ms turn-on time)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
@@ -39,6 +43,7 @@ _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
 _REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
 _REST_S = 0.04  # ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start
+_LEAD_MAX_S = 2.0  # a segment that starts on its own from a still foot integrates back to it over at most this [s]
 
 
 @dataclass
@@ -268,6 +273,7 @@ class Engine:
                     self._gait.load_calibration(b, cal.step_model, cal.heading_deviation_rad, cal.heading_deviation_var)
         # ZUPT-KF segments: ingest side
         self._last_gyr_s = -math.inf
+        self._gyro_missing = False  # accelerometer rows without gyroscope since the last gyroscope sample
         self._seg_open = False
         # work queue in data-time order: ("start", t) | ("samples", t, acc, gyr, mag) | ("stance", Stance)
         # | ("trace", t, pos) | ("end",) | ("handover",)
@@ -284,6 +290,11 @@ class Engine:
         self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
         self._pre_rot = np.zeros(3)  # sum of gyro rate x interval over the segment's samples before it [rad]
         self._pre_t = math.nan  # time of the last sample summed into _pre_rot [s]
+        # a segment the device started on its own (wake-on-motion) from a still foot: its samples before the
+        # first stance are integrated back from that stance to place the first, partial stride
+        self._moved = False  # Gait-DR placed a step since the last ZUPT-KF segment ended
+        self._lead: tuple | None = None  # collected samples (t, acc, gyr) of such a segment before its stance
+        self._lead_d: np.ndarray | None = None  # their displacement, segment start -> first stance [m NED]
         self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
         self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
@@ -368,7 +379,13 @@ class Engine:
         idx = np.flatnonzero(has)
         if len(idx):
             ts = t_s[idx]
-            gaps = np.flatnonzero(np.diff(ts, prepend=self._last_gyr_s) > _GYRO_GAP_S).tolist()
+            # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
+            # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
+            # loses the accelerometer too and splits only beyond _GYRO_GAP_S
+            off = np.diff(idx, prepend=-1) > 1
+            off[0] = self._gyro_missing or idx[0] > 0
+            dt = np.diff(ts, prepend=self._last_gyr_s)
+            gaps = np.flatnonzero((dt > _GYRO_GAP_S) | (off & (dt > _GYRO_OFF_S))).tolist()
             for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
                     continue
@@ -381,6 +398,9 @@ class Engine:
                 m = mag[sel]
                 self._ops.append(("samples", ts[lo:hi], acc[sel], gyr[sel], m if np.any(~np.isnan(m[:, 0])) else None))
             self._last_gyr_s = float(ts[-1])
+            self._gyro_missing = bool(idx[-1] < len(t_s) - 1)
+        elif len(t_s):
+            self._gyro_missing = True
         if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > _GYRO_GAP_S)):
             self._ops.append(("end",))
             self._seg_open = False
@@ -410,6 +430,13 @@ class Engine:
                 self._apply_labels(t_b, events)
                 self._seg_t = t_b
                 self._await_rest = nav.initialised  # a restart waits for the foot to be still
+                # a segment that starts while the person is (still) known to stand, with no step since the last
+                # segment: the device woke the gyroscope on the first motion (wake-on-motion); the host turns it
+                # on only for a behaviour it has recognised, i.e. mid-walk, where Gait-DR places the first step
+                own = nav.initialised and not self._moved and self._labels.at(t_b) == "stand"
+                empty = np.zeros((0, 3))
+                self._lead = (np.zeros(0), empty, empty) if own else None
+                self._lead_d = None
                 self._pre = None
                 self._pre_rot, self._pre_t = np.zeros(3), math.nan
                 self._in_seg, self._seg_first = True, True
@@ -425,7 +452,10 @@ class Engine:
                     self._await_rest = False
                     acc_rest = pre[1][i : j + 1].mean(axis=0)
                     self._sum_rotation(pre[0][:i], pre[2][:i])
-                    nav.restart(nav.position, self._restart_heading(acc_rest), acc_rest)
+                    heading = self._restart_heading(acc_rest)
+                    self._collect_lead(pre[0][: i + 1], pre[1][: i + 1], pre[2][: i + 1])
+                    self._lead_d = self._lead_displacement(acc_rest, heading)
+                    nav.restart(nav.position, heading, acc_rest)
                     self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
                 out = nav.process(op[1], op[2], op[3], op[4])
@@ -447,6 +477,7 @@ class Engine:
             elif kind == "handover":
                 if gait is not None and not self._seg_first and self._pos is not None:
                     gait.start(self._pos, self._head)  # Gait-DR continues from the segment's last stance
+                self._moved = self._seg_first  # a segment without a stance placed no foot to start from
                 self._in_seg = False
                 self._ops.pop(0)
         if gait is not None and not self._in_seg:
@@ -491,8 +522,43 @@ class Engine:
             self._pre = (t, a, g, m)
             return start, end
         self._sum_rotation(t[:start], g[:start])
+        self._collect_lead(t[:start], a[:start], g[:start])
         self._pre = (t[start:], a[start:], g[start:], None if m is None else m[start:])
         return None
+
+    def _collect_lead(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray) -> None:
+        """Keep the samples of a self-started segment before its first still foot (up to ``_LEAD_MAX_S``)."""
+        if self._lead is None or not len(t):
+            return
+        lt, la, lg = self._lead
+        if len(lt) and float(t[-1]) - float(lt[0]) > _LEAD_MAX_S:
+            self._lead = None  # no still foot soon after the wake: not a first stride, Gait-DR places the steps
+            return
+        self._lead = (np.concatenate([lt, t]), np.concatenate([la, acc]), np.concatenate([lg, gyr]))
+
+    def _lead_displacement(self, acc_rest: np.ndarray, heading: float) -> np.ndarray | None:
+        """Displacement [m NED] from the first sample of a self-started segment to its first still foot.
+
+        The gyroscope woke on the foot's first motion (wake-on-motion), so the segment's samples before the
+        still foot are most of the first stride. They are integrated backwards in time (004 eq. 1 with time
+        reversed: rates negated, velocity sign flipped) from the still foot, where the attitude is known (roll
+        and pitch levelled from ``acc_rest``, ``heading`` as the restarted ZUPT-KF gets it) and the velocity
+        is zero, with the ZUPT-KF's bias estimates removed. What the foot did before the gyroscope delivered
+        (the detector's period plus the turn-on time, about 0.1 s of heel-off) is not seen.
+        """
+        lead, self._lead = self._lead, None
+        if lead is None or len(lead[0]) < 2:
+            return None
+        t, a, g = lead
+        if float(t[-1]) - float(t[0]) > _LEAD_MAX_S:
+            return None
+        c = align_at_rest(acc_rest)
+        dpsi = heading - math.atan2(c[1, 0], c[0, 0])
+        rz = np.array([[math.cos(dpsi), -math.sin(dpsi), 0.0], [math.sin(dpsi), math.cos(dpsi), 0.0], [0.0, 0.0, 1.0]])
+        q0 = dcm_to_quat(rz @ c)
+        nav = self._nav
+        _, _, p = integrate(-t[::-1], a[::-1] - nav.acc_bias, -(g[::-1] - nav.gyro_bias), q0)
+        return -p[-1]  # p[-1]: the segment's first sample relative to the still foot
 
     def _sum_rotation(self, t: np.ndarray, gyr: np.ndarray) -> None:
         """Add the rotation of samples a restarting segment drops (before its still foot) to ``_pre_rot``."""
@@ -547,6 +613,19 @@ class Engine:
             # hand-over stance: Gait-DR walks the foot up to here, the ZUPT-KF continues from it
             self._seg_first = False
             dr_steps = []
+            lead, self._lead_d = self._lead_d, None
+            if lead is not None and self._pos is not None:
+                # a self-started segment: the first stride comes from its own samples, not from Gait-DR
+                if gait is not None:
+                    gait.reckon(st.t_start_s + PAIR_TOL_S, self._labels.at)  # consumed, not placed
+                    gait.take_pair(st.t_start_s)
+                p = self._pos + lead
+                self._offset = p - st.position
+                self._pos, self._head = p, float(st.heading)
+                d = float(math.hypot(lead[0], lead[1]))
+                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
+                events += sched.on_zupt_distance(d, t_ns)
+                return
             if gait is not None:
                 dr_steps = self._reckon(st.t_start_s + PAIR_TOL_S, positions, events) if gait.active else []
                 gait.take_pair(st.t_start_s)
@@ -597,6 +676,7 @@ class Engine:
         gait = self._gait
         assert gait is not None
         steps = gait.reckon(before_s, self._labels.at)
+        self._moved = self._moved or bool(steps)
         for step, _, source in steps:
             self._apply_labels(step.t_s, events)
             t_ns = self._ns(step.t_s)
@@ -685,6 +765,7 @@ class Engine:
             "labels": self._labels.get_state(),
             "gait": None if self._gait is None else self._gait.get_state(),
             "last_gyr_s": self._last_gyr_s,
+            "gyro_missing": self._gyro_missing,
             "seg_open": self._seg_open,
             "ops": self._ops_state(),
             "in_seg": self._in_seg,
@@ -697,6 +778,9 @@ class Engine:
             "pre": None if self._pre is None else list(self._pre),
             "pre_rot": self._pre_rot,
             "pre_t": self._pre_t,
+            "moved": self._moved,
+            "lead": None if self._lead is None else list(self._lead),
+            "lead_d": self._lead_d,
             "disturbed_run": self._disturbed_run,
             "clean_run": self._clean_run,
             "nav_t": self._nav_t,
@@ -720,6 +804,7 @@ class Engine:
         obj._labels = _LabelHistory.from_state(d["labels"])
         obj._gait = None if d["gait"] is None else GaitPipeline.from_state(d["gait"])
         obj._last_gyr_s = float(d["last_gyr_s"])
+        obj._gyro_missing = bool(d.get("gyro_missing", False))  # absent in states stored before wake-on-motion
         obj._seg_open = bool(d["seg_open"])
         obj._ops = cls._ops_from_state(d["ops"])
         obj._in_seg = bool(d["in_seg"])
@@ -735,6 +820,11 @@ class Engine:
             np.asarray(pre[2], dtype=float).reshape(-1, 3), None if pre[3] is None else np.asarray(pre[3], dtype=float).reshape(-1, 3))
         obj._pre_rot = np.asarray(d.get("pre_rot", np.zeros(3)), dtype=float).reshape(3)  # absent in older states
         obj._pre_t = float(d.get("pre_t", math.nan))
+        obj._moved = bool(d.get("moved", False))  # absent in states stored before wake-on-motion
+        lead = d.get("lead")
+        obj._lead = None if lead is None else (np.asarray(lead[0], dtype=float), np.asarray(lead[1], dtype=float).reshape(-1, 3),
+                                               np.asarray(lead[2], dtype=float).reshape(-1, 3))
+        obj._lead_d = None if d.get("lead_d") is None else np.asarray(d["lead_d"], dtype=float).reshape(3)
         obj._disturbed_run = int(d["disturbed_run"])
         obj._clean_run = int(d["clean_run"])
         obj._nav_t = float(d["nav_t"])

@@ -222,7 +222,8 @@ class Timeline:
         """Build the timeline of a replay (``energy.device.replay``).
 
         Intervals come from ``res.configs`` (batch start [ns], configuration used for that batch), the last
-        one ending at ``t_end_ns``. Samples per cost class (:func:`cost_class`: the batch's configuration and
+        one ending at ``t_end_ns``, split by ``res.spans`` where the device's sensors changed state within a
+        batch (wake-on-motion). Samples per cost class (:func:`cost_class`: the batch's configuration and
         the behaviour the engine reported with it, so standing counts as ``idle`` whatever navigation mode is
         nominally active): ``acc rate x duration`` per batch, scaled so the total equals the accelerometer
         samples actually sent. Steps per mode from ``res.positions``; bytes from ``res.samples_sent``
@@ -236,10 +237,16 @@ class Timeline:
             t1 = cfgs[i + 1][0] if i + 1 < len(cfgs) else int(t_end_ns)
             if t1 <= t0:
                 continue
-            intervals.append(Interval(t0 / 1e9, t1 / 1e9, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz))
+            # the device's real sensor states in the batch (a wake-on-motion gyroscope runs for part of it)
+            spans = res.spans[i] if i < len(res.spans) else [(t0, t1, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz)]
             behaviour = res.updates[i - 1].behaviour if 0 < i <= len(res.updates) else "stand"
-            k = cost_class(bool(c.gyro_on), str(behaviour))
-            est[k] = est.get(k, 0.0) + (t1 - t0) / 1e9 * c.acc_rate_hz
+            for a, b, acc_hz, gyr_hz, mag_hz in spans:
+                a, b = max(a, t0), min(b, t1)
+                if b <= a:
+                    continue
+                intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
+                k = cost_class(bool(c.gyro_on or gyr_hz > 0), str(behaviour))
+                est[k] = est.get(k, 0.0) + (b - a) / 1e9 * acc_hz
         n_acc = int(res.samples_sent.get("acc", 0))
         total = sum(est.values()) or 1.0
         samples = {m: int(round(v * n_acc / total)) for m, v in est.items()}

@@ -231,7 +231,8 @@ class MeteredEngine:
     def feed(self, batch: SensorBatch) -> Any:
         from models.batch import STREAMS
 
-        cls = cost_class(self.engine.sensor_config.gyro_on, self._behaviour)
+        # a wake-on-motion gyroscope may run although the configuration had it off: the batch's gyroscope samples decide
+        cls = cost_class(self.engine.sensor_config.gyro_on or len(batch.stream("gyr")[0]) > 0, self._behaviour)
         n = sum(len(batch.stream(s)[0]) for s in STREAMS)
         t0 = int(batch.acc_t_ns[0]) if len(batch) else -1
         upd = self._run(lambda: self.engine.feed(batch), cls, t0, len(batch), n, int(self.encode(batch)))
@@ -374,9 +375,12 @@ def run_engine(
     intervals, classes = [], []
     for i, (t0, c) in enumerate(res.configs):
         t1 = res.configs[i + 1][0] if i + 1 < len(res.configs) else t_end
-        if t1 > t0:
-            intervals.append(Interval(t0 / 1e9, t1 / 1e9, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz))
-            classes.append(eng.records[i].cls)  # one record per feed, in the order of res.configs
+        # what the device really did in the batch (a wake-on-motion gyroscope is charged from its wake only)
+        for a, b, acc_hz, gyr_hz, mag_hz in res.spans[i]:
+            a, b = max(a, t0), min(b, t1)
+            if b > a:
+                intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
+                classes.append(eng.records[i].cls)  # one record per feed, in the order of res.configs
     steps: dict[str, int] = {}
     for p in res.positions:
         steps[p.mode] = steps.get(p.mode, 0) + 1

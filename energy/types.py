@@ -26,6 +26,23 @@ class SensorConfig:
         How much data the device should collect before its next upload [s] (its sensor FIFO / batching
         period): fewer, larger uploads cost less radio wake-up and per-batch computation, at the price of
         a longer delay before the engine sees the data and answers with a new configuration.
+    gyro_wake_on_motion : bool
+        Gyroscope off now (``gyro_on`` False), but managed by the device itself, as an IMU's activity /
+        inactivity function does (LSM9DS1 ``ACT_THS``/``ACT_DUR``): the accelerometer keeps sampling at
+        ``acc_rate_hz``; when a sample departs from the still reference by more than ``wake_threshold_ms2`` on
+        any axis the gyroscope turns on by itself (without waiting for the host) and, once it delivers, both
+        sensors run at ``gyr_rate_hz``; after ``sleep_after_s`` without such a departure it powers down again.
+        See :class:`energy.device.DeviceEmulator` for the exact semantics.
+    wake_threshold_ms2 : float
+        Activity threshold [m/s^2] per axis (used with ``gyro_wake_on_motion``).
+    sleep_after_s : float
+        Inactivity duration before the device powers the gyroscope down again [s] (with ``gyro_wake_on_motion``).
+
+    Raises
+    ------
+    ValueError
+        ``gyro_wake_on_motion`` together with ``gyro_on`` (contradictory), or without a positive
+        ``gyr_rate_hz``, ``wake_threshold_ms2`` and ``sleep_after_s``.
     """
 
     gyro_on: bool
@@ -33,6 +50,18 @@ class SensorConfig:
     gyr_rate_hz: float
     mag_rate_hz: float
     batch_s: float = 1.0
+    gyro_wake_on_motion: bool = False
+    wake_threshold_ms2: float = 0.0
+    sleep_after_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.gyro_wake_on_motion:
+            if self.gyro_on:
+                raise ValueError("SensorConfig: gyro_wake_on_motion means the gyroscope is off now; gyro_on must be False")
+            for name in ("gyr_rate_hz", "wake_threshold_ms2", "sleep_after_s"):
+                v = float(getattr(self, name))
+                if not v > 0 or v == float("inf"):
+                    raise ValueError(f"SensorConfig: gyro_wake_on_motion needs a positive finite {name}, got {v!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -92,6 +92,12 @@ class SensorConfigOut(BaseModel):
     gyr_rate_hz: float
     mag_rate_hz: float
     batch_s: float = 1.0  # seconds of data per upload (rows stored before the engine had it: 1 s)
+    # gyroscope off, but the device turns it on by itself when its accelerometer departs from the still reference
+    # by more than wake_threshold_ms2 [m/s^2] on an axis, and off after sleep_after_s [s] of stillness
+    # (energy.types.SensorConfig; rows stored before these fields existed: no wake-on-motion)
+    gyro_wake_on_motion: bool = False
+    wake_threshold_ms2: float = 0.0
+    sleep_after_s: float = 0.0
 
 
 class SessionOut(_Out):

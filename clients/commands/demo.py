@@ -74,8 +74,12 @@ def _energy(res: Any, rec: Any, profile_name: str) -> dict[str, Any]:
     intervals, samples = [], {}
     for i, (t0, c) in enumerate(res.configs):
         t1 = res.configs[i + 1][0] if i + 1 < len(res.configs) else t_end
-        if t1 > t0:
-            intervals.append(Interval(t0 / 1e9, t1 / 1e9, c["acc_rate_hz"], c["gyr_rate_hz"] if c["gyro_on"] else 0.0, c["mag_rate_hz"]))
+        # what the device really did (a wake-on-motion gyroscope is charged from its wake only)
+        spans = res.spans[i] if i < len(res.spans) else [(t0, t1, c["acc_rate_hz"], c["gyr_rate_hz"] if c["gyro_on"] else 0.0, c["mag_rate_hz"])]
+        for a, b, acc_hz, gyr_hz, mag_hz in spans:
+            a, b = max(a, t0), min(b, t1)
+            if b > a:
+                intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
     for r, b in zip(res.responses, res.stored):
         samples[r["mode"]] = samples.get(r["mode"], 0) + b["n_acc"]
     steps: dict[str, int] = {}
@@ -115,8 +119,11 @@ def _plot(path: Path, res: Any, rec: Any, t0_ns: int, title: str) -> None:
     ax.legend(loc="best", fontsize=8)
     ax.set_title(title)
     t = np.array([(c0 - t0_ns) / 1e9 for c0, _ in res.configs])
-    gyro = np.array([c["gyro_on"] for _, c in res.configs], dtype=float)
-    rate = np.array([c["acc_rate_hz"] for _, c in res.configs])
+    # the sensors as the device ran them (wake-on-motion turns the gyroscope and the full rate on within a batch)
+    sp = [s for batch in res.spans for s in batch]
+    t_gyro = np.array([(s[0] - t0_ns) / 1e9 for s in sp]) if sp else t
+    gyro = np.array([s[3] > 0 for s in sp], dtype=float) if sp else np.array([c["gyro_on"] for _, c in res.configs], dtype=float)
+    rate = np.array([s[2] for s in sp]) if sp else np.array([c["acc_rate_hz"] for _, c in res.configs])
     mode_of = [r["mode"] for r in res.responses]
     ax2 = fig.add_axes((0.1, 0.2, 0.8, 0.1))
     names = ["idle", "zupt", "pdr"]
@@ -124,9 +131,9 @@ def _plot(path: Path, res: Any, rec: Any, t0_ns: int, title: str) -> None:
     ax2.set_yticks(range(len(names)), names)
     ax2.set_ylabel("mode")
     ax3 = fig.add_axes((0.1, 0.06, 0.8, 0.1), sharex=ax2)
-    ax3.fill_between(t, 0, gyro, step="post", color="tab:red", alpha=0.4, label="gyroscope on")
+    ax3.fill_between(t_gyro, 0, gyro, step="post", color="tab:red", alpha=0.4, label="gyroscope on")
     ax3b = ax3.twinx()
-    ax3b.step(t, rate, where="post", color="tab:green", label="acc rate [Hz]")
+    ax3b.step(t_gyro, rate, where="post", color="tab:green", label="acc rate [Hz]")
     ax3.set_yticks([0, 1], ["off", "on"])
     ax3.set_ylabel("gyro")
     ax3b.set_ylabel("acc Hz")

@@ -103,9 +103,11 @@ def _plot(path: str, rec: object, batch_seconds: float | None, user_profile: dic
     t = (tr.t_ns - t_origin) / 1e9
     truth_b = rec.truth.extra["behaviour"]  # type: ignore[attr-defined]
     tt = (rec.truth.t_ns - t_origin) / 1e9  # type: ignore[attr-defined]
-    tc = np.array([(t0 - t_origin) / 1e9 for t0, _ in res.configs])
-    gyro_cfg = np.array([float(c.gyro_on) for _, c in res.configs])
-    rate_cfg = np.array([c.acc_rate_hz for _, c in res.configs])
+    # the sensors as the device ran them (a wake-on-motion gyroscope starts within a batch)
+    spans = [s for batch in res.spans for s in batch]
+    tg = np.array([(s[0] - t_origin) / 1e9 for s in spans])
+    gyro_on = np.array([float(s[3] > 0) for s in spans])
+    acc_rate = np.array([s[2] for s in spans])
     cats = ["stand", "walk", "run", "other"]
     fig, ax = plt.subplots(4, 1, figsize=(11, 7), sharex=True)
     ax[0].plot(tt, [cats.index(b) for b in truth_b], "k-", lw=1, label="truth")
@@ -115,9 +117,9 @@ def _plot(path: str, rec: object, batch_seconds: float | None, user_profile: dic
     modes = ["idle", "pdr", "zupt"]
     ax[1].plot(t, [modes.index(str(m)) if str(m) in modes else -1 for m in tr.mode], "b.", ms=1)
     ax[1].set_yticks(range(3), modes)
-    ax[2].step(tc, gyro_cfg, "g-", where="post")
+    ax[2].step(tg, gyro_on, "g-", where="post")
     ax[2].set_ylabel("gyro on")
-    ax[3].step(tc, rate_cfg, "m-", where="post")
+    ax[3].step(tg, acc_rate, "m-", where="post")
     ax[3].set_ylabel("acc rate [Hz]")
     ax[3].set_xlabel("time [s]")
     fig.tight_layout()
