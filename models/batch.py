@@ -9,9 +9,9 @@ off, no magnetometer) is simply empty.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
-from numba import njit
 
 __all__ = ["BatchError", "SensorBatch", "STREAMS"]
 
@@ -28,8 +28,7 @@ _MEDIAN_NORM, _MAX_ABS = 0, 1  # statistic _scan returns for the unit check of e
 _STAT = {"acc": _MEDIAN_NORM, "gyr": _MAX_ABS, "mag": _MEDIAN_NORM}
 
 
-@njit(cache=True)
-def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
+def _scan_py(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
     """Checks of one stream in one pass: ``(first non-finite row, first duplicated timestamp, first
     backwards timestamp, statistic)``, indices -1 when there is none.
 
@@ -65,6 +64,20 @@ def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float
                 for j in range(3):
                     out = max(out, abs(v[i, j]))
     return bad, dup, back, out
+
+
+_SCAN: Any = None
+
+
+def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
+    """:func:`_scan_py` compiled (numba, on first use: importing this module does not load numba, so the
+    API process that only decodes batches stays small; the engine's processes load it anyway)."""
+    global _SCAN
+    if _SCAN is None:
+        from numba import njit
+
+        _SCAN = njit(cache=True)(_scan_py)
+    return _SCAN(t, v, stat)  # type: ignore[no-any-return]
 
 
 class BatchError(ValueError):

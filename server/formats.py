@@ -23,7 +23,6 @@ from typing import Any
 
 import msgpack
 import numpy as np
-from numba import njit
 
 from models.batch import STREAMS, BatchError, SensorBatch
 
@@ -40,6 +39,7 @@ __all__ = [
 
 JSON_TYPE = "application/json"
 MSGPACK_TYPE = "application/msgpack"
+_I32 = np.iinfo(np.int32)
 
 
 class PayloadTooLarge(ValueError):
@@ -56,19 +56,6 @@ def encode_json(batch: SensorBatch) -> bytes:
     return json.dumps(doc, separators=(",", ":")).encode()
 
 
-@njit(cache=True)
-def _deltas_i32(t: np.ndarray) -> tuple[bool, np.ndarray]:
-    """``np.diff(t)`` as int32 in one pass, and whether every step fits int32 (steps wrap in int64 as
-    ``np.diff`` does)."""
-    d = np.empty(max(t.size - 1, 0), dtype=np.int32)
-    for i in range(1, t.size):
-        x = t[i] - t[i - 1]
-        if x < -2147483648 or x > 2147483647:
-            return False, d[:0]
-        d[i - 1] = x
-    return True, d
-
-
 def encode_msgpack(batch: SensorBatch, dtype: str = "<f8") -> bytes:
     """Compact msgpack body of ``batch``; ``dtype`` ``"<f4"`` (phones) or ``"<f8"`` (lossless)."""
     if dtype not in ("<f4", "<f8"):
@@ -79,10 +66,10 @@ def encode_msgpack(batch: SensorBatch, dtype: str = "<f8") -> bytes:
         if not t.size:
             continue
         s: dict[str, Any] = {"n": int(t.size), "dtype": dtype, "xyz": np.ascontiguousarray(v, dtype=dtype).tobytes()}
-        fits, d = _deltas_i32(t.astype(np.int64, copy=False))
-        if fits:
+        d = np.diff(t)
+        if d.size == 0 or (d.min() >= _I32.min and d.max() <= _I32.max):
             s["t0"] = int(t[0])
-            s["dt"] = d.astype("<i4", copy=False).tobytes()
+            s["dt"] = d.astype("<i4").tobytes()
         else:
             s["t"] = t.astype("<i8").tobytes()
         doc[name] = s
