@@ -77,6 +77,8 @@ MIN_GAIT_S = 0.5  # s, less gait than this in the stance window (a start): no du
 # of "other" waits (a start of walking is not "other" because only one stride is visible yet).
 PERIODICITY_MIN_GAIT_S = 1.5
 MIN_PERIOD_S, MAX_PERIOD_S = 0.45, 1.9  # s, plausible stride periods (running ... slow walking)
+_MIN_WINDOW_N = 8  # samples a window needs to be decided ...
+_MIN_SPAN_S = min(WINDOW_S, 1.0)  # ... and data time since the first sample [s]
 
 
 @dataclass(frozen=True)
@@ -349,15 +351,38 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
 
 
 @njit(cache=True)
-def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int, hop: float, window: float, min_n: int,
-               min_span: float, g: float, still_s: float, stance_s: float, tol: float, max_stance_s: float,
-               min_gait_s: float, max_dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Every decision instant ``t0 + j * hop`` (``j >= k``) whose window is complete (a sample at or after it
-    has arrived), its window ``[td - window, td)`` as index bounds, whether the window is decided (at least
-    ``min_n`` samples and ``td - t0 >= min_span``) and, for decided windows, the :func:`_cheap_features`.
+def _rules_code(still: float, var: float, stance: float, gait_s: float, gait_std: float) -> int:
+    """The rules of :func:`_rules` that need no stride period: the label's index in ``LABELS``, or -2 when
+    the period decides (:func:`_rules` then runs in Python)."""
+    if still < STILL_STD:
+        return 0  # stand
+    if stance <= RUN_STANCE:
+        return 2  # run
+    if stance < JOG_STANCE:
+        return -2
+    if np.sqrt(var) < OTHER_MAX_STD:
+        if stance >= OTHER_MIN_STANCE:
+            return 3  # other
+        if gait_s >= PERIODICITY_MIN_GAIT_S:
+            return -2
+        if gait_std < OTHER_MAX_STD:
+            return 3  # other
+    return 1  # walk
 
-    One compiled call per batch instead of two ``searchsorted`` and one kernel call per decision.
+
+@njit(cache=True)
+def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                                      np.ndarray]:
+    """Every decision instant ``t0 + j * HOP_S`` (``j >= k``) whose window is complete (a sample at or after
+    it has arrived), its window ``[td - WINDOW_S, td)`` as index bounds, for decided windows (at least
+    ``_MIN_WINDOW_N`` samples and ``td - t0 >= _MIN_SPAN_S``) the :func:`_cheap_features`, and the label code
+    (index into ``LABELS``; -1 when the window is not decided, -2 when the rules need the stride period, see
+    :func:`_rules_code`).
+
+    One compiled call per batch instead of two ``searchsorted`` and one kernel call per decision (the module
+    constants are compiled in).
     """
+    hop, window, min_n, min_span = HOP_S, WINDOW_S, _MIN_WINDOW_N, _MIN_SPAN_S
     t_last = t[t.size - 1]
     m = 0
     while t_last >= t0 + (k + m) * hop:
@@ -365,7 +390,7 @@ def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int, hop: float, wind
     td = np.empty(m)
     lo = np.empty(m, dtype=np.int64)
     hi = np.empty(m, dtype=np.int64)
-    ok = np.zeros(m, dtype=np.bool_)
+    code = np.full(m, -1, dtype=np.int64)
     feats = np.full((m, 6), np.nan)
     for j in range(m):
         d = t0 + (k + j) * hop
@@ -373,10 +398,11 @@ def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int, hop: float, wind
         i1 = np.searchsorted(t, d)
         td[j], lo[j], hi[j] = d, i0, i1
         if i1 - i0 >= min_n and d - t0 >= min_span:
-            ok[j] = True
-            feats[j, :] = _cheap_features(t[i0:i1], x[i0:i1], g, still_s, stance_s, tol, max_stance_s, min_gait_s,
-                                          max_dt)
-    return td, lo, hi, ok, feats
+            f = _cheap_features(t[i0:i1], x[i0:i1], G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S,
+                                MIN_GAIT_S, MAX_SAMPLE_DT_S)
+            feats[j, :] = f
+            code[j] = _rules_code(f[0], f[2], f[3], f[4], f[5])
+    return td, lo, hi, code, feats
 
 
 def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, stance: float, gait_s: float,
@@ -496,19 +522,23 @@ class BehaviourRecognizer:
             self._t0 = float(t[0])
         self._t = np.concatenate([self._t, t])
         self._n = np.concatenate([self._n, n])
-        td, lo, hi, ok, feats = _decisions(self._t, self._n, self._t0, self._k, HOP_S, WINDOW_S, 8, min(WINDOW_S, 1.0), G,
-                                           STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S, MIN_GAIT_S,
-                                           MAX_SAMPLE_DT_S)
+        td, lo, hi, code, feats = _decisions(self._t, self._n, self._t0, self._k)
         out: list[tuple[float, str]] = []
-        last = None
-        for d, i0, i1, decided, f in zip(td.tolist(), lo.tolist(), hi.tolist(), ok.tolist(), feats.tolist()):
-            if decided:
-                label, per, perio = _rules(self._t[i0:i1], self._n[i0:i1], *f)
-                last = (label, f, per, perio)
+        last = -1
+        nan = float("nan")
+        per = perio = nan
+        label = ""
+        for j, (d, c) in enumerate(zip(td.tolist(), code.tolist())):
+            if c != -1:  # a decided window
+                if c == -2:  # the stride period decides
+                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *feats[j].tolist())
+                else:
+                    label, per, perio = LABELS[c], nan, nan
+                last = j
                 self._vote(label)
             out.append((d, self.label))
-        if last is not None:
-            self.features = _features_of(last[0], *last[1], last[2], last[3])
+        if last >= 0:
+            self.features = _features_of(label, *feats[last].tolist(), per, perio)
         self._k += len(td)
         keep = self._t >= self._t0 + self._k * HOP_S - WINDOW_S
         self._t, self._n = self._t[keep], self._n[keep]
