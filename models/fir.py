@@ -197,13 +197,14 @@ class Decimator:
             self._t_hist = np.repeat(t_ns[:1], delay)  # matches the FIR's replicated start
         t_all = np.concatenate([self._t_hist, t_ns])
         t_centre = t_all[: t_ns.size]  # input time `delay` samples before each output
-        idx = np.arange(self._count, self._count + t_ns.size)
-        # output n is centred on input n - delay: keep inputs 0, factor, 2 factor, ... (none before the start)
-        keep = (idx >= delay) & (((idx - delay) % self.factor) == 0)
-        y = self._fir.process_rows(x, np.flatnonzero(keep))  # only the kept outputs are computed
+        # output n is centred on input n - delay: keep inputs 0, factor, 2 factor, ... (none before the start),
+        # i.e. the chunk rows j >= delay - count with count + j - delay a multiple of factor
+        j0 = max(delay - self._count, 0)
+        rows = np.arange(j0 + (delay - self._count - j0) % self.factor, t_ns.size, self.factor)
+        y = self._fir.process_rows(x, rows)  # only the kept outputs are computed
         self._count += t_ns.size
         self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
-        return t_centre[keep].copy(), y
+        return t_centre[rows], y
 
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """End of the stream: the outputs still held back by the filter's latency.
@@ -251,12 +252,24 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
     """``y[j, c] = sum_k taps[k] ext[rows[j] + L - 1 - k, c]`` (what ``np.convolve(..., "valid")`` gives at
     ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked."""
     n_taps = taps.size
-    y = np.empty((rows.size, ext.shape[1]))
+    nc = ext.shape[1]
+    y = np.empty((rows.size, nc))
+    if nc >= 4:  # many channels: taps outermost, the channels of one input row together (same sums per channel)
+        acc = np.empty(nc)
+        for j in range(rows.size):
+            r = rows[j] + n_taps - 1
+            acc[:] = 0.0
+            for k in range(n_taps):
+                h = taps[k]
+                for c in range(nc):
+                    acc[c] += h * ext[r - k, c]
+            y[j, :] = acc
+        return y
     for j in range(rows.size):
         r = rows[j] + n_taps - 1
-        for c in range(ext.shape[1]):
-            acc = 0.0
+        for c in range(nc):
+            a = 0.0
             for k in range(n_taps):
-                acc += taps[k] * ext[r - k, c]
-            y[j, c] = acc
+                a += taps[k] * ext[r - k, c]
+            y[j, c] = a
     return y
