@@ -81,6 +81,16 @@ def test_scheduler_saves_energy(demo_doc):
     assert a["gyro_on_fraction"] < a["baseline"]["gyro_on_fraction"]
 
 
+@pytest.mark.slow
+def test_targets_block_states_the_figures_it_tests(demo_doc):
+    a, _ = demo_doc
+    t = a["targets"]
+    assert t["energy_ratio_le_0.25"] == (a["energy_ratio"] <= 0.25)
+    assert t["compute_reduction_ge_80pct"] == (a["compute_reduction_pct"] >= 80.0)
+    assert t["mode_compute_reduction_ge_80pct"] == (a["mode_cost_per_step_us"]["reduction_pct"] >= 80.0)
+    assert t["position_error_ratio_le_1.5"] == (a["position_error_m"]["ratio"] <= 1.5)
+
+
 def test_cost_class_is_the_one_of_energy_power():
     import energy.power
     import energy.simulate
