@@ -5,8 +5,10 @@ the device sends), so its step events do not change when the device is de-sample
 events wait in a queue; the engine (:mod:`energy.engine`) hands each one either to a ZUPT-KF stance of the
 same stance (step-length calibration 004 eq. 15 and Table 3, KF II 004 eq. 17-20, magnetometer calibration,
 examination) or to dead reckoning (004 eq. 14, 16) with the heading following the stance compass
-(:func:`models.compass.follow_compass`: small disagreements averaged, turns only on a clean field), or the last
-heading where no calibrated field is there. :attr:`GaitPipeline.horizon` bounds how late an event can still appear.
+(:class:`models.compass.CompassFollower`: on a clean field small disagreements averaged and turns taken whole;
+through a magnetic disturbance the heading held and only turns taken, from the compass change between stances),
+or the last heading where no calibrated field is there. :attr:`GaitPipeline.horizon` bounds how late an event can
+still appear.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from models.compass import MagCalibrator, follow_compass
+from models.compass import CompassFollower, MagCalibrator
 from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
@@ -36,6 +38,7 @@ _BEHAVIOURS = ("walk", "run")
 _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step model
 _BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
 _KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more than this do not update KF II
+_ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
 
 
 def _event_row(e: StepEvent) -> list[float]:
@@ -90,6 +93,13 @@ class _LowRate:
                 outs_t.append(ot / 1e9)
                 outs_x.append(ox)
             else:
+                if self.dec is not None:
+                    # the fast run ended (the device lowered its rate): the decimator's last group delay of
+                    # output (0.32 s at 200 -> 25 Hz) would otherwise never come out; a stance in that gap was
+                    # lost and its stride merged into the next (mixed-day seed 0: 9 such gaps, one lost stride)
+                    ft, fx = self.dec.flush()
+                    outs_t.append(ft / 1e9)
+                    outs_x.append(fx)
                 self.dec = None  # a slow run already is at (or below) the low rate
                 outs_t.append(t_s[lo:hi])
                 outs_x.append(x[lo:hi])
@@ -140,6 +150,9 @@ class GaitPipeline:
         self.cal = StepLengthCalibrator()
         self.kf2 = {b: HeadingDeviationKF() for b in _BEHAVIOURS}
         self.mag = MagCalibrator()
+        self.mag_anchored = True  # compass in this session's frame (False: loaded from a profile, not re-anchored yet)
+        self._anchor_offsets: list[float] = []  # this session's heading - loaded compass at clean stances [rad]
+        self.follower = CompassFollower()
         self.dr: GaitDeadReckoner | None = None
         self.queue: list[StepEvent] = []
         self._mag_t = np.zeros(0)
@@ -224,7 +237,17 @@ class GaitPipeline:
         """
         m = self.mag_at(e)
         if m is not None:
-            self.mag.add(np.asarray(e.acc_stance), m, float(st.heading))
+            acc_st = np.asarray(e.acc_stance)
+            clean = self.mag.ready and not self.mag.disturbed(acc_st, m)
+            if self.mag.ready and not self.mag_anchored and clean:
+                self._anchor_compass(float(st.heading), acc_st, m)
+            if clean or not self.mag.trusted:
+                # once the compass is trusted, a stance whose field fails the disturbance test is not the Earth's
+                # field: it would pull m_n and the hard iron (and the compass's agreement measure) towards the
+                # steel. An untrusted calibration (indoors) cannot tell; it keeps averaging every stance.
+                self.mag.add(acc_st, m, float(st.heading))
+            if self.mag.ready:
+                self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m))
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return
@@ -235,6 +258,27 @@ class GaitPipeline:
                 and abs(wrap_angle(float(st.heading) - prev[1])) > _KF2_TURN_RAD):
             return  # a turning stride: eq. (20) mixes two walking directions
         self.kf2[behaviour].update(wrap_angle(gamma - float(st.heading)), dt=e.period_s)  # 004 eq. (19)
+
+    def _anchor_compass(self, heading: float, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
+        """Turn a compass calibration loaded from a profile into this session's navigation frame.
+
+        The stored field m_n is expressed in the frame of the session that fitted it, whose heading 0 was the
+        sensor's x axis at that session's first stance; this session's frame began wherever the foot pointed
+        this time. The hard/soft iron belongs to the sensor and is kept; the field's azimuth is re-found as the
+        circular mean of ``heading`` [rad] (this session's, at a clean stance) minus the loaded compass over
+        ``_ANCHOR_STANCES`` stances, applied when it exceeds the compass's own accuracy
+        (:attr:`~models.compass.MagCalibrator.max_heading_rms`): on the synthetic days, whose sessions start
+        facing the same way, the offsets were 0.2-4.3 deg; turning the frame by them raised the mean error by
+        0.5-3.7 m on 5 of 6 returning days (and lowered it by 1.2 m on one).
+        """
+        self._anchor_offsets.append(wrap_angle(heading - self.mag.heading(acc_stance, mag_stance)))
+        if len(self._anchor_offsets) >= _ANCHOR_STANCES:
+            a = np.asarray(self._anchor_offsets)
+            delta = math.atan2(float(np.mean(np.sin(a))), float(np.mean(np.cos(a))))
+            if abs(delta) > self.mag.max_heading_rms:
+                self.mag.rotate_frame(delta)  # an offset within the compass's own accuracy is not resolved
+            self.mag_anchored = True
+            self._anchor_offsets = []
 
     def ready(self, behaviour: str) -> bool:
         """Enough calibration steps, and a calibrated compass when a magnetometer is there.
@@ -310,6 +354,7 @@ class GaitPipeline:
         if isinstance(compass, dict) and not self.mag.ready:
             self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
             self._mag_fit_n = self.mag.n_stances
+            self.mag_anchored = not self.mag.ready  # its field azimuth is in the earlier session's frame
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
             kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])
@@ -325,14 +370,15 @@ class GaitPipeline:
         """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m], sensor heading [rad]."""
         self.dr = GaitDeadReckoner(position, compensate=not self.conventional)
         self.heading = float(heading)
+        self.follower.forget()  # turns are counted from this heading on
 
     def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
         """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
 
-        Returns ``(step, event, heading source)`` with source ``"compass"`` (clean field: the heading follows
-        the compass, turns taken at once), ``"disturbed"`` (the field failed the disturbance test: it may pull
-        the heading but not turn it, :func:`models.compass.follow_compass`) or ``"none"`` (no calibrated field
-        at that stance: the last heading is held).
+        Returns ``(step, event, heading source)`` with source ``"compass"`` (the field passed the disturbance
+        test), ``"disturbed"`` (it failed) or ``"none"`` (no calibrated field in this session's frame at that
+        stance: the last heading is held). How the compass moves the heading:
+        :meth:`models.compass.CompassFollower.step`.
         """
         out: list[tuple[PdrStep, StepEvent, str]] = []
         todo = [e for e in self.queue if e.t_s < before_s]
@@ -346,11 +392,17 @@ class GaitPipeline:
             acc_st = np.asarray(e.acc_stance)
             source = "none"
             if m is not None and self.mag.ready:
-                source = "disturbed" if self.mag.disturbed(acc_st, m) else "compass"
+                clean = not self.mag.disturbed(acc_st, m)
+                if not self.mag_anchored and clean:
+                    self._anchor_compass(self.heading, acc_st, m)
+                if self.mag_anchored:
+                    source = "compass" if clean else "disturbed"
             if source == "none":
-                self.held_steps += 1  # no calibrated field: hold the last heading
+                self.held_steps += 1  # no calibrated field in this session's frame: hold the last heading
+                self.follower.forget()
             else:
-                self.heading = follow_compass(self.heading, self.mag.heading(acc_st, m), source == "compass")
+                self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
+                                                  *self.mag.field_shape(acc_st, m), self.mag.trusted)
                 self.compass_steps += 1
             out.append((self.dr.step(e.t_s, max(d, 0.0), self.heading, self.kf2[b].deviation, b), e, source))
         return out
@@ -377,6 +429,8 @@ class GaitPipeline:
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
             "prev_stance": list(self._prev_stance),
+            "mag_anchored": self.mag_anchored, "anchor_offsets": list(self._anchor_offsets),
+            "follower": self.follower.get_state(),
         }
 
     @classmethod
@@ -398,4 +452,8 @@ class GaitPipeline:
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         ps = d.get("prev_stance", [-math.inf, math.nan])  # states stored before the turn gate existed
         obj._prev_stance = (float(ps[0]), float(ps[1]))
+        obj.mag_anchored = bool(d.get("mag_anchored", True))  # states stored before the re-anchoring existed
+        obj._anchor_offsets = [float(x) for x in d.get("anchor_offsets", [])]
+        if "follower" in d:
+            obj.follower = CompassFollower.from_state(d["follower"])
         return obj

@@ -76,3 +76,89 @@ def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> 
     gp.load_calibration("walk", old, 0.0, 1e-4)
     e = _pair(30, 0.0, 0.0)[1]
     assert gp.step_length(e, "walk") == src.step_length(e, "walk")
+
+
+G = 9.80665
+M_N = np.array([20.0, 2.0, 42.0])  # uT, NED
+
+
+def _field_stance(rng: np.random.Generator, yaw: float,
+                  steel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    from models.rotations import euler_to_dcm
+
+    roll, pitch = rng.normal(scale=0.03, size=2)
+    c = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(yaw))
+    field = M_N if steel is None else M_N + steel
+    return c.T @ np.array([0.0, 0.0, -G]), c.T @ field + rng.normal(scale=0.3, size=3)
+
+
+def _calibrated_compass(rng: np.random.Generator, frame_offset: float = 0.0):
+    from models.compass import MagCalibrator
+
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, 40):
+        acc, mag = _field_stance(rng, yaw)
+        cal.add(acc, mag, math.remainder(float(yaw) + frame_offset, 2 * math.pi))
+    assert cal.fit() and cal.trusted
+    return cal
+
+
+def _reckon_one(gp: GaitPipeline, k: int, acc: np.ndarray, mag: np.ndarray) -> str:
+    e = StepEvent(100.0 + k, 1.1, 0.9, 12.0, 25.0, 5.0, tuple(acc), False, 1000 + k)
+    gp.queue.append(e)
+    gp.stance_mag[e.index] = mag
+    (_, _, source), = gp.reckon(e.t_s + 0.1, lambda t: "walk")
+    return source
+
+
+def test_compass_from_a_profile_is_reanchored_to_this_sessions_frame() -> None:
+    """A stored calibration's field azimuth is in the frame of the session that fitted it (heading 0 = where
+    the foot pointed at that session's start); this session starts elsewhere. Without re-anchoring every
+    compass heading would be off by the difference of the two frames (here 40 deg)."""
+    rng = np.random.default_rng(3)
+    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
+    gp = GaitPipeline(25.0)
+    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
+    assert not gp.mag_anchored
+    gp.start(np.zeros(3), 0.3)  # this session's heading of the foot, which points at yaw 0.3
+    # three clean stances anchor the frame (their offsets averaged); until then the heading is held
+    assert [_reckon_one(gp, k, *_field_stance(rng, 0.3)) for k in range(3)] == ["none", "none", "compass"]
+    assert gp.mag_anchored and gp.heading == pytest.approx(0.3, abs=math.radians(1.5))
+    for k in range(3, 8):  # turn to yaw 1.3: followed in this session's frame
+        _reckon_one(gp, k, *_field_stance(rng, 1.3))
+    assert gp.heading == pytest.approx(1.3, abs=math.radians(1.5))
+    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    assert back.mag_anchored and back.follower.clean_run == gp.follower.clean_run
+
+
+def test_disturbed_stances_stay_out_of_a_trusted_compass_calibration() -> None:
+    rng = np.random.default_rng(5)
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.mag = _calibrated_compass(rng)
+    n = gp.mag.n_stances
+    for k, steel in enumerate((None, np.array([15.0, -10.0, 5.0]), None)):
+        st, e = _pair(k, 0.2, 0.2)
+        acc, mag = _field_stance(rng, 0.2, steel)
+        e = StepEvent(e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, tuple(acc), False, e.index)
+        gp.stance_mag[e.index] = mag
+        gp.learn(st, e, "walk")
+    assert gp.mag.n_stances == n + 2  # the steel stance is not the Earth's field
+
+
+def test_low_rate_stream_has_no_gap_where_the_device_lowers_its_rate() -> None:
+    """200 Hz (decimated to 25 Hz) then 25 Hz: the decimator's held-back group delay comes out at the switch,
+    in one piece or many alike."""
+    from energy.gait_dr import _LowRate
+
+    t = np.concatenate([np.arange(0, 400) / 200.0, 2.0 + np.arange(1, 60) / 25.0])
+    x = np.c_[np.sin(t), np.cos(t), t, np.zeros((len(t), 4))]
+    outs = []
+    for cuts in ([len(t)], [150, 399, 401, 430, len(t)]):
+        low, lo, ot = _LowRate(25.0), 0, []
+        for hi in cuts:
+            ot.append(low.process(t[lo:hi], x[lo:hi])[0])
+            lo = hi
+        outs.append(np.concatenate(ot))
+    assert np.max(np.diff(outs[0])) < 2.0 / 25.0  # was 0.36 s: the 0.32-s group delay never came out
+    np.testing.assert_array_equal(outs[0], outs[1])
