@@ -3,12 +3,18 @@
 Forms (DESIGN.md "Evaluation contracts")::
 
     pednav eval vicon DIR --json
-    pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] --json
+    pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
 goes to stderr. Exit status 0 when every selected recording was evaluated, 1 when any failed (the failure is
 listed in its row as ``"error"``; the JSON document is still printed).
+
+``--profile leave-one-out`` (pdr/auto): the returning-user protocol of :mod:`clients.evaluation.harness`.
+Each recording starts from the profile the engine handed out after walking the other selected recordings of
+its sensor/format group in experiment order; ``recordings``/``summary`` are then the returning user's, each
+row gets ``profile`` (what fed it, what the engine did with it) and ``new_user`` (the same metrics as a new
+user, from the same run), and the document gets ``new_user_summary``.
 """
 
 from __future__ import annotations
@@ -40,8 +46,9 @@ def _progress(items: list[Any], desc: str) -> Any:
 def _runner(batch_seconds: float, conventional: bool = False) -> Any:
     from clients.evaluation.harness import run_engine
 
-    def run(batch: Any, mode: str, l0_m: float | None) -> Any:
-        return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds, conventional=conventional)
+    def run(batch: Any, mode: str, l0_m: float | None, profile: dict[str, Any] | None = None) -> Any:
+        return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds, conventional=conventional,
+                          profile=profile)
 
     return run
 
@@ -104,6 +111,10 @@ def _run_gdin(args: argparse.Namespace) -> int:
     if (args.l0 is not None or args.conventional) and args.mode == "zupt":
         print("pednav eval gdin: --l0 and --conventional apply to --mode pdr/auto only", file=sys.stderr)
         return 2
+    loo = args.profile == "leave-one-out"
+    if loo and args.mode == "zupt":
+        print("pednav eval gdin: --profile applies to --mode pdr/auto only (zupt keeps no calibration)", file=sys.stderr)
+        return 2
     directory = Path(args.dir) if args.dir else _default_dir("gdin")
     if directory is None or not directory.is_dir():
         print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
@@ -112,19 +123,35 @@ def _run_gdin(args: argparse.Namespace) -> int:
     runner = _runner(args.batch_seconds, args.conventional)
     rows: list[dict[str, Any]] = []
     failed = 0
+    recs: dict[str, Any] = {}  # returning-user protocol: the recordings, kept for the profile sessions
+    new_user: dict[str, Any] = {}  # and each one's new-user session: (profile handed out, events)
     for e in _progress(entries, f"gdin {args.mode}"):
         try:
-            ev = harness.evaluate_gdin_recording(harness.load_gdin_entry(e), runner, args.mode, args.l0)
+            rec = harness.load_gdin_entry(e)
+            ev = harness.evaluate_gdin_recording(rec, runner, args.mode, args.l0)
         except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
             log.exception("%s failed", e.sensor_path)
             rows.append({"name": e.name, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
+        run = ev.plot.pop("run", None)
         rows.append(ev.row)
-        if args.plot:
+        if loo:
+            recs[e.name], new_user[e.name] = rec, (run.profile, run.events)
+        elif args.plot:
             from clients.evaluation.plots import plot_gdin
 
             plot_gdin(args.plot, ev.row, ev.plot)
+    extra: dict[str, Any] = {}
+    if loo:
+        new_rows = rows
+        rows, failed_loo, chains = _returning_users(args, recs, new_user, new_rows, runner)
+        failed += failed_loo
+        extra = {
+            "profile": args.profile,
+            "profile_groups": chains,
+            "new_user_summary": harness.gdin_summary(new_rows),
+        }
     excluded = [r["name"] for r in rows if not r.get("gt_usable", False)]
     doc = {
         "dataset": "gdin",
@@ -134,6 +161,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
         "recordings": rows,
         "excluded_from_summary": excluded,
         "summary": harness.gdin_summary(rows),
+        **extra,
     }
     if args.json:
         print(json.dumps(doc, indent=2))
@@ -152,7 +180,74 @@ def _run_gdin(args: argparse.Namespace) -> int:
         print("\nsummary (usable ground truth only):")
         for k, s in doc["summary"].items():
             print(f"  {k:<18} mean {_fmt(s['mean'], '8.3f')}  median {_fmt(s['median'], '8.3f')}  n={s['n']}")
+        if loo:
+            print(f"\nreturning user ({args.profile}) vs new user, medians (usable ground truth only):")
+            for k, s in doc["summary"].items():
+                n = doc["new_user_summary"][k]
+                print(f"  {k:<18} new {_fmt(n['median'], '8.3f')}  returning {_fmt(s['median'], '8.3f')}  n={s['n']}")
+            for r in rows:
+                pr = r.get("profile")
+                if pr is not None:
+                    ev = pr["events"]
+                    print(f"  {r['name']:<6} fed by {len(pr['fed_by']):>2} sessions, walk calibrated in "
+                          f"{pr['calibrated_in'].get('walk', '-'):<6} resumed {str(pr['resumed']):<5} "
+                          f"exam passed/failed {ev['examination_passed']}/{ev['examination_failed']} "
+                          f"calibrations {ev['calibration_done']}")
     return 1 if failed else 0
+
+
+_COMPARED = ("loop_closure_pct", "stride_mean_err_m", "stride_rmse_m", "distance_err_pct", "gyro_on_fraction",
+             "mean_rate_hz", "pdr_distance_err_pct")
+
+
+def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: dict[str, Any],
+                     new_rows: list[dict[str, Any]], runner: Any) -> tuple[list[dict[str, Any]], int, dict[str, list[str]]]:
+    """Leave-one-out returning users: every recording evaluated again, starting from the profile of the other
+    recordings of its sensor/format group (walked in experiment order, each session starting from the previous
+    session's profile). Returns the rows, the number of failures and the groups (format -> names)."""
+    from clients.evaluation import harness
+
+    groups: dict[str, list[str]] = {}
+    for name, rec in recs.items():  # entries come sorted by experiment number
+        groups.setdefault(rec.meta.source_format, []).append(name)
+
+    def session(name: str, profile: dict[str, Any] | None) -> tuple[dict[str, Any] | None, Any]:
+        run = runner(recs[name].batch, args.mode, args.l0, profile=profile)
+        return run.profile, run.events
+
+    chain = harness.ProfileChain(session)
+    for name, (profile_out, events) in new_user.items():
+        chain.seed(name, profile_out, events)  # the new-user pass above is each chain's first session
+    chains = harness.leave_one_out_chains(groups)
+    by_name = {r["name"]: r for r in new_rows}
+    rows: list[dict[str, Any]] = []
+    failed = 0
+    for r0 in _progress(new_rows, f"gdin {args.mode} returning"):
+        name = r0["name"]
+        if name not in recs:
+            rows.append(r0)  # failed as a new user already
+            continue
+        try:
+            profile, sessions = chain.after(chains[name])
+            if name in [s.name for s in sessions]:
+                raise RuntimeError(f"{name} would feed its own profile")
+            ev = harness.evaluate_gdin_recording(recs[name], runner, args.mode, args.l0, profile=profile)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            log.exception("%s (returning user) failed", name)
+            rows.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
+            failed += 1
+            continue
+        run = ev.plot.pop("run")
+        ev.row["profile"] = harness.profile_info(profile, sessions, run.events)
+        ev.row["new_user"] = {k: by_name[name].get(k) for k in _COMPARED if k in by_name[name]}
+        ev.row["new_user"]["events"] = harness.event_counts(new_user[name][1])
+        rows.append(ev.row)
+        if args.plot:
+            from clients.evaluation.plots import plot_gdin
+
+            plot_gdin(args.plot, ev.row, ev.plot)
+    log.info("returning-user protocol: %d profile sessions run", chain.sessions_run)
+    return rows, failed, groups
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -176,4 +271,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pg.add_argument("--l0", type=float, default=None, metavar="METERS", help="ZUPT-KF initialisation distance before Gait-PDR (pdr/auto)")
     pg.add_argument("--conventional", action="store_true",
                     help="conventional PDR baseline (004 Table 6): generic step model, no heading-deviation compensation (pdr/auto)")
+    pg.add_argument("--profile", choices=("none", "leave-one-out"), default="none",
+                    help="per-user profile each recording starts with (pdr/auto): none = a new user (default); "
+                         "leave-one-out = a returning user, profile from walking the other recordings of the same "
+                         "sensor/format group in experiment order, never the recording itself")
     pg.set_defaults(func=_run_gdin)

@@ -17,6 +17,16 @@ Definitions of this module (beyond DESIGN.md):
   that time (sample-and-hold; before the first processed sample: the first one);
 - behaviour fractions are time-weighted over the processed samples (each sample stands for the interval to
   the next one); labels other than stand/walk/run count as ``other``.
+
+Returning-user protocol (``pednav eval gdin --profile leave-one-out``): every gdin recording normally starts
+as a new user (no profile: the full L0 ZUPT-KF initialisation). With the protocol, the profile a recording
+starts with is the one the engine handed out after walking the OTHER recordings of the same sensor/format
+group (``RecordingMeta.source_format``), in experiment-number order, each session starting from the profile
+the previous one handed out, exactly as one user's successive sessions would (:class:`ProfileChain`,
+:func:`leave_one_out_chains`). The sessions run in the evaluated mode (same L0, same conventional flag); the
+engine only ever sees sensor samples, so no truth enters a profile, and the evaluated recording is never one
+of its own sessions. The walkers and paces of the recordings differ, so a profile may not fit: the engine's
+own examination (004 Table 3) decides, and the row says what happened.
 """
 
 from __future__ import annotations
@@ -53,6 +63,12 @@ __all__ = [
     "gdin_entries",
     "load_vicon_trial",
     "load_gdin_entry",
+    "PROFILE_PROTOCOLS",
+    "Session",
+    "ProfileChain",
+    "leave_one_out_chains",
+    "profile_info",
+    "event_counts",
 ]
 
 log = logging.getLogger(__name__)
@@ -68,6 +84,14 @@ GDIN_SUMMARY_KEYS: tuple[str, ...] = (
     "gyro_on_fraction",
     "mean_rate_hz",
     "pdr_distance_err_pct",
+)
+PROFILE_PROTOCOLS: tuple[str, ...] = ("none", "leave-one-out")
+_PROFILE_EVENTS: tuple[str, ...] = (
+    "calibration_done",
+    "examination_passed",
+    "examination_repeated",
+    "examination_failed",
+    "examination_skipped",
 )
 _NED_TO_VICON = np.array([1.0, 1.0, -1.0])  # (north, east, down) -> truth (x, y, z up); see module docstring
 
@@ -90,6 +114,11 @@ class EngineRun:
         As reported by the replay.
     mode : ndarray of str, shape (n,) or None
         Navigation mode per sample (``zupt``, ``pdr``, ``idle``); None when the runner does not say.
+    profile : dict or None
+        The per-user calibration profile the engine handed out at the end (``Engine.profile_dict``); None
+        when the runner does not say.
+    events : tuple of (str, dict)
+        Every engine event (kind, detail) in order; empty when the runner does not say.
     """
 
     t_ns: np.ndarray
@@ -99,16 +128,21 @@ class EngineRun:
     gyro_on_fraction: float
     mean_rate_hz: float
     mode: np.ndarray | None = None
+    profile: dict[str, Any] | None = None
+    events: tuple[tuple[str, dict[str, Any]], ...] = ()
 
 
 class Runner(Protocol):
+    """Replays a batch; ``profile`` (the per-user profile the engine starts with) is passed only when not None."""
+
     def __call__(self, batch: SensorBatch, mode: str, l0_m: float | None) -> EngineRun: ...
 
 
 def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float = 1.0,
-               conventional: bool = False) -> EngineRun:
+               conventional: bool = False, profile: dict[str, Any] | None = None) -> EngineRun:
     """Replay ``batch`` through a fresh engine (``trace=True``) in ``mode``; ``l0_m`` sets ``EngineConfig.l0_m``,
-    ``conventional`` the conventional-PDR baseline (``EngineConfig.pdr_conventional``)."""
+    ``conventional`` the conventional-PDR baseline (``EngineConfig.pdr_conventional``), ``profile`` the per-user
+    calibration profile it starts with (None: a new user)."""
     from energy.device import replay  # lazy: keeps `pednav --help` fast
     from energy.engine import Engine, EngineConfig
 
@@ -116,7 +150,7 @@ def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None
     if l0_m is not None:
         kw["l0_m"] = float(l0_m)
     config = EngineConfig(**kw)
-    engine = Engine(mode=mode, config=config, profile=None, trace=True)
+    engine = Engine(mode=mode, config=config, profile=profile, trace=True)
     res = replay(engine, batch, batch_seconds=batch_seconds)
     tr = res.trace
     stances = np.array([[p.t_ns, p.north, p.east, p.down] for p in res.positions], dtype=np.float64).reshape(-1, 4)
@@ -128,6 +162,8 @@ def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None
         gyro_on_fraction=float(res.gyro_on_fraction),
         mean_rate_hz=float(res.mean_rate_hz),
         mode=np.asarray(tr.mode).astype(str),
+        profile=engine.profile_dict(),
+        events=tuple((e.kind, dict(e.detail)) for u in res.updates for e in u.events),
     )
 
 
@@ -197,12 +233,17 @@ def evaluate_vicon_recording(rec: Recording, runner: Runner) -> Evaluated:
     return Evaluated(row, {"est_xy": aligned[:, :2], "truth_xy": gt0[:, :2]})
 
 
-def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: float | None = None) -> Evaluated:
-    """gdin metrics of DESIGN.md for one recording (keys present only where that truth exists)."""
+def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: float | None = None,
+                            profile: dict[str, Any] | None = None) -> Evaluated:
+    """gdin metrics of DESIGN.md for one recording (keys present only where that truth exists).
+
+    ``profile``: the per-user profile the engine starts with (passed to ``runner`` as ``profile=`` only when
+    not None); the plot dict keeps the :class:`EngineRun` under ``"run"``.
+    """
     x = rec.truth.extra if rec.truth is not None else {}
     if "gcp_m" not in x:
         raise ValueError(f"{rec.name}: no ground-control points (truth .mat missing)")
-    run = runner(rec.batch, mode, l0_m)
+    run = runner(rec.batch, mode, l0_m) if profile is None else runner(rec.batch, mode, l0_m, profile=profile)  # type: ignore[call-arg]
     st = run.stances
     truth_len = float(x["truth_path_length_m"])
     n_truth = x.get("number_of_strides")
@@ -211,6 +252,7 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         "stances_xy": st[:, 1:3].copy(),
         "gcp_xy": np.asarray(x["gcp_m"], dtype=np.float64),
         "gcp_stride_numbers": x.get("gcp_stride_numbers"),
+        "run": run,
     }
     if x.get("closed_loop") and st.shape[0] >= 2:
         row["loop_closure_pct"] = metrics.loop_closure_pct(st[0, 1:3], st[-1, 1:3], truth_len)
@@ -285,3 +327,152 @@ def load_vicon_trial(path: Path) -> Recording:
 
 def load_gdin_entry(entry: GdinEntry) -> Recording:
     return load_gdin(entry)
+
+
+# ---------------------------------------------------------------------------------------------- returning users
+def event_counts(events: Iterable[tuple[str, dict[str, Any]]]) -> dict[str, int]:
+    """How often each calibration/examination event kind occurred (kinds of ``_PROFILE_EVENTS``, zeros kept)."""
+    out = {k: 0 for k in _PROFILE_EVENTS}
+    for kind, _ in events:
+        if kind in out:
+            out[kind] += 1
+    return out
+
+
+@dataclass(frozen=True)
+class Session:
+    """One session of a profile chain: the recording walked and what its engine did with the profile.
+
+    Attributes
+    ----------
+    name : str
+        Recording walked.
+    events : dict of str to int
+        :func:`event_counts` of the session.
+    calibrated : tuple of str
+        Behaviours the session (re)calibrated (``calibration_done``): the profile's calibration of those
+        behaviours comes from this session from here on.
+    error : str or None
+        The session failed (the profile passes through unchanged).
+    """
+
+    name: str
+    events: dict[str, int]
+    calibrated: tuple[str, ...] = ()
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"name": self.name, "events": dict(self.events), "calibrated": list(self.calibrated)}
+        if self.error is not None:
+            d["error"] = self.error
+        return d
+
+
+# session(name, profile_in) -> (profile_out, events): walk one recording as a session of the engine
+SessionFn = Callable[[str, dict[str, Any] | None], tuple[dict[str, Any] | None, Sequence[tuple[str, dict[str, Any]]]]]
+
+
+class ProfileChain:
+    """Profiles handed out after walking sequences of recordings, each session starting from the previous one's.
+
+    ``session(name, profile_in) -> (profile_out, events)`` walks one recording as a session of the engine.
+    Results are memoised per prefix, so the leave-one-out chains of a group (which share their prefixes) cost
+    about N^2/2 sessions instead of N(N-1). :meth:`seed` records a new-user session run elsewhere (the
+    evaluation's own new-user pass: the engine is deterministic, so it is the same session).
+    """
+
+    def __init__(self, session: SessionFn) -> None:
+        self._session = session
+        self._memo: dict[tuple[str, ...], tuple[dict[str, Any] | None, tuple[Session, ...]]] = {(): (None, ())}
+        self.sessions_run = 0
+
+    def seed(self, name: str, profile: dict[str, Any] | None, events: Sequence[tuple[str, dict[str, Any]]]) -> None:
+        """A new user's session on ``name`` handed out ``profile`` with ``events``."""
+        self._memo[(name,)] = (profile, (_session(name, events),))
+
+    def after(self, chain: Sequence[str]) -> tuple[dict[str, Any] | None, tuple[Session, ...]]:
+        """Profile handed out after the sessions ``chain`` (in order, the first one a new user) and the sessions."""
+        key = tuple(chain)
+        k = len(key)
+        while key[:k] not in self._memo:
+            k -= 1
+        profile, sessions = self._memo[key[:k]]
+        for i in range(k, len(key)):
+            name = key[i]
+            try:
+                out, events = self._session(name, profile)
+                self.sessions_run += 1
+                profile, sessions = out, sessions + (_session(name, events),)
+            except Exception as exc:  # noqa: BLE001 - a broken session leaves the profile as it was
+                log.exception("profile session %s failed", name)
+                sessions = sessions + (Session(name, {k2: 0 for k2 in _PROFILE_EVENTS}, (), f"{type(exc).__name__}: {exc}"),)
+            self._memo[key[: i + 1]] = (profile, sessions)
+        return profile, sessions
+
+
+def _session(name: str, events: Sequence[tuple[str, dict[str, Any]]]) -> Session:
+    cal = tuple(dict.fromkeys(str(d.get("behaviour")) for kind, d in events if kind == "calibration_done"))
+    return Session(name, event_counts(events), cal)
+
+
+def leave_one_out_chains(groups: dict[str, Sequence[str]]) -> dict[str, tuple[str, ...]]:
+    """Per recording, the sessions its profile is built from: the other members of its group, in group order.
+
+    Parameters
+    ----------
+    groups : dict of str to sequence of str
+        Group key (sensor/format) -> recording names in the order a user would have walked them.
+    """
+    out: dict[str, tuple[str, ...]] = {}
+    for members in groups.values():
+        for name in members:
+            out[name] = tuple(m for m in members if m != name)
+    return out
+
+
+def profile_info(profile: dict[str, Any] | None, sessions: Sequence[Session],
+                 events: Sequence[tuple[str, dict[str, Any]]]) -> dict[str, Any]:
+    """The ``profile`` entry of a returning-user row: what fed the profile, what it held, what the engine did.
+
+    ``fed_by``: the recordings walked to build it, in order; ``calibrated_in``: per behaviour, the session
+    whose calibration the profile held at the end (the last one that calibrated it); ``behaviours``: per
+    calibrated behaviour its steps, sigma_d [m], heading deviation [deg] and whether a fitted compass came with
+    it; ``events``: :func:`event_counts` of the evaluated session (``examination_failed`` > 0: the engine
+    rejected the profile and re-initialised); ``resumed``: the evaluated session passed an examination of the
+    profile's calibration before any re-calibration.
+    """
+    last: dict[str, str] = {}
+    for s in sessions:
+        for b in s.calibrated:
+            last[b] = s.name
+    behaviours: dict[str, Any] = {}
+    for b, cal in ((profile or {}).get("behaviours") or {}).items():
+        if not cal.get("calibrated"):
+            continue
+        compass = (cal.get("step_model") or {}).get("compass") or {}
+        rms = compass.get("heading_rms")
+        behaviours[b] = {
+            "n_steps": int(cal.get("n_steps", 0)),
+            "sigma_d_m": _finite(cal.get("sigma_d_m")),
+            "heading_deviation_deg": _finite(np.degrees(float(cal.get("heading_deviation_rad", np.nan)))),
+            "compass_ready": bool(compass.get("ready", False)),
+            "compass_heading_rms_deg": _finite(np.degrees(float(rms))) if rms is not None else None,
+        }
+    kinds = [k for k, _ in events]
+    first_cal = kinds.index("calibration_done") if "calibration_done" in kinds else len(kinds)
+    return {
+        "fed_by": [s.name for s in sessions],
+        "sessions": [s.to_dict() for s in sessions],
+        "calibrated_in": last,
+        "behaviours": behaviours,
+        "events": event_counts(events),
+        "resumed": "examination_passed" in kinds[:first_cal],
+    }
+
+
+def _finite(v: Any) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if np.isfinite(f) else None

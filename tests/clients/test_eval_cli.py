@@ -114,6 +114,93 @@ def test_vicon_armse_zero_for_a_perfect_engine() -> None:
     assert r["behaviour"] == pytest.approx({"stand": 0.25, "walk": 0.625, "run": 0.0625, "other": 0.0625})
 
 
+# ---------------------------------------------------------------------------------------------- returning users
+def test_leave_one_out_chains_are_the_other_members_of_the_group_in_order() -> None:
+    chains = harness.leave_one_out_chains({"a": ["e1", "e2", "e3"], "c": ["e7"]})
+    assert chains == {"e1": ("e2", "e3"), "e2": ("e1", "e3"), "e3": ("e1", "e2"), "e7": ()}
+
+
+def _recording_session(data: dict[str, str], calls: list[tuple[str, tuple[str, ...]]]):
+    """A session whose profile is the list of (recording, data) it has seen, walked in order."""
+
+    def session(name: str, profile: dict | None) -> tuple[dict, list]:
+        seen = tuple((profile or {}).get("seen", ()))
+        calls.append((name, tuple(n for n, _ in seen)))
+        return {"seen": seen + ((name, data[name]),)}, [("calibration_done", {"behaviour": "walk"})]
+
+    return session
+
+
+def test_profile_chain_never_feeds_a_recording_into_its_own_profile() -> None:
+    names = [f"e{i}" for i in range(6)]
+    groups = {"a": names[:4], "b": names[4:]}
+    data = {n: f"samples of {n}" for n in names}
+    calls: list[tuple[str, tuple[str, ...]]] = []
+    chain = harness.ProfileChain(_recording_session(data, calls))
+    chains = harness.leave_one_out_chains(groups)
+    got = {n: chain.after(chains[n]) for n in names}
+    for n, (profile, sessions) in got.items():
+        seen = [m for m, _ in profile["seen"]] if profile else []
+        assert n not in seen and n not in [s.name for s in sessions]
+        group = next(g for g in groups.values() if n in g)
+        assert seen == [m for m in group if m != n]  # every other member, in group order, each session once
+        info = harness.profile_info(profile, sessions, [])
+        assert info["fed_by"] == seen and info["calibrated_in"] == ({"walk": seen[-1]} if seen else {})
+    # prefixes are shared: e0 (e1 e2 e3) 3, e1 (e0 e2 e3) 3, e2 (e0 e1 | e3) 2, e3 (e0 e1 | e2) 1, e4 1, e5 1
+    assert chain.sessions_run == len(calls) == 11
+    # no data of a recording reaches its own profile: change e1's samples, e1's profile is the same,
+    # the profiles built from e1 change
+    data2 = dict(data, e1="other samples")
+    chain2 = harness.ProfileChain(_recording_session(data2, []))
+    assert chain2.after(chains["e1"])[0] == got["e1"][0]
+    assert chain2.after(chains["e0"])[0] != got["e0"][0]
+
+
+def test_profile_chain_seed_and_failed_session() -> None:
+    def session(name: str, profile: dict | None) -> tuple[dict, list]:
+        if name == "bad":
+            raise RuntimeError("broken file")
+        return {"n": (profile or {}).get("n", 0) + 1}, []
+
+    chain = harness.ProfileChain(session)
+    chain.seed("x", {"n": 100}, [("examination_failed", {}), ("calibration_done", {"behaviour": "run"})])
+    profile, sessions = chain.after(("x", "bad", "y"))
+    assert profile == {"n": 101} and chain.sessions_run == 1  # x seeded, bad skipped, y run
+    assert [s.name for s in sessions] == ["x", "bad", "y"] and sessions[1].error is not None
+    assert sessions[0].calibrated == ("run",) and sessions[0].events["examination_failed"] == 1
+
+
+def _dump(profile: dict | None) -> str:
+    return json.dumps(profile, sort_keys=True, default=lambda o: np.asarray(o).tolist())
+
+
+def test_leave_one_out_with_the_engine_on_synthetic_walks() -> None:
+    """The real engine: a recording's profile does not change when its own samples do (pdr mode)."""
+    from clients.synth import Scenario, Segment, synthesize
+
+    scn = Scenario("loo", (Segment("stand", 3.0), Segment("walk", 45.0, 90.0), Segment("stand", 3.0)))
+    batches = {f"s{k}": synthesize(scn, seed=k).batch for k in range(3)}
+
+    def chain_for(b: dict[str, SensorBatch]) -> harness.ProfileChain:
+        def session(name: str, profile: dict | None) -> tuple[dict | None, tuple]:
+            run = harness.run_engine(b[name], mode="pdr", profile=profile)
+            return run.profile, run.events
+
+        return harness.ProfileChain(session)
+
+    chains = harness.leave_one_out_chains({"synth": list(batches)})
+    p0, sessions = chain_for(batches).after(chains["s0"])
+    assert [s.name for s in sessions] == ["s1", "s2"]
+    assert p0 is not None and p0["behaviours"]["walk"]["calibrated"]
+    assert harness.profile_info(p0, sessions, [])["behaviours"]["walk"]["n_steps"] > 0
+    swapped = dict(batches, s0=synthesize(scn, seed=7).batch)
+    chain2 = chain_for(swapped)
+    assert _dump(chain2.after(chains["s0"])[0]) == _dump(p0)
+    assert _dump(chain2.after(chains["s1"])[0]) != _dump(chain_for(batches).after(chains["s1"])[0])
+    run = harness.run_engine(batches["s0"], mode="pdr", profile=p0)  # the engine takes it and hands one out
+    assert run.profile is not None and "walk" in run.profile["behaviours"]
+
+
 def test_positions_at_is_sample_and_hold() -> None:
     t = np.array([10, 20, 30], dtype=np.int64)
     p = np.arange(9, dtype=float).reshape(3, 3)
@@ -168,3 +255,36 @@ def test_cli_eval_gdin_table_and_l0_rule(gdin_dir: Path, capsys: pytest.CaptureF
     assert "exp34" in out and "summary" in out
     assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--l0", "10"]) == 2
     assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--conventional"]) == 2
+    assert main(["eval", "gdin", str(gdin_dir), "--mode", "zupt", "--profile", "leave-one-out"]) == 2
+
+
+def test_cli_eval_gdin_leave_one_out(gdin_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    picks = ("exp17", "exp34", "exp35", "exp37", "exp41", "exp42")  # A x3, C x2 (no magnetometer), B x1
+    argv = ["eval", "gdin", str(gdin_dir), "--mode", "pdr", "--json"]
+    for name in picks:
+        argv += ["--match", name]
+    new = _run_json(capsys, argv)
+    doc = _run_json(capsys, argv + ["--profile", "leave-one-out"])
+    assert doc["profile"] == "leave-one-out" and "profile" not in new  # the default document is unchanged
+    assert doc["profile_groups"] == {"sensorconnect-a": ["exp17", "exp34", "exp35"],
+                                     "gdin-llio-mat": ["exp37", "exp41"], "sensorconnect-b": ["exp42"]}
+    assert doc["new_user_summary"] == new["summary"]  # same build, same engine: the new-user figures
+    new_rows = {r["name"]: r for r in new["recordings"]}
+    base = {"name", "distance_err_pct", "strides_detected", "strides_truth", "gyro_on_fraction", "mean_rate_hz"}
+    for r in doc["recordings"]:
+        assert base <= set(r)
+        pr = r["profile"]
+        group = next(g for g in doc["profile_groups"].values() if r["name"] in g)
+        assert pr["fed_by"] == [n for n in group if n != r["name"]]  # never itself
+        assert r["name"] not in pr["calibrated_in"].values()
+        assert set(pr["events"]) >= {"calibration_done", "examination_passed", "examination_failed"}
+        for k, v in r["new_user"].items():
+            if k != "events":
+                assert v == new_rows[r["name"]][k]
+    rows = {r["name"]: r for r in doc["recordings"]}
+    assert rows["exp42"]["profile"]["fed_by"] == [] and rows["exp42"]["profile"]["behaviours"] == {}
+    # a lone recording is a new user: same figures
+    assert rows["exp42"]["distance_err_pct"] == new_rows["exp42"]["distance_err_pct"]
+    for r in rows.values():
+        assert set(r["profile"]["calibrated_in"].values()) <= set(r["profile"]["fed_by"])
+    assert any(r["profile"]["behaviours"] for r in rows.values())  # some session calibrated something
