@@ -56,7 +56,8 @@ class HeadingDeviationKF:
         Forgetting factor (0..1) of a Sage-Husa estimate of R^II from the accepted innovations
         (``R <- (1 - b) R + b (nu^2 - H P H^T)``, floored at ``r_obs**2``): the spread of gamma - psi differs
         between people, mountings and floors (2-15 deg per stride on gdin), and a filter that assumes too
-        small an R follows that noise. Measured on gdin (ZUPT-KF stances, /tmp study in the issue 3 report):
+        small an R follows that noise. Measured on gdin (ZUPT-KF stances, heel-strike psi; the measurement is now
+        ``tests/energy/test_gait_dr.py::kf2_movement_after_convergence``):
         with ``adapt_r=0.1`` the estimate stays within 1.1 deg after convergence on every recording where it
         converges (7 of 26), against up to 8 deg with R fixed at 4 deg (14 of 26 converge, 3 beyond 2 deg);
         0 (default, for now) keeps R fixed at ``r_obs**2``.

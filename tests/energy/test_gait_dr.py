@@ -43,6 +43,24 @@ def test_kf2_skips_turning_strides() -> None:
     assert back._prev_stance == gp._prev_stance
 
 
+def test_kf2_observes_the_heading_half_way_through_the_swing() -> None:
+    """The foot's heading wobbles by 8 deg from stance to stance while the walk goes straight: each stride's chord
+    lies half-way between the stance headings before and after its swing. Against the mid-swing heading every
+    observation is the deviation itself; against the heel-strike heading they would alternate by +-4 deg."""
+    gp = GaitPipeline(25.0)
+    dev = math.radians(3.0)
+    wobble = math.radians(8.0)
+    devs = []
+    for k in range(30):
+        psi = wobble if k % 2 else 0.0
+        gp.learn(*_pair(k, psi, 0.5 * wobble + dev), "walk")
+        devs.append(gp.kf2["walk"].deviation)
+    # the first stride (no stance before it) initialises at the heel-strike heading, 7 deg; then every
+    # observation is 3 deg: the estimate converges monotonically
+    assert abs(devs[-1] - dev) < math.radians(0.3)
+    assert np.all(np.diff(devs) <= 0)  # heel strike: alternating steps of +-0.3 deg up and down
+
+
 def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None:
     from models.step_length import StepFeatures, StepLengthCalibrator
 
@@ -162,3 +180,56 @@ def test_low_rate_stream_has_no_gap_where_the_device_lowers_its_rate() -> None:
         outs.append(np.concatenate(ot))
     assert np.max(np.diff(outs[0])) < 2.0 / 25.0  # was 0.36 s: the 0.32-s group delay never came out
     np.testing.assert_array_equal(outs[0], outs[1])
+
+
+# KF II on real walks: ZUPT-KF throughout (``--mode pdr`` with L0 beyond the walk), the deviation after every
+# update. The filter counts as converged at std < 1 deg (HeadingDeviationKF.converged); issue 3 asks the estimate
+# to stay within 2 deg of its value at convergence for the rest of the walk.
+_GDIN = [f"exp{n:02d}" for n in (6, 11, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 25, 27, 28, 31, 32, 33, 34, 35,
+                                 36, 37, 41, 42, 43)]
+
+
+def kf2_movement_after_convergence(rec) -> dict[str, float]:
+    """Per behaviour whose KF II converged: the largest |deviation - deviation at convergence| afterwards [deg]."""
+    from clients.evaluation.harness import run_engine
+
+    hist: dict[str, list[tuple[float, bool]]] = {}
+    learn = GaitPipeline.learn
+
+    def recording_learn(self: GaitPipeline, st: Stance, e: StepEvent, behaviour: str) -> None:
+        before = {b: k.n_updates for b, k in self.kf2.items()}
+        learn(self, st, e, behaviour)
+        for b, k in self.kf2.items():
+            if k.n_updates != before[b]:
+                hist.setdefault(b, []).append((k.deviation, k.converged))
+
+    GaitPipeline.learn = recording_learn  # type: ignore[method-assign]
+    try:
+        run_engine(rec.batch, "pdr", l0_m=1e9)
+    finally:
+        GaitPipeline.learn = learn  # type: ignore[method-assign]
+    out = {}
+    for b, h in hist.items():
+        conv = [c for _, c in h]
+        if any(conv):
+            i = conv.index(True)
+            d = np.array([x for x, _ in h[i:]])
+            out[b] = float(np.degrees(np.max(np.abs(np.angle(np.exp(1j * (d - d[0])))))))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=(
+        "the observations themselves differ by leg: mean gamma - psi per straight leg 177.2-182.9 deg (two laps, "
+        "north legs 178.3 vs 182.6, standard errors 0.2-1.0 deg) with no turn strides in them, so the filter "
+        "that tracks them moves by 3.0 deg; a stiffer filter would be stable and wrong"))) if n == "exp23" else n
+    for n in _GDIN])
+def test_kf2_deviation_stays_within_2_deg_after_convergence(gdin_dir, name: str) -> None:
+    from clients.importers.gdin import find_gdin, load_gdin
+
+    entries = {e.name: e for e in find_gdin(gdin_dir)}
+    if name not in entries:
+        pytest.skip(f"{name} not in this copy of gdin")
+    moved = kf2_movement_after_convergence(load_gdin(entries[name]))
+    assert all(v <= 2.0 for v in moved.values()), moved
