@@ -25,8 +25,12 @@ group (``RecordingMeta.source_format``), in experiment-number order, each sessio
 the previous one handed out, exactly as one user's successive sessions would (:class:`ProfileChain`,
 :func:`leave_one_out_chains`). The sessions run in the evaluated mode (same L0, same conventional flag); the
 engine only ever sees sensor samples, so no truth enters a profile, and the evaluated recording is never one
-of its own sessions. The walkers and paces of the recordings differ, so a profile may not fit: the engine's
-own examination (004 Table 3) decides, and the row says what happened.
+of its own sessions. Recordings whose ground truth is flagged unusable still feed profiles (their samples are
+valid walks; they stay out of the summary); recordings that failed to load are not walked. The walkers,
+paces and mounts of the recordings differ, so a profile may not fit: the engine's own examination (004
+Table 3) decides, and the row says what happened. What a profile holds after a session is the engine's rule
+(``Engine.profile_dict``): a session that re-calibrates a behaviour replaces its calibration, one that passes
+the examination hands the profile on unchanged.
 """
 
 from __future__ import annotations
