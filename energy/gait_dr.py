@@ -148,6 +148,7 @@ class GaitPipeline:
         self._low = _LowRate(rate_hz)
         self._seg = StepSegmenter(rate_hz)
         self.cal = StepLengthCalibrator()
+        self._generic = StepLengthCalibrator(self.cal.model)  # the generic prior model, never fitted
         self.kf2 = {b: HeadingDeviationKF() for b in _BEHAVIOURS}
         self.mag = MagCalibrator()
         self.mag_anchored = True  # compass in this session's frame (False: loaded from a profile, not re-anchored yet)
@@ -163,6 +164,7 @@ class GaitPipeline:
         self.has_mag = False  # the device has sent magnetometer samples in this session
         self._mag_fit_n = -1  # magnetometer stances at the last calibration fit
         self.recent_d: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # last ZUPT-KF strides [m]
+        self.recent_scale: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # the same / generic model's
         self.compass_steps = 0
         self.held_steps = 0
         self._prev_stance = (-math.inf, math.nan)  # (onset [s], heading [rad]) of the last calibration stance
@@ -258,6 +260,9 @@ class GaitPipeline:
             return
         self.cal.add(behaviour, _features(e), st.step_length)
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
+        generic = self._generic.predict(behaviour, _features(e))[0]
+        if generic > 0.0:
+            self.recent_scale[behaviour] = (self.recent_scale[behaviour] + [st.step_length / generic])[-_RECENT_STEPS:]
         gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)
         psi = float(st.heading)
         if math.isfinite(prev[0]) and st.t_start_s - prev[0] <= 2.0 * e.period_s:
@@ -335,7 +340,11 @@ class GaitPipeline:
         """
         b = _behaviour(behaviour)
         if self.conventional:
-            return StepLengthCalibrator(self.cal.model).predict(b, _features(e))  # generic model (never fitted)
+            return self._generic.predict(b, _features(e))  # generic model (never fitted)
+        if not self.cal.calibrated(b) and self.recent_scale[b]:
+            # the generic model's cadence dependence at this person's scale (median ratio of the latest ZUPT-KF
+            # strides to it): a walk that speeds up before its model is fitted gets longer strides
+            return self._generic.predict(b, _features(e))[0] * float(np.median(self.recent_scale[b])), float("nan")
         if not self.cal.calibrated(b) and self.recent_d[b]:
             return float(np.median(self.recent_d[b])), float("nan")
         return self.cal.predict(b, _features(e))
@@ -435,6 +444,7 @@ class GaitPipeline:
             "mag_t": self._mag_t, "mag_v": self._mag_v,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
+            "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
             "prev_stance": list(self._prev_stance),
             "mag_anchored": self.mag_anchored, "anchor_offsets": list(self._anchor_offsets),
@@ -447,6 +457,7 @@ class GaitPipeline:
         obj._low = _LowRate.from_state(d["low"])
         obj._seg = StepSegmenter.from_state(d["seg"])
         obj.cal = StepLengthCalibrator.from_state(d["cal"])
+        obj._generic = StepLengthCalibrator(obj.cal.model)
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
@@ -457,6 +468,8 @@ class GaitPipeline:
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
         obj._mag_fit_n = int(d["mag_fit_n"])
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
+        scales = d.get("recent_scale", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
+        obj.recent_scale = {b: [float(x) for x in v] for b, v in scales.items()}
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         ps = d.get("prev_stance", [-math.inf, math.nan])  # states stored before the turn gate existed
         obj._prev_stance = (float(ps[0]), float(ps[1]))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 from energy.codec import dumps, loads
 from energy.gait_dr import GaitPipeline
+from models.step_length import StepFeatures
 from models.steps import StepEvent
 from models.zupt_nav import Stance
 
@@ -77,6 +79,27 @@ def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None
     assert gps[False].kf2["walk"].deviation == pytest.approx(math.radians(20.0), abs=math.radians(0.5))
     assert gps[True].dr is not None and not gps[True].dr.compensate
     assert GaitPipeline.from_state(loads(dumps(gps[True].get_state()))).conventional
+
+
+def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
+    """Before the walking model is fitted, Gait-DR's stride is the generic model at this step's cadence times the
+    person's own ratio to it on the latest ZUPT-KF strides (the median of those strides alone kept a slow walk's
+    1.07 m when the walk sped up to 1.38 m on the synthetic mixed day)."""
+    from models.step_length import StepLengthCalibrator
+
+    generic = StepLengthCalibrator()
+    gp = GaitPipeline(25.0)
+    slow = [_pair(k, 0.0, 0.0, period=1.4) for k in range(6)]
+    for st, e in slow:
+        d = 1.2 * generic.predict("walk", StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min))[0]
+        gp.learn(dataclasses.replace(st, delta=np.array([d, 0.0, 0.0])), e, "walk")
+    assert not gp.cal.calibrated("walk")
+    fast = _pair(10, 0.0, 0.0, period=1.0)[1]
+    want = 1.2 * generic.predict("walk", StepFeatures(fast.f_s, fast.acc_mean, fast.acc_max, fast.acc_min))[0]
+    assert gp.step_length(fast, "walk")[0] == pytest.approx(want)
+    assert want > 1.05 * float(np.median(gp.recent_d["walk"]))
+    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    assert back.step_length(fast, "walk")[0] == gp.step_length(fast, "walk")[0]
 
 
 def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> None:
