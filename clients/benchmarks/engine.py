@@ -149,6 +149,7 @@ def _stages_us(mode: str, sess: list[list[dict[str, np.ndarray]]]) -> dict[str, 
     from energy.engine import Engine
     from energy.simulate import component_meter
     from models.batch import SensorBatch
+    from server.engine_pool import _pack_streams, _unpack_streams
     from server.formats import canonical_bytes, digest
     from server.ingest import Fed, _answer
     from server.statecodec import pack_state, unpack_state
@@ -167,10 +168,10 @@ def _stages_us(mode: str, sess: list[list[dict[str, np.ndarray]]]) -> dict[str, 
     with component_meter() as meter:
         for k in range(len(sess[0])):
             for i, batches in enumerate(sess):
-                msg = pickle.dumps((i, k, None, k, batches[k]), protocol=pickle.HIGHEST_PROTOCOL)
+                msg = pickle.dumps((i, k, None, k, *_pack_streams(batches[k])), protocol=pickle.HIGHEST_PROTOCOL)
                 meter.ns.clear()
                 t0 = clock()
-                streams = pickle.loads(msg)[4]
+                streams = _unpack_streams(*pickle.loads(msg)[4:])
                 t1 = clock()
                 b = SensorBatch(**streams)
                 t2 = clock()
