@@ -256,3 +256,26 @@ def test_kf2_deviation_stays_within_2_deg_after_convergence(gdin_dir, name: str)
         pytest.skip(f"{name} not in this copy of gdin")
     moved = kf2_movement_after_convergence(load_gdin(entries[name]))
     assert all(v <= 2.0 for v in moved.values()), moved
+
+
+def test_turning_stride_goes_half_way_with_a_trusted_compass() -> None:
+    """A 40 deg turn between two stances: the stride's chord lies half-way (20 deg) with a trusted compass; with
+    an untrusted one (its stance-to-stance changes are mostly scatter being averaged) the heading reached is used."""
+    rng = np.random.default_rng(8)
+    out = {}
+    for trusted in (True, False):
+        gp = GaitPipeline(25.0)
+        gp.mag = _calibrated_compass(rng)
+        if not trusted:
+            gp.mag.max_heading_rms = 0.0  # same compass, declared untrusted
+        gp.follower.clean_run = gp.follower.reanchor_stances
+        gp.start(np.zeros(3), 0.0)
+        _reckon_one(gp, 0, *_field_stance(rng, 0.0))
+        e = StepEvent(200.0, 1.1, 0.9, 12.0, 25.0, 5.0, (0.0, 0.0, -G), False, 2000)
+        acc, mag = _field_stance(rng, math.radians(40.0))
+        gp.queue.append(dataclasses.replace(e, acc_stance=tuple(acc)))
+        gp.stance_mag[e.index] = mag
+        (step, _, _), = gp.reckon(e.t_s + 0.1, lambda t: "walk")
+        out[trusted] = (math.degrees(step.direction), math.degrees(gp.heading))
+    assert out[True][0] == pytest.approx(20.0, abs=1.5) and out[True][1] == pytest.approx(40.0, abs=1.5)
+    assert out[False][0] == pytest.approx(out[False][1])  # untrusted: the heading reached
