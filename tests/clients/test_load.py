@@ -21,3 +21,19 @@ def test_by_window_gives_the_p99_of_the_requests_sent_in_each_window() -> None:
     assert got == [round(float(np.percentile([10.0, 20.0, 30.0], 99)), 1),
                    round(float(np.percentile([500.0, 40.0], 99)), 1), 7.0]
     assert _by_window(np.array([]), np.array([]), 10.0) == []
+
+
+def test_engine_bench_sessions_start_apart_and_keep_time_increasing_over_the_loop() -> None:
+    """``pednav bench engine``: session i starts 7 i s into the recording; looping it shifts time forward."""
+    from clients.benchmarks.engine import _session_batches
+    from models.batch import SensorBatch
+
+    t = np.arange(0, 5_000_000_000, 10_000_000, dtype=np.int64)  # 5 s at 100 Hz
+    rec = SensorBatch(acc_t_ns=t, acc=np.tile([0.0, 0.0, 9.81], (t.size, 1)))
+    sess = _session_batches(rec, sessions=3, batches=8)
+    assert [len(s) for s in sess] == [8, 8, 8]
+    firsts = [int(s[0]["acc_t_ns"][0]) for s in sess]
+    assert firsts == [0, 2_000_000_000, 4_000_000_000]  # 7 i mod 5 s
+    for s in sess:
+        ts = np.concatenate([b["acc_t_ns"] for b in s])
+        assert np.all(np.diff(ts) > 0) and ts.size == 8 * 100
