@@ -56,6 +56,7 @@ class Desampler:
         self.native_rate_hz = float(native_rate_hz)
         self._dec = Decimator(self.native_rate_hz, self.native_rate_hz)
         self._last_out_t = np.iinfo(np.int64).min
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # the old filter's tail after a rate change
 
     @property
     def factor(self) -> int:
@@ -72,11 +73,17 @@ class Desampler:
         """Change the output rate [Hz]; applies from the next call to :meth:`process`."""
         factor = max(1, int(round(self.native_rate_hz / max(target_rate_hz, 1e-9))))
         if factor != self._dec.factor:
+            # the samples the old filter still holds back (its group delay) go out with the next chunk, as a
+            # sensor's FIFO keeps what it has measured: dropping them left a 0.32-0.36 s hole at every change
+            self._pending = self._dec.flush()
             self._dec = Decimator(self.native_rate_hz, self.native_rate_hz / factor)
 
     def process(self, t_ns: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Filter and decimate a chunk; returns the output samples ``(t_ns, values)``."""
         out_t, out_v = self._dec.process(t_ns, v)
+        if self._pending is not None:
+            (p_t, p_v), self._pending = self._pending, None
+            out_t, out_v = np.concatenate([p_t, out_t]), np.concatenate([p_v, out_v])
         m = out_t > self._last_out_t
         out_t, out_v = out_t[m], out_v[m]
         if len(out_t):

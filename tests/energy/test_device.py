@@ -71,6 +71,17 @@ def test_rate_change_never_sends_time_backwards() -> None:
     assert np.all(np.diff(t) > 0)
 
 
+@pytest.mark.parametrize("first, second", [(FULL, LOW), (LOW, FULL)])
+def test_rate_change_leaves_no_hole(first: SensorConfig, second: SensorConfig) -> None:
+    """A rate change loses nothing the sensor measured: no gap longer than the slower of the two periods."""
+    dev = DeviceEmulator(recording())
+    a = dev.emit(0, int(3e9), first)
+    b = dev.emit(int(3e9), int(6e9), second)
+    t = np.concatenate([a.acc_t_ns, b.acc_t_ns])
+    slower_period_ns = 1e9 / min(first.acc_rate_hz, second.acc_rate_hz)
+    assert np.diff(t).max() <= slower_period_ns * 1.01
+
+
 class _ScriptedEngine:
     """Stands in for an engine: asks for the configurations of ``script`` in turn, records what it was fed."""
 
