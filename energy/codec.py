@@ -16,12 +16,20 @@ _ND = 1
 _FORMAT = b"PNS1"  # pednav state, version 1
 
 
+_HEADS: dict[tuple[str, tuple[int, ...]], bytes] = {}  # packed [dtype, shape] headers (states repeat them)
+
+
 def _default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
-        if obj.dtype.kind not in "biuf":
-            raise TypeError(f"cannot encode array of dtype {obj.dtype}")
-        head = msgpack.packb([obj.dtype.str, list(obj.shape)])
-        return msgpack.ExtType(_ND, head + np.ascontiguousarray(obj).tobytes())
+        key = (obj.dtype.str, obj.shape)
+        head = _HEADS.get(key)
+        if head is None:
+            if obj.dtype.kind not in "biuf":
+                raise TypeError(f"cannot encode array of dtype {obj.dtype}")
+            head = msgpack.packb([obj.dtype.str, list(obj.shape)])
+            if len(_HEADS) < 4096:
+                _HEADS[key] = head
+        return msgpack.ExtType(_ND, head + obj.tobytes())  # tobytes() is C order whatever the layout
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, tuple):

@@ -24,6 +24,19 @@ def test_codec_round_trip(a: np.ndarray, x: float, s: str) -> None:
     assert out["nested"] == {"x": x, "s": s, "l": [1, None, True]}
 
 
+@given(a=arrays.filter(lambda a: a.ndim >= 2))
+def test_codec_round_trips_non_contiguous_views(a: np.ndarray) -> None:
+    for view in (a.T, a[::2], a[:, ::-1]):
+        out = codec.loads(codec.dumps({"v": view}))["v"]
+        assert out.shape == view.shape
+        np.testing.assert_array_equal(out, view)
+
+
+def test_codec_encodes_the_same_bytes_twice() -> None:
+    state = {"a": np.arange(6.0).reshape(2, 3), "b": np.zeros((2, 3)), "c": np.ones(4, dtype=np.int64)}
+    assert codec.dumps(state) == codec.dumps(state)
+
+
 @pytest.mark.parametrize("blob", [b"", b"garbage", b"\x80\x04pickle"])
 def test_codec_refuses_foreign_bytes(blob: bytes) -> None:
     with pytest.raises(ValueError, match="header"):
