@@ -25,6 +25,7 @@ from models.attitude import align_at_rest
 from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
 from models.detectors import first_still_run
+from models.heading_deviation import HeadingDeviationKF, wrap_angle
 from models.rotations import dcm_to_quat
 from models.strapdown import integrate
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
@@ -44,6 +45,21 @@ _REST_GYR = 1.0  # |w| below this [rad/s] ...
 _REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
 _REST_S = 0.04  # ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start
 _LEAD_MAX_S = 2.0  # a segment that starts on its own from a still foot integrates back to it over at most this [s]
+_HEADING_SIGMAS = 3.0  # a stored heading deviation fits a stride within this many sigma (as 004 Table 3's 3 sigma_d)
+
+
+def _heading_test(z: float, kf: HeadingDeviationKF) -> dict[str, Any]:
+    """Does a stride's ``z = gamma - psi`` [rad] (004 eq. 19-20) fit the deviation ``kf`` held before it?
+
+    sigma is KF II's innovation standard deviation: the variance of the deviation estimate plus the
+    per-stride spread of gamma - psi (its observation noise R^II), so a stored deviation is held to what one
+    stride can tell, as 004 Table 3 holds the step model to 3 sigma_d. A re-mounted sensor (turned around,
+    other shoe) moves gamma - psi by the change of the mount, far beyond it.
+    """
+    sigma = math.sqrt(kf.variance + kf.r_var)
+    nu = wrap_angle(z - kf.deviation)
+    return {"passed": abs(nu) <= _HEADING_SIGMAS * sigma, "gamma_psi_rad": float(z), "deviation_rad": kf.deviation,
+            "sigma_rad": sigma}
 
 
 @dataclass
@@ -271,6 +287,8 @@ class Engine:
             for b, cal in prof.behaviours.items():
                 if cal.calibrated:
                     self._gait.load_calibration(b, cal.step_model, cal.heading_deviation_rad, cal.heading_deviation_var)
+            # only a deviation KF II took from the profile is there to be tested
+            self._sched.deviation_pending = {b for b in self._sched.deviation_pending if self._gait.kf2[b].n_updates > 0}
         # ZUPT-KF segments: ingest side
         self._last_gyr_s = -math.inf
         self._gyro_missing = False  # accelerometer rows without gyroscope since the last gyroscope sample
@@ -653,12 +671,25 @@ class Engine:
             if self._clean_run >= _ASSIST_RELEASE_STEPS:
                 events += sched.release_heading_assist(t_ns)
                 self._clean_run = 0
-        if sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest:
+        exam = sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest
+        if exam:
             b = label if label in ("walk", "run") else "walk"
             d_sl, _ = gait.step_length(e, b)
             passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
-            events += sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns)
-        gait.learn(st, e, label)
+        # a deviation from the profile, not yet confirmed in this session: tested before KF II takes the stride
+        pending = sorted(sched.deviation_pending)
+        tested = label in pending and label == sched.behaviour
+        prior = HeadingDeviationKF.from_state(gait.kf2[label].get_state()) if tested else None
+        z = gait.learn(st, e, label)
+        heading = None if prior is None or z is None else _heading_test(z, prior)
+        verdict: list[Event] = []
+        if exam:
+            verdict = sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns, heading)
+        elif heading is not None:
+            verdict = sched.on_heading_check(heading, st.t_end_s, t_ns)
+        events += verdict
+        if any(ev.kind == "examination_failed" and ev.detail.get("cause") == "heading_deviation" for ev in verdict):
+            gait.forget_mount(pending)  # the sensor was re-mounted: its stored deviations and compass are stale
         sched.compass_ready = gait.heading_source()
         sched.nav_ready = gait.bootstrapped()
         if sched.ready_for_pdr() and gait.ready(label):

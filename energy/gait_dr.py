@@ -229,7 +229,7 @@ class GaitPipeline:
         self.queue = [q for q in self.queue if q.t_s > t_start_s + PAIR_TOL_S]
         return min(near, key=lambda q: abs(q.t_s - t_start_s)) if near else None
 
-    def learn(self, st: Stance, e: StepEvent, behaviour: str) -> None:
+    def learn(self, st: Stance, e: StepEvent, behaviour: str) -> float | None:
         """Calibration pair: ZUPT-KF stride ``st`` and its step event ``e`` (004 eq. 15, 19, 20, Table 3).
 
         KF II skips strides over which the ZUPT-KF heading turned by more than 10 deg (eq. 20's chord mixes
@@ -241,6 +241,9 @@ class GaitPipeline:
         filter's convergence (std < 1 deg), 1 then moves by more than 2 deg (exp23, 3.0 deg; 3.2 against the
         heel-strike heading), whose legs themselves differ (see that test); without the turn gate 12 converge
         and 2 move by more (exp23 2.4, exp37 5.6 deg).
+
+        Returns the KF II observation ``gamma - psi`` [rad] of the stride (None when it gave none), so that the
+        engine can test a stored deviation against it (:meth:`energy.engine.Engine`, sensor re-mounted).
         """
         m = self.mag_at(e)
         if m is not None:
@@ -257,7 +260,7 @@ class GaitPipeline:
                 self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m))
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
-            return
+            return None
         self.cal.add(behaviour, _features(e), st.step_length)
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
         generic = self._generic.predict(behaviour, _features(e))[0]
@@ -268,9 +271,11 @@ class GaitPipeline:
         if math.isfinite(prev[0]) and st.t_start_s - prev[0] <= 2.0 * e.period_s:
             turned = wrap_angle(psi - prev[1])
             if abs(turned) > _KF2_TURN_RAD:
-                return  # a turning stride: eq. (20) mixes two walking directions
+                return None  # a turning stride: eq. (20) mixes two walking directions
             psi -= 0.5 * turned  # the heading half-way through the swing, whose chord eq. (20) measures
-        self.kf2[behaviour].update(wrap_angle(gamma - psi), dt=e.period_s)  # 004 eq. (19)
+        z = wrap_angle(gamma - psi)
+        self.kf2[behaviour].update(z, dt=e.period_s)  # 004 eq. (19)
+        return z
 
     def _anchor_compass(self, heading: float, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
         """Turn a compass calibration loaded from a profile into this session's navigation frame.
@@ -348,6 +353,30 @@ class GaitPipeline:
         if not self.cal.calibrated(b) and self.recent_d[b]:
             return float(np.median(self.recent_d[b])), float("nan")
         return self.cal.predict(b, _features(e))
+
+    def deviation(self, behaviour: str) -> float:
+        """Heading deviation [rad] Gait-DR applies to a behaviour's steps (004 eq. 16).
+
+        The deviation is mostly the sensor-to-foot mount, plus gait: a behaviour without an estimate of its own
+        (no KF II update, e.g. ``run`` steps in a walk before a run was calibrated) borrows the one with the most
+        updates instead of 0 (gdin leave-one-out exp35: run-labelled steps placed 180 deg off).
+        """
+        kf = self.kf2[_behaviour(behaviour)]
+        if kf.n_updates == 0:
+            kf = max(self.kf2.values(), key=lambda k: k.n_updates)
+        return kf.deviation
+
+    def forget_mount(self, behaviours: list[str]) -> None:
+        """The sensor was re-mounted (a stored heading deviation failed its test): drop the KF II estimates of
+        ``behaviours`` (loaded from the profile) and the compass calibration (the hard/soft iron includes the
+        shoe the sensor sat on); both are learned again from this session's ZUPT-KF strides."""
+        for b in behaviours:
+            self.kf2[_behaviour(b)] = HeadingDeviationKF()
+        self.mag = MagCalibrator()
+        self._mag_fit_n = -1
+        self.mag_anchored = True
+        self._anchor_offsets = []
+        self.follower.forget()
 
     def bootstrapped(self) -> bool:
         """Gait-DR can place a step: some behaviour has a heading deviation (KF II) and a stride estimate."""
@@ -429,7 +458,7 @@ class GaitPipeline:
                     # An untrusted one's change is mostly its own scatter being averaged (gdin --mode pdr with
                     # the half-way heading there: stride median 1.015 -> 1.082 m)
                     direction = before + 0.5 * wrap_angle(self.heading - before)
-            out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.kf2[b].deviation, b), e, source))
+            out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
         return out
 
     def field_clean(self, e: StepEvent) -> bool:

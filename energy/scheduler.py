@@ -2,8 +2,8 @@
 (Table 2), step-length model examination (Table 3) and de-sampling (Section 4.3).
 
 Pure decisions: the engine tells the scheduler what happened (behaviour label, ZUPT-KF distance, calibration
-ready, examination result) and asks it which navigation mode to run and which sensor configuration the device
-must use next. No numerics here.
+ready, examination result, heading-deviation test of a stored calibration) and asks it which navigation mode
+to run and which sensor configuration the device must use next. No numerics here.
 """
 
 from __future__ import annotations
@@ -20,6 +20,9 @@ _MOVING = ("walk", "run")
 BATCH_S = 1.0  # upload period while the ZUPT-KF runs or the navigation is not ready [s]
 LOW_POWER_BATCH_S = 4.0  # upload period with the gyroscope off once Gait-DR can navigate (auto mode) [s]
 EXAM_STRIDES_TO_FAIL = 2  # consecutive examination strides outside 3 sigma_d before re-initialising
+# An examination of a behaviour whose stored heading deviation has not been confirmed in this session goes on
+# (gyroscope on) over strides that observe no gamma - psi (turning strides), up to this many strides in all
+EXAM_MAX_STRIDES = 4
 # Wake-on-motion (SensorConfig.gyro_wake_on_motion), the device's activity/inactivity function (LSM9DS1 ACT_THS /
 # ACT_DUR). Threshold: per axis, 0.5 m/s^2 (51 mg): >= 10x the still foot's accelerometer noise (per-axis std
 # 0.01-0.04 m/s^2 over the first 0.6 s of the gdin recordings at 200 Hz, 0.03 on the synthetic foot), far below
@@ -39,6 +42,10 @@ class Scheduler:
         Rates, L0, T0.
     profile : Profile
         Per-user calibrations; a calibrated behaviour resumes in Gait-DR after one examination.
+
+    A stored calibration is examined for step length (004 Table 3) and, until one stride has confirmed it in
+    this session, for its heading deviation: a sensor re-mounted since the profile was made (other shoe,
+    turned around) keeps the step lengths but turns every Gait-DR stride by the change of the mount.
     """
 
     def __init__(self, mode: str, config: EngineConfig, profile: Profile) -> None:
@@ -60,6 +67,12 @@ class Scheduler:
         self.zupt_aligned = False  # the ZUPT-KF has levelled on a still foot once in this session
         self.step_t_s = 0.0  # time of the latest Gait-DR step [s]
         self.exam_misses = 0  # strides of the running examination outside 3 sigma_d so far
+        self.exam_strides = 0  # strides of the running examination so far
+        # behaviours whose heading deviation comes from the profile and no ZUPT-KF stride of this session has
+        # confirmed yet (mode auto/pdr: Gait-DR applies it)
+        self.deviation_pending: set[str] = (
+            {b for b, c in profile.behaviours.items() if c.calibrated} if mode != "zupt" else set())
+        self.heading_misses = 0  # consecutive heading-deviation misses outside an examination
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -102,6 +115,7 @@ class Scheduler:
         """The engine fitted the step model and KF II after L0: switch to Gait-DR. ``detail`` joins the event."""
         info = {"behaviour": self.calibrating or self.behaviour, "l_zupt_m": self.l_zupt_m, **(detail or {})}
         self.failed.discard(info["behaviour"])
+        self.deviation_pending.discard(info["behaviour"])  # learned in this session
         events = [Event(t_ns, "calibration_done", info)]
         self.progress_m.pop(info["behaviour"], None)
         self.calibrating = None
@@ -147,29 +161,77 @@ class Scheduler:
             return [Event(t_ns, "examination_skipped", {"reason": "no gyroscope stride arrived", "behaviour": self.behaviour})]
         return []
 
-    def on_exam_result(self, passed: bool, d_kf: float, d_sl: float, t_s: float, t_ns: int) -> list[Event]:
+    def on_exam_result(self, passed: bool, d_kf: float, d_sl: float, t_s: float, t_ns: int,
+                       heading: dict[str, Any] | None = None) -> list[Event]:
         """004 Table 3: |d_KF - d_SL| <= 3 sigma_d keeps Gait-DR, otherwise re-initialise.
 
         Unlike 004 (one stride), a miss is confirmed on the next stride before the L0 re-initialisation: the
         gyroscope is on anyway, one more stride costs about a second of it, a re-initialisation 20-30 s, and
         single strides miss often where a walk starts or follows a run (d_SL 1.61 m vs d_KF 1.35 m seen on the
         synthetic mixed day).
+
+        ``heading`` is the stride's heading-deviation test (:meth:`energy.engine.Engine`; keys ``passed``,
+        ``gamma_psi_rad``, ``deviation_rad``, ``sigma_rad``), None when the stride observed no gamma - psi or
+        the behaviour's deviation is not tested. A stride fits when both tests pass. While the stored deviation
+        is unconfirmed, a stride without a heading observation decides nothing (up to ``EXAM_MAX_STRIDES``).
         """
-        detail = {"d_kf_m": d_kf, "d_sl_m": d_sl, "behaviour": self.behaviour}
-        if not passed and self.exam_misses + 1 < EXAM_STRIDES_TO_FAIL:
+        b = self.behaviour
+        detail: dict[str, Any] = {"d_kf_m": d_kf, "d_sl_m": d_sl, "behaviour": b}
+        if heading is not None:
+            detail["heading"] = dict(heading)
+            if heading["passed"]:
+                self.deviation_pending.discard(b)
+        self.exam_strides += 1
+        heading_ok = heading is None or bool(heading["passed"])
+        if (passed and heading is None and b in self.deviation_pending and self.exam_misses == 0
+                and self.exam_strides < EXAM_MAX_STRIDES):
+            return [Event(t_ns, "examination_repeated", {**detail, "reason": "heading deviation not observed"})]
+        ok = passed and heading_ok
+        if not ok and self.exam_misses + 1 < EXAM_STRIDES_TO_FAIL:
             self.exam_misses += 1
             return [Event(t_ns, "examination_repeated", detail)]  # still active: the next stride decides
         self.exam_active = False
         self.exam_misses = 0
         self.last_exam_s = t_s
-        if passed:
+        if ok:
             return [Event(t_ns, "examination_passed", detail)]
-        events = [Event(t_ns, "examination_failed", detail)]
-        self.failed.add(self.behaviour)  # not resumed in this session until re-calibrated
-        self.progress_m.pop(self.behaviour, None)  # re-initialise from scratch
+        return self._fail(b, t_ns, detail, "heading_deviation" if not heading_ok else "step_length")
+
+    def on_heading_check(self, heading: dict[str, Any], t_s: float, t_ns: int) -> list[Event]:
+        """A ZUPT-KF stride outside an examination tested the unconfirmed stored deviation of the current
+        behaviour (an initialisation, a heading assist): confirmed by one fit, failed by
+        ``EXAM_STRIDES_TO_FAIL`` consecutive misses like an examination (the sensor was re-mounted)."""
+        b = self.behaviour
+        if b not in self.deviation_pending:
+            return []
+        if heading["passed"]:
+            self.deviation_pending.discard(b)
+            self.heading_misses = 0
+            return []
+        self.heading_misses += 1
+        if self.heading_misses < EXAM_STRIDES_TO_FAIL:
+            return []
+        self.heading_misses = 0
+        self.last_exam_s = t_s
+        return self._fail(b, t_ns, {"behaviour": b, "heading": dict(heading)}, "heading_deviation")
+
+    def _fail(self, behaviour: str, t_ns: int, detail: dict[str, Any], cause: str) -> list[Event]:
+        """A stored or learned calibration no longer fits: re-initialise ``behaviour`` from scratch.
+
+        ``cause`` ``heading_deviation`` means the sensor was re-mounted: every deviation still unconfirmed
+        from the profile is as stale as the failed one (the engine drops them and the compass calibration).
+        """
+        reason = ("heading deviation no longer fits (sensor re-mounted)" if cause == "heading_deviation"
+                  else "step-length model no longer fits")
+        events = [Event(t_ns, "examination_failed", {**detail, "cause": cause, "reason": reason})]
+        self.failed.add(behaviour)  # not resumed in this session until re-calibrated
+        if cause == "heading_deviation":
+            self.deviation_pending.clear()
+        self.progress_m.pop(behaviour, None)  # re-initialise from scratch
         self.calibrating, self.l_zupt_m = None, 0.0
-        self._calibrate(self.behaviour)
-        events += self._switch("zupt", t_ns, reason="step-length model no longer fits")
+        self.exam_active = False
+        self._calibrate(behaviour)
+        events += self._switch("zupt", t_ns, reason=reason)
         return events
 
     # ------------------------------------------------------------------ outputs
@@ -178,7 +240,8 @@ class Scheduler:
 
         A returning user standing at the start of a session needs the gyroscope only until the ZUPT-KF has
         levelled on the still foot (that stance becomes the origin and Gait-DR's starting point); the profile's
-        calibration places the first steps. A new user needs it until the ZUPT-KF has walked a few strides:
+        calibration places the first steps once its heading deviation is confirmed in the session (until then
+        the gyroscope wakes on the first motion: :meth:`_gait_dr_can_start`). A new user needs it until the ZUPT-KF has walked a few strides:
         nothing else could place the first steps (with the gyroscope simply asleep they were lost: on gdin the
         median stride error rose from 0.9 to 17 m). Standing, such a gyroscope is left to the device, which
         turns it on by itself on motion (:meth:`wake_on_motion`; the configuration then says ``gyro_on``
@@ -203,7 +266,8 @@ class Scheduler:
 
         Applies once the ZUPT-KF has levelled on the still foot in this session (its attitude is what a
         segment that starts on its own restarts from, see :meth:`energy.engine.Engine`): a new user's first
-        stand, and stands during an initialisation or an examination. The host would hear "walking" only
+        stand, a returning user's first stand on a stored heading deviation not yet confirmed, and stands during
+        an initialisation or an examination. The host would hear "walking" only
         after its next upload and a recognition delay (with the gyroscope simply off through the first stand
         the first strides on gdin were lost: median stride error 0.9 -> 17 m); the device hears it at the
         first accelerometer sample past the threshold and delivers after the gyroscope's turn-on time.
@@ -213,8 +277,15 @@ class Scheduler:
     def _gait_dr_can_start(self) -> bool:
         """Gait-DR can place the next steps: the navigation is ready, or (a returning user at a session start)
         the ZUPT-KF has aligned, its first stance will be Gait-DR's starting point, and the profile holds a
-        calibration to place the first steps with."""
-        return self.nav_ready or (self.zupt_aligned and any(self._resumable(b) for b in _MOVING))
+        calibration to place the first steps with whose heading deviation has been confirmed in this session.
+
+        A stored deviation is unconfirmed at a session start: the first strides are then the ZUPT-KF's (the
+        device wakes the gyroscope on the first motion, :meth:`wake_on_motion`) and examine it. Placed by
+        Gait-DR until the examination's verdict, they kept the error of a re-mounted sensor's stored deviation
+        (gdin leave-one-out exp41: one stride placed 180 deg off, stride error 16.7 m after a failed test).
+        """
+        return self.nav_ready or (self.zupt_aligned and any(self._resumable(b) and b not in self.deviation_pending
+                                                            for b in _MOVING))
 
     def idle(self) -> bool:
         """Standing with the gyroscope off (auto mode)."""
@@ -275,6 +346,7 @@ class Scheduler:
     def _start_exam(self, t_s: float, t_ns: int, reason: str) -> list[Event]:
         self.exam_active = True
         self.exam_misses = 0
+        self.exam_strides = 0
         self.exam_started_s = t_s
         return [Event(t_ns, "examination_started", {"reason": reason, "behaviour": self.behaviour})]
 
@@ -296,6 +368,9 @@ class Scheduler:
             "zupt_aligned": self.zupt_aligned,
             "step_t_s": self.step_t_s,
             "exam_misses": self.exam_misses,
+            "exam_strides": self.exam_strides,
+            "deviation_pending": sorted(self.deviation_pending),
+            "heading_misses": self.heading_misses,
             "failed": sorted(self.failed),
             "progress_m": dict(self.progress_m),
         }
@@ -309,6 +384,9 @@ class Scheduler:
         obj.zupt_aligned = bool(d.get("zupt_aligned", False))  # absent in states stored before it existed
         obj.step_t_s = float(d.get("step_t_s", 0.0))
         obj.exam_misses = int(d.get("exam_misses", 0))
+        obj.exam_strides = int(d.get("exam_strides", 0))
+        obj.deviation_pending = {str(b) for b in d.get("deviation_pending", [])}  # older states: none to test
+        obj.heading_misses = int(d.get("heading_misses", 0))
         obj.failed = set(d["failed"])
         obj.progress_m = {str(k): float(v) for k, v in d["progress_m"].items()}
         return obj

@@ -9,6 +9,9 @@ from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import Scheduler
 
 CFG = EngineConfig(l0_m=20.0, t0_s=30.0)
+# a stride's heading-deviation test (energy.engine._heading_test) that fits / misses the stored deviation
+FITS = {"passed": True, "gamma_psi_rad": 3.10, "deviation_rad": 3.12, "sigma_rad": 0.07}
+MISSES = {"passed": False, "gamma_psi_rad": -0.27, "deviation_rad": 3.12, "sigma_rad": 0.07}
 
 
 def walk_to(s: Scheduler, metres: float, step: float = 1.4) -> None:
@@ -222,7 +225,7 @@ def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() ->
     s.on_behaviour("walk", 2.0, 2)  # calibrated: Gait-DR with a one-stride examination
     assert s.working == "pdr" and s.exam_active
     assert s.sensor_config().gyro_on and s.sensor_config().batch_s == BATCH_S
-    s.on_exam_result(True, 1.3, 1.3, 3.0, 3)
+    s.on_exam_result(True, 1.3, 1.3, 3.0, 3, FITS)
     assert not s.sensor_config().gyro_on and s.sensor_config().batch_s == LOW_POWER_BATCH_S
     for mode in ("zupt", "pdr"):  # the fixed schemes keep 1-s uploads
         f = aligned(mode, CFG, calibrated("walk"))
@@ -233,6 +236,7 @@ def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() ->
 def test_standing_at_session_start_gyro_sleeps_once_aligned_only_for_a_returning_user() -> None:
     for profile, sleeps in ((calibrated("walk"), True), (Profile(), False)):
         s = Scheduler("auto", CFG, profile)
+        s.deviation_pending.clear()  # its stored heading deviation confirmed (see the test below)
         assert s.behaviour == "stand" and s.gyro_wanted()  # the ZUPT-KF must level on the still foot first
         s.zupt_aligned = True
         assert s.gyro_wanted() is not sleeps  # a new user: no model could place the first steps
@@ -253,9 +257,118 @@ def test_short_uploads_again_when_an_examination_falls_due() -> None:
 
     s = aligned("auto", CFG, calibrated("walk"))
     s.on_behaviour("walk", 0.0, 0)
-    s.on_exam_result(True, 1.3, 1.3, 1.0, 1)  # last examination at 1 s
+    s.on_exam_result(True, 1.3, 1.3, 1.0, 1, FITS)  # last examination at 1 s
     s.tick(1.0 + CFG.t0_s - LOW_POWER_BATCH_S - 0.5, 2)
     assert s.sensor_config().batch_s == LOW_POWER_BATCH_S
     s.tick(1.0 + CFG.t0_s - LOW_POWER_BATCH_S + 0.5, 3)  # due within one long upload
     assert not s.sensor_config().gyro_on and s.sensor_config().batch_s == BATCH_S
     assert Scheduler.from_state(s.get_state()).sensor_config() == s.sensor_config()
+
+
+# ---------------------------------------------------------------- stored heading deviation (sensor re-mounted)
+def resumed() -> Scheduler:
+    """A returning user walking off in Gait-DR on a stored walk calibration, its examination running."""
+    s = aligned("auto", CFG, calibrated("walk", "run"))
+    s.on_behaviour("walk", 1.0, 1)
+    assert s.working == "pdr" and s.exam_active and s.deviation_pending == {"walk", "run"}
+    return s
+
+
+def test_a_stored_deviation_that_misses_twice_fails_the_examination_and_re_initialises() -> None:
+    s = resumed()
+    assert [e.kind for e in s.on_exam_result(True, 1.4, 1.41, 2.0, 2, MISSES)] == ["examination_repeated"]
+    assert s.exam_active and s.working == "pdr"
+    events = s.on_exam_result(True, 1.4, 1.41, 3.0, 3, MISSES)  # step length fits, the deviation does not
+    assert [e.kind for e in events] == ["examination_failed", "mode_switch"]
+    assert events[0].detail["cause"] == "heading_deviation" and "re-mounted" in events[0].detail["reason"]
+    assert events[0].detail["heading"] == MISSES
+    assert s.working == "zupt" and s.calibrating == "walk" and s.l_zupt_m == 0.0 and not s.exam_active
+    assert "walk" in s.failed and not s._resumable("walk")
+    assert s.deviation_pending == set()  # every stored deviation belonged to the old mount
+
+
+def test_a_fitting_deviation_confirms_the_profile_once() -> None:
+    s = resumed()
+    events = s.on_exam_result(True, 1.4, 1.41, 2.0, 2, FITS)
+    assert [e.kind for e in events] == ["examination_passed"] and events[0].detail["heading"] == FITS
+    assert s.working == "pdr" and not s.exam_active and s.deviation_pending == {"run"}
+    s.start_exam(40.0, 40)  # later examinations are 004 Table 3's: a stride without a heading observation passes
+    assert [e.kind for e in s.on_exam_result(True, 1.4, 1.41, 41.0, 41)] == ["examination_passed"]
+
+
+def test_a_step_length_miss_fails_whatever_the_heading() -> None:
+    s = resumed()
+    s.on_exam_result(False, 1.4, 1.8, 2.0, 2, FITS)
+    events = s.on_exam_result(False, 1.4, 1.8, 3.0, 3, FITS)
+    assert events[0].kind == "examination_failed" and events[0].detail["cause"] == "step_length"
+    assert events[1].detail["reason"] == "step-length model no longer fits"
+    assert s.deviation_pending == {"run"}  # the deviation itself was confirmed
+
+
+def test_an_unconfirmed_deviation_keeps_the_examination_over_turning_strides() -> None:
+    from energy.scheduler import EXAM_MAX_STRIDES
+
+    s = resumed()
+    for k in range(EXAM_MAX_STRIDES - 1):  # turning strides: no gamma - psi observed
+        events = s.on_exam_result(True, 1.4, 1.41, 2.0 + k, 2 + k)
+        assert [e.kind for e in events] == ["examination_repeated"] and s.exam_active and s.gyro_wanted()
+        assert events[0].detail["reason"] == "heading deviation not observed"
+    assert [e.kind for e in s.on_exam_result(True, 1.4, 1.41, 9.0, 9)] == ["examination_passed"]
+    assert "walk" in s.deviation_pending  # still to be confirmed, at the next ZUPT-KF stride
+
+
+def test_zupt_kf_strides_outside_an_examination_test_the_stored_deviation() -> None:
+    s = resumed()
+    s.on_exam_result(False, 1.4, 1.8, 2.0, 2)
+    s.on_exam_result(False, 1.4, 1.8, 3.0, 3)  # step-length failure: re-initialising walk in the ZUPT-KF
+    assert s.working == "zupt" and "walk" in s.deviation_pending
+    walk_to(s, 7.0)
+    assert s.on_heading_check(MISSES, 4.0, 4) == []  # one miss is confirmed on the next stride
+    r = Scheduler.from_state(s.get_state())
+    for sched in (s, r):
+        events = sched.on_heading_check(MISSES, 5.0, 5)
+        assert [e.kind for e in events] == ["examination_failed"] and events[0].detail["cause"] == "heading_deviation"
+        assert sched.calibrating == "walk" and sched.l_zupt_m == 0.0 and sched.deviation_pending == set()
+    ok = resumed()
+    assert ok.on_heading_check(MISSES, 2.0, 2) == [] and ok.on_heading_check(FITS, 3.0, 3) == []
+    assert ok.deviation_pending == {"run"} and ok.heading_misses == 0
+    assert ok.on_heading_check(MISSES, 4.0, 4) == []  # confirmed: nothing more to test
+
+
+def test_a_new_user_or_a_fresh_calibration_has_no_stored_deviation_to_test() -> None:
+    assert aligned("auto", CFG, Profile()).deviation_pending == set()
+    assert aligned("zupt", CFG, calibrated("walk")).deviation_pending == set()
+    s = resumed()
+    s.on_exam_result(True, 1.4, 1.41, 2.0, 2, MISSES)
+    s.on_exam_result(True, 1.4, 1.41, 3.0, 3, MISSES)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(30.0, 30)
+    assert s.working == "pdr" and "walk" not in s.failed and s.deviation_pending == set()
+
+
+def test_deviation_state_round_trip() -> None:
+    s = resumed()
+    s.on_exam_result(True, 1.4, 1.41, 2.0, 2, MISSES)
+    state = s.get_state()
+    assert state["deviation_pending"] == ["run", "walk"] and state["exam_strides"] == 1 and state["exam_misses"] == 1
+    r = Scheduler.from_state(state)
+    assert r.get_state() == state
+    old = {k: v for k, v in state.items() if k not in ("deviation_pending", "exam_strides", "heading_misses")}
+    assert Scheduler.from_state(old).deviation_pending == set()  # states stored before the test existed
+
+
+def test_a_session_start_on_an_unconfirmed_deviation_leaves_the_first_strides_to_the_zupt_kf() -> None:
+    """Gait-DR would place the first strides on the stored deviation until the examination's verdict: with the
+    gyroscope woken on the first motion they are the ZUPT-KF's, and they examine it."""
+    s = Scheduler("auto", CFG, calibrated("walk"))
+    s.zupt_aligned = True
+    assert s.deviation_pending == {"walk"}
+    assert s.gyro_wanted() and s.wake_on_motion() and not s.idle()
+    cfg = s.sensor_config()
+    assert cfg.gyro_wake_on_motion and not cfg.gyro_on and cfg.acc_rate_hz == CFG.stand_rate_hz
+    assert Scheduler.from_state(s.get_state()).sensor_config() == cfg
+    s.on_behaviour("walk", 5.0, 5)
+    assert s.working == "pdr" and s.exam_active and s.gyro_wanted()
+    s.on_exam_result(True, 1.4, 1.41, 6.0, 6, FITS)
+    s.on_behaviour("stand", 9.0, 9)
+    assert s.idle()  # confirmed: later stands sleep
