@@ -120,12 +120,14 @@ def test_a_re_mounted_session_is_chunk_invariant_and_restores_identically(profil
     b, ev_b = _run(Engine(mode="auto", config=CFG, profile=prof), merged)
     assert b.shape == whole.shape and np.abs(b[:, 1:] - whole[:, 1:]).max() <= 1e-9
     assert [e["kind"] for e in ev_b] == [e["kind"] for e in ev]
-    fail_at = next(e["t_ns"] for e in ev if e["kind"] == "examination_failed")
-    cut = next(i for i, p in enumerate(sent) if p.t_start_ns > fail_at) - 1  # restored with a miss pending
-    for k in (max(cut - 1, 1), cut, cut + 1):
+    ups = [e0.feed(p) for e0 in [Engine(mode="auto", config=CFG, profile=prof)] for p in sent]
+    missed = next(i for i, u in enumerate(ups) if any(e.kind == "examination_repeated" for e in u.events))
+    for k in (missed, missed + 1, missed + 2):  # before the miss, with the miss pending, after the verdict
         eng = Engine(mode="auto", config=CFG, profile=prof)
         first = [eng.feed(p) for p in sent[:k]]
         back = Engine.from_bytes(eng.to_bytes())
+        if k == missed + 1:
+            assert back._sched.exam_misses == 1 and back._sched.deviation_pending == {"walk", "run"} & set(prof["behaviours"])
         rest = [back.feed(p) for p in sent[k:]] + [back.flush()]
         got = np.array([[p.t_ns, p.north, p.east, p.down] for u in first + rest for p in u.positions])
         assert got.shape == whole.shape and np.abs(got[:, 1:] - whole[:, 1:]).max() <= 1e-9
