@@ -288,7 +288,8 @@ class Engine:
                 if cal.calibrated:
                     self._gait.load_calibration(b, cal.step_model, cal.heading_deviation_rad, cal.heading_deviation_var)
             # only a deviation KF II took from the profile is there to be tested
-            self._sched.deviation_pending = {b for b in self._sched.deviation_pending if self._gait.kf2[b].n_updates > 0}
+            pending = self._sched.deviation_pending
+            self._sched.deviation_pending = {b for b in pending if self._gait.kf2[b].n_updates > 0}
         # ZUPT-KF segments: ingest side
         self._last_gyr_s = -math.inf
         self._gyro_missing = False  # accelerometer rows without gyroscope since the last gyroscope sample

@@ -241,9 +241,9 @@ class Scheduler:
         A returning user standing at the start of a session needs the gyroscope only until the ZUPT-KF has
         levelled on the still foot (that stance becomes the origin and Gait-DR's starting point); the profile's
         calibration places the first steps once its heading deviation is confirmed in the session (until then
-        the gyroscope wakes on the first motion: :meth:`_gait_dr_can_start`). A new user needs it until the ZUPT-KF has walked a few strides:
-        nothing else could place the first steps (with the gyroscope simply asleep they were lost: on gdin the
-        median stride error rose from 0.9 to 17 m). Standing, such a gyroscope is left to the device, which
+        the gyroscope wakes on the first motion: :meth:`_gait_dr_can_start`). A new user needs it until the
+        ZUPT-KF has walked a few strides: nothing else could place the first steps (with the gyroscope simply
+        asleep they were lost: on gdin the median stride error rose from 0.9 to 17 m). Standing, such a gyroscope is left to the device, which
         turns it on by itself on motion (:meth:`wake_on_motion`; the configuration then says ``gyro_on``
         False with ``gyro_wake_on_motion``).
 
