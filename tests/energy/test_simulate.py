@@ -156,8 +156,8 @@ def test_default_byte_model_counts_every_stream_sample():
 @pytest.mark.slow
 def test_returning_user_resumes_from_the_profile():
     """A profile learned on an earlier day (another seed): the day starts in Gait-DR, not with an L0
-    initialisation, and the gyroscope sleeps through the first stand once the ZUPT-KF has levelled (a new
-    user's until the device sees motion)."""
+    initialisation; through the first stand, once the ZUPT-KF has levelled, both users' gyroscopes are left to
+    the device, which wakes them on motion."""
     pytest.importorskip("energy.engine")
     from clients.synth import synthesize
     from energy.power import load_profile
@@ -175,8 +175,8 @@ def test_returning_user_resumes_from_the_profile():
         assert ("profile" in switches[0]["reason"]) is returning
         stand = [c for t, c in run.replay.configs if 5e9 <= t - t0 < 9e9]  # levelled by 5 s
         assert stand and not any(c.gyro_on for c in stand)
-        # a new user's gyroscope is left to the device, which wakes it on motion (nothing else could place the
-        # first steps); a returning user's Gait-DR places them from the profile
-        assert all(c.gyro_wake_on_motion is not returning for c in stand)
+        # a new user's first steps need the ZUPT-KF (nothing else could place them); a returning user's first
+        # ZUPT-KF strides examine the stored heading deviation (a re-mounted sensor fails it)
+        assert all(c.gyro_wake_on_motion for c in stand)
     new, ret = runs
     assert abs(len(ret.replay.positions) - len(new.replay.positions)) <= 2  # no steps lost at the start
