@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from numba import njit
 
 from energy import codec
 from energy.config import EngineConfig
@@ -130,6 +131,23 @@ class Trace:
         return self._cat(self._gyro, np.zeros(0, dtype=bool))
 
 
+@njit(cache=True)
+def _zoh_pair(ts: np.ndarray, vs: np.ndarray, t_acc: np.ndarray, max_age_ns: int) -> tuple[np.ndarray, int]:
+    """Causal zero-order hold of ``(ts, vs)`` at the increasing times ``t_acc`` [ns] in one merge pass: rows
+    with no sample at most ``max_age_ns`` old are NaN. Also returns the index of the last sample at or before
+    ``t_acc[-1]`` (0 when none). Same as ``searchsorted(ts, t_acc, "right") - 1`` per row."""
+    out = np.full((t_acc.size, 3), np.nan)
+    j = -1
+    for i in range(t_acc.size):
+        while j + 1 < ts.size and ts[j + 1] <= t_acc[i]:
+            j += 1
+        if j >= 0 and t_acc[i] - ts[j] <= max_age_ns:
+            out[i, 0] = vs[j, 0]
+            out[i, 1] = vs[j, 1]
+            out[i, 2] = vs[j, 2]
+    return out, max(j, 0)
+
+
 class _StreamPairing:
     """Pairs gyroscope/magnetometer samples with accelerometer samples by causal zero-order hold.
 
@@ -155,15 +173,10 @@ class _StreamPairing:
             self.v = np.concatenate([self.v, v])
 
     def pair(self, t_acc: np.ndarray) -> np.ndarray:
-        out = np.full((len(t_acc), 3), np.nan)
         if len(self.t) == 0 or len(t_acc) == 0:
-            return out
-        idx = np.searchsorted(self.t, t_acc, side="right") - 1
-        ok = idx >= 0
-        ok[ok] &= (t_acc[ok] - self.t[idx[ok]]) <= self.max_age_ns
-        out[ok] = self.v[idx[ok]]
+            return np.full((len(t_acc), 3), np.nan)
+        out, last = _zoh_pair(self.t, self.v, t_acc, self.max_age_ns)
         # keep the last sample at or before the newest accelerometer sample, and everything after it
-        last = max(int(np.searchsorted(self.t, t_acc[-1], side="right")) - 1, 0)
         self.t, self.v = self.t[last:], self.v[last:]
         return out
 
