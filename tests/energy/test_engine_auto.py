@@ -11,6 +11,7 @@ from energy.device import replay
 from energy.engine import Engine
 from energy.gait_dr import SEGMENTER_LATENCY_S, GaitPipeline
 from models.batch import SensorBatch
+from tests.energy.replayed import replayed_batches
 
 CFG = EngineConfig(l0_m=15.0, t0_s=20.0)
 
@@ -140,24 +141,9 @@ def test_returning_user_follows_the_truth(readme_profile, seed) -> None:
     assert err[-1] < 0.05 * path, (err[-1], path)
 
 
-def _replayed_batches(rec, config: EngineConfig) -> list[SensorBatch]:
-    """What a device obeying the engine actually sent (gyro gaps, rate changes)."""
-    sent: list[SensorBatch] = []
-    eng = Engine(mode="auto", config=config)
-    orig = eng.feed
-
-    def feed(batch: SensorBatch):
-        sent.append(batch)
-        return orig(batch)
-
-    eng.feed = feed  # type: ignore[method-assign]
-    replay(eng, rec.batch, batch_seconds=1.0)
-    return sent
-
-
 @pytest.fixture(scope="module")
 def sent(demo) -> list[SensorBatch]:
-    return _replayed_batches(demo, CFG)
+    return replayed_batches(demo, CFG)
 
 
 def _positions(eng: Engine, pieces: list[SensorBatch]) -> np.ndarray:

@@ -18,6 +18,7 @@ from energy.gait_dr import GaitPipeline
 from models.batch import SensorBatch
 from models.heading_deviation import wrap_angle
 from models.steps import StepEvent
+from tests.energy.replayed import replayed_batches
 
 CFG = EngineConfig(l0_m=15.0, t0_s=20.0)
 
@@ -90,21 +91,6 @@ def test_a_deviation_from_another_mount_fails_the_examination_and_re_initialises
     assert err < 0.1 * path, (err, path)
 
 
-def _sent(rec, prof: dict) -> list[SensorBatch]:
-    """What a device obeying the engine actually sent (gyro gaps, rate changes)."""
-    sent: list[SensorBatch] = []
-    eng = Engine(mode="auto", config=CFG, profile=prof)
-    orig = eng.feed
-
-    def feed(batch: SensorBatch):
-        sent.append(batch)
-        return orig(batch)
-
-    eng.feed = feed  # type: ignore[method-assign]
-    replay(eng, rec.batch, batch_seconds=1.0)
-    return sent
-
-
 def _run(eng: Engine, pieces: list[SensorBatch]) -> tuple[np.ndarray, list]:
     ups = [eng.feed(p) for p in pieces] + [eng.flush()]
     pos = np.array([[p.t_ns, p.north, p.east, p.down] for u in ups for p in u.positions])
@@ -113,7 +99,7 @@ def _run(eng: Engine, pieces: list[SensorBatch]) -> tuple[np.ndarray, list]:
 
 def test_a_re_mounted_session_is_chunk_invariant_and_restores_identically(profile, second) -> None:
     prof = turned(profile, 180.0)
-    sent = _sent(second, prof)
+    sent = replayed_batches(second, CFG, prof)
     whole, ev = _run(Engine(mode="auto", config=CFG, profile=prof), sent)
     assert any(e["kind"] == "examination_failed" and e["detail"]["cause"] == "heading_deviation" for e in ev)
     merged = [SensorBatch.concat(sent[i : i + 3]) for i in range(0, len(sent), 3)]
