@@ -161,9 +161,12 @@ class GaitPipeline:
         self.cal = StepLengthCalibrator()
         self._generic = StepLengthCalibrator(self.cal.model)  # the generic prior model, never fitted
         self.kf2 = {b: HeadingDeviationKF() for b in _BEHAVIOURS}
-        self.mag = MagCalibrator()
+        self.mag = MagCalibrator()  # the compass in use: this session's own fit, or one loaded from a profile
         self.mag_anchored = True  # compass in this session's frame (False: loaded from a profile, not re-anchored yet)
         self._anchor_offsets: list[float] = []  # this session's heading - loaded compass at clean stances [rad]
+        self.own_mag: MagCalibrator | None = None  # this session's own fit while a loaded compass is in use
+        self.mag_placed = True  # gate reference checked against this place's field (False: loaded, not yet)
+        self._place: list[tuple[float, float]] = []  # (|m| uT, dip rad) of this session's stances, loaded compass
         self.follower = CompassFollower()
         self.dr: GaitDeadReckoner | None = None
         self.queue: list[StepEvent] = []
@@ -259,10 +262,17 @@ class GaitPipeline:
         m = self.mag_at(e)
         if m is not None:
             acc_st = np.asarray(e.acc_stance)
+            if self.mag.ready and not self.mag_placed:
+                self._check_place(acc_st, m)
             clean = self.mag.ready and not self.mag.disturbed(acc_st, m)
             if self.mag.ready and not self.mag_anchored and clean:
                 self._anchor_compass(float(st.heading), acc_st, m)
-            if clean or not self.mag.trusted:
+            if self.own_mag is not None:
+                # a loaded compass is not refitted with this session's stances (its stances' headings are in the
+                # frame of the session that fitted them, and its field may be another place's): they go to this
+                # session's own fit, which supersedes it once ready (_fit_compass)
+                self.own_mag.add(acc_st, m, float(st.heading))
+            elif clean or not self.mag.trusted:
                 # once the compass is trusted, a stance whose field fails the disturbance test is not the Earth's
                 # field: it would pull m_n and the hard iron (and the compass's agreement measure) towards the
                 # steel. An untrusted calibration (indoors) cannot tell; it keeps averaging every stance.
@@ -309,6 +319,32 @@ class GaitPipeline:
             self.mag_anchored = True
             self._anchor_offsets = []
 
+    def _check_place(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
+        """Test a loaded compass's field against this place's: the median magnitude [uT] and dip [rad] of its
+        calibrated field over this session's first ``_ANCHOR_STANCES`` stances. When that median fails the
+        loaded compass's own disturbance gate, the compass was fitted where the field differs (another
+        building; on gdin a profile session's compass fitted in 84 stances): its gate is moved to this place's
+        field (:meth:`~models.compass.MagCalibrator.relocate`) so that the stances here can re-anchor it, rather
+        than every stance counting as disturbed and the heading being held for the whole session."""
+        self._place.append(self.mag.field_shape(acc_stance, mag_stance))
+        if len(self._place) >= _ANCHOR_STANCES:
+            a = np.asarray(self._place)
+            norm, dip = float(np.median(a[:, 0])), float(np.median(a[:, 1]))
+            if self.mag.shape_disturbed(norm, dip):
+                self.mag.relocate(norm, dip)
+            self.mag_placed = True
+            self._place = []
+
+    def _adopt_own(self) -> None:
+        """This session's own compass fit is ready: it supersedes the loaded one (same frame once anchored, and
+        this place's field and this mount's hard iron)."""
+        assert self.own_mag is not None
+        self.mag, self.own_mag = self.own_mag, None
+        self.mag_anchored, self._anchor_offsets = True, []
+        self.mag_placed, self._place = True, []
+        self.follower.forget()  # the compass changed: no stance-to-stance change across the two
+        self.follower.clean_run = 0  # nor a clean run counted by the other calibration's gate
+
     def ready(self, behaviour: str) -> bool:
         """Enough calibration steps, and a calibrated compass when a magnetometer is there.
 
@@ -329,10 +365,13 @@ class GaitPipeline:
         A fit costs time linear in the stances, so refitting at every stance would cost quadratic time over a
         session; growth by a tenth keeps the total linear.
         """
-        n = self.mag.n_stances
+        cal = self.mag if self.own_mag is None else self.own_mag
+        n = cal.n_stances
         if n >= self._mag_fit_n + max(1, n // 10):
-            self.mag.fit()
+            cal.fit()
             self._mag_fit_n = n
+        if self.own_mag is not None and self.own_mag.ready:
+            self._adopt_own()
         return self.mag.ready
 
     def heading_source(self) -> bool:
@@ -383,10 +422,10 @@ class GaitPipeline:
         shoe the sensor sat on); both are learned again from this session's ZUPT-KF strides."""
         for b in behaviours:
             self.kf2[_behaviour(b)] = HeadingDeviationKF()
-        self.mag = MagCalibrator()
+        self.mag, self.own_mag = MagCalibrator(), None
         self._mag_fit_n = -1
-        self.mag_anchored = True
-        self._anchor_offsets = []
+        self.mag_anchored, self._anchor_offsets = True, []
+        self.mag_placed, self._place = True, []
         self.follower.forget()
 
     def bootstrapped(self) -> bool:
@@ -409,9 +448,14 @@ class GaitPipeline:
                 self.cal.refit_stale()  # a profile fitted with other regressors than this session's
         compass = step_model.get("compass")
         if isinstance(compass, dict) and not self.mag.ready:
-            self.mag = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
-            self._mag_fit_n = self.mag.n_stances
-            self.mag_anchored = not self.mag.ready  # its field azimuth is in the earlier session's frame
+            loaded = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
+            if loaded.ready:
+                # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
+                # frame (its field azimuth is in the earlier session's) and its gate checked against this place
+                self.own_mag = self.mag if self.own_mag is None else self.own_mag
+                self.mag = loaded
+                self.mag_anchored = self.mag_placed = False
+                self._anchor_offsets, self._place = [], []
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
             kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])
@@ -449,6 +493,8 @@ class GaitPipeline:
             acc_st = np.asarray(e.acc_stance)
             source = "none"
             if m is not None and self.mag.ready:
+                if not self.mag_placed:
+                    self._check_place(acc_st, m)
                 clean = not self.mag.disturbed(acc_st, m)
                 if not self.mag_anchored and clean:
                     self._anchor_compass(self.heading, acc_st, m)
@@ -497,6 +543,8 @@ class GaitPipeline:
             "prev_stance": list(self._prev_stance),
             "mag_anchored": self.mag_anchored, "anchor_offsets": list(self._anchor_offsets),
             "follower": self.follower.get_state(),
+            "own_mag": None if self.own_mag is None else self.own_mag.get_state(),
+            "mag_placed": self.mag_placed, "place": [list(p) for p in self._place],
         }
 
     @classmethod
@@ -525,4 +573,8 @@ class GaitPipeline:
         obj._anchor_offsets = [float(x) for x in d.get("anchor_offsets", [])]
         if "follower" in d:
             obj.follower = CompassFollower.from_state(d["follower"])
+        own = d.get("own_mag")  # states stored before the session's own fit was kept apart: none
+        obj.own_mag = None if own is None else MagCalibrator.from_state(own)
+        obj.mag_placed = bool(d.get("mag_placed", True))
+        obj._place = [(float(p[0]), float(p[1])) for p in d.get("place", [])]
         return obj

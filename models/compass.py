@@ -355,17 +355,32 @@ class MagCalibrator:
         down_dot = -(m[0] * f[0] + m[1] * f[1] + m[2] * f[2]) / nf
         return nm, math.asin(max(-1.0, min(1.0, down_dot / max(nm, 1e-9))))
 
+    def field_reference(self) -> tuple[float, float]:
+        """Magnitude [uT] and dip [rad] (positive down) of m_n: the field the disturbance gate tests against."""
+        mn = self.m_n.tolist()
+        return math.sqrt(mn[0] ** 2 + mn[1] ** 2 + mn[2] ** 2), math.atan2(mn[2], math.hypot(mn[0], mn[1]))
+
+    def shape_disturbed(self, norm: float, dip: float) -> bool:
+        """Magnitude/dip gate of a calibrated field's shape (:meth:`field_shape`: uT, rad) against m_n."""
+        ref, dip_ref = self.field_reference()
+        if abs(norm - ref) > self.mag_tol * ref:  # 002 eq. (4), magnitude
+            return True
+        return abs(dip - dip_ref) > self.dip_tol  # 002 eq. (5), inclination
+
     def disturbed(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> bool:
         """Magnitude/dip gate of the calibrated field against m_n (True = do not trust the compass)."""
         if not self.ready:
             return True
-        nm, dip = self.field_shape(acc_stance, mag_stance)
-        mn = self.m_n.tolist()
-        ref = math.sqrt(mn[0] ** 2 + mn[1] ** 2 + mn[2] ** 2)
-        if abs(nm - ref) > self.mag_tol * ref:  # 002 eq. (4), magnitude
-            return True
-        dip_ref = math.atan2(mn[2], math.hypot(mn[0], mn[1]))
-        return abs(dip - dip_ref) > self.dip_tol  # 002 eq. (5), inclination
+        return self.shape_disturbed(*self.field_shape(acc_stance, mag_stance))
+
+    def relocate(self, norm: float, dip: float) -> None:
+        """Take another place's field as m_n: its magnitude [uT] and dip [rad] replace m_n's, the azimuth (the
+        heading reference) and the sensor's hard/soft iron are kept. A calibration fitted elsewhere (a profile
+        from another building) would otherwise find every stance here disturbed (the gate tests against the
+        field of the place it was fitted in)."""
+        az = math.atan2(float(self.m_n[1]), float(self.m_n[0]))
+        h = norm * math.cos(dip)
+        self.m_n = np.array([h * math.cos(az), h * math.sin(az), norm * math.sin(dip)])
 
     def rotate_frame(self, delta: float) -> None:
         """Express the calibration in a navigation frame turned by ``delta`` [rad] about the vertical

@@ -123,13 +123,14 @@ G = 9.80665
 M_N = np.array([20.0, 2.0, 42.0])  # uT, NED
 
 
-def _field_stance(rng: np.random.Generator, yaw: float,
-                  steel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _field_stance(rng: np.random.Generator, yaw: float, steel: np.ndarray | None = None,
+                  place: np.ndarray = M_N) -> tuple[np.ndarray, np.ndarray]:
+    """Specific force and field [uT] (body) of a stance at heading ``yaw`` [rad] where the field is ``place``."""
     from models.rotations import euler_to_dcm
 
     roll, pitch = rng.normal(scale=0.03, size=2)
     c = euler_to_dcm(np.float64(roll), np.float64(pitch), np.float64(yaw))
-    field = M_N if steel is None else M_N + steel
+    field = place if steel is None else place + steel
     return c.T @ np.array([0.0, 0.0, -G]), c.T @ field + rng.normal(scale=0.3, size=3)
 
 
@@ -170,6 +171,95 @@ def test_compass_from_a_profile_is_reanchored_to_this_sessions_frame() -> None:
     assert gp.heading == pytest.approx(1.3, abs=math.radians(1.5))
     back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
     assert back.mag_anchored and back.follower.clean_run == gp.follower.clean_run
+
+
+ELSEWHERE = np.array([26.0, 3.0, 46.0])  # uT, NED: another building's field (|m| +15 %, dip +5 deg against M_N)
+
+
+def _learn_one(gp: GaitPipeline, k: int, yaw: float, acc: np.ndarray, mag: np.ndarray) -> None:
+    """A ZUPT-KF stance of this session at heading ``yaw`` [rad] (its frame), then the engine's compass query."""
+    st, e = _pair(k, yaw, yaw)
+    e = dataclasses.replace(e, acc_stance=tuple(acc))
+    gp.stance_mag[e.index] = mag
+    gp.learn(st, e, "walk")
+    gp.heading_source()  # what the engine asks after every stance (refits the compass when due)
+
+
+def test_compass_from_another_place_is_replaced_by_the_sessions_own_fit() -> None:
+    """A profile's compass fitted where the field is M_N, used where it is ELSEWHERE (another session's building):
+    its gate is moved to this place's field after 3 stances (before, every stance here failed it, so it was never
+    re-anchored and Gait-DR held one heading), and once this session's own stances span enough headings their
+    fit replaces it (this place's field, this session's frame, no rows of the other session)."""
+    rng = np.random.default_rng(21)
+    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
+    assert stored.disturbed(*_field_stance(rng, 0.0, place=ELSEWHERE))  # the gate as loaded rejects this place
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
+    assert gp.own_mag is not None and not gp.mag_placed and not gp.mag_anchored
+    yaws = rng.uniform(-math.pi, math.pi, 40)
+    for k, yaw in enumerate(yaws[:6]):
+        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw), place=ELSEWHERE))
+    assert gp.mag is not gp.own_mag and gp.mag_placed and gp.mag_anchored  # relocated (3), then re-anchored (3)
+    acc, mag = _field_stance(rng, 1.0, place=ELSEWHERE)
+    assert not gp.mag.disturbed(acc, mag)
+    assert gp.mag.heading(acc, mag) == pytest.approx(1.0, abs=math.radians(3.0))  # the loaded hard iron, this frame
+    for k, yaw in enumerate(yaws[6:], start=6):
+        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw), place=ELSEWHERE))
+        if gp.own_mag is None:
+            break
+    assert gp.own_mag is None  # superseded by this session's own fit
+    assert gp.mag.n_stances == k + 1  # this session's stances only
+    assert gp.mag.field_reference()[0] == pytest.approx(float(np.linalg.norm(ELSEWHERE)), rel=0.03)
+    acc, mag = _field_stance(rng, -2.0, place=ELSEWHERE)
+    assert gp.mag.heading(acc, mag) == pytest.approx(-2.0, abs=math.radians(2.0))
+    assert gp.calibration_state()["compass"]["rows"].shape[0] == k + 1  # what the profile hands on next
+
+
+def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() -> None:
+    """Same place, 3 ZUPT-KF stances (far fewer than a fit needs): the loaded compass is re-anchored on them and
+    Gait-DR follows a turn with it; this session's stances wait in its own fit."""
+    rng = np.random.default_rng(22)
+    stored = _calibrated_compass(rng, frame_offset=math.radians(-60.0))
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
+    for k in range(3):
+        _learn_one(gp, k, 0.3, *_field_stance(rng, 0.3))
+    assert gp.mag_placed and gp.mag_anchored and gp.heading_source()
+    assert gp.own_mag is not None and gp.own_mag.n_stances == 3 and not gp.own_mag.ready
+    assert gp.mag.n_stances == stored.n_stances  # the loaded compass is not refitted with this frame's stances
+    gp.start(np.zeros(3), 0.3)
+    sources = [_reckon_one(gp, k, *_field_stance(rng, 1.3)) for k in range(5)]
+    assert set(sources) == {"compass"}
+    assert gp.heading == pytest.approx(1.3, abs=math.radians(2.0))
+    assert gp.own_mag is not None  # Gait-DR stances have no ZUPT-KF heading: they do not feed the own fit
+
+
+def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round_trips() -> None:
+    """The same with Gait-DR soon after the start (one ZUPT-KF stance): 3 stances move the gate to this place, 3
+    clean ones re-anchor it; the heading is held until then and follows the compass after. The state round trip keeps
+    the loaded compass, the session's own fit and the place check."""
+    rng = np.random.default_rng(23)
+    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
+    _learn_one(gp, 0, 0.3, *_field_stance(rng, 0.3, place=ELSEWHERE))  # one ZUPT-KF stance: own fit, place check
+    gp.start(np.zeros(3), 0.3)
+    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    assert back.own_mag is not None and back.own_mag.n_stances == 1
+    assert not back.mag_placed and len(back._place) == 1 and not back.mag_anchored
+    assert back.mag.n_stances == stored.n_stances
+    stances = [_field_stance(rng, 0.3, place=ELSEWHERE) for _ in range(5)]
+    out = [[_reckon_one(p, k, *s) for k, s in enumerate(stances)] for p in (gp, back)]
+    # place check: the ZUPT-KF stance + 2; then 3 clean stances re-anchor it (the last of them already follows)
+    assert out[0] == out[1] == ["none"] * 3 + ["compass"] * 2
+    assert back.heading == gp.heading == pytest.approx(0.3, abs=math.radians(2.0))
+    assert back.mag.field_reference() == pytest.approx(gp.mag.field_reference())
+    _reckon_one(gp, 5, *_field_stance(rng, 1.3, place=ELSEWHERE))
+    _reckon_one(gp, 6, *_field_stance(rng, 1.3, place=ELSEWHERE))
+    assert gp.heading == pytest.approx(1.3, abs=math.radians(3.0))
 
 
 def test_disturbed_stances_stay_out_of_a_trusted_compass_calibration() -> None:

@@ -181,6 +181,28 @@ def test_rotate_frame_turns_the_compass_and_keeps_the_fit() -> None:
     assert math.remainder(cal.heading(acc, mag) - h0 - math.radians(70.0), 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
 
 
+def test_relocate_moves_the_gate_to_another_places_field_and_keeps_the_heading() -> None:
+    """A calibration fitted where the field is 18/-2/42 uT, used where it is 25 % stronger and 10 deg steeper:
+    every stance there fails the gate until the gate is moved to that field; the heading does not change."""
+    rng = np.random.default_rng(13)
+    cal = _calibrated(rng)
+    norm0, dip0 = cal.field_reference()
+    c = euler_to_dcm(np.float64(0.05), np.float64(-0.04), np.float64(0.8))
+    dip = dip0 + math.radians(10.0)
+    here = 1.25 * norm0 * np.array([math.cos(dip) * M_N[0], math.cos(dip) * M_N[1], 0.0]) / np.linalg.norm(M_N[:2])
+    here[2] = 1.25 * norm0 * math.sin(dip)
+    acc, mag = c.T @ np.array([0.0, 0.0, -G]), c.T @ here
+    assert cal.disturbed(acc, mag)
+    h0 = cal.heading(acc, mag)
+    shape = cal.field_shape(acc, mag)
+    assert shape == pytest.approx((1.25 * norm0, dip), rel=0.02)  # this place's field seen through the calibration
+    cal.relocate(*shape)
+    assert not cal.disturbed(acc, mag)
+    assert cal.field_reference() == pytest.approx(shape, abs=1e-9)
+    assert cal.heading(acc, mag) == pytest.approx(h0, abs=1e-9)
+    assert h0 == pytest.approx(0.8, abs=math.radians(1.0))  # the same azimuth, so still right
+
+
 def _follow(f, cal: MagCalibrator, h: float, acc: np.ndarray, mag: np.ndarray, trusted: bool = True) -> float:
     return f.step(h, cal.heading(acc, mag), not cal.disturbed(acc, mag), *cal.field_shape(acc, mag), trusted)
 
