@@ -336,8 +336,8 @@ class GaitPipeline:
             self._place = []
 
     def _adopt_own(self) -> None:
-        """This session's own compass fit is ready: it supersedes the loaded one (same frame once anchored, and
-        this place's field and this mount's hard iron)."""
+        """This session's own compass fit is ready (and trusted, or the loaded one is not): it supersedes the
+        loaded one (same frame once anchored, and this place's field and this mount's hard iron)."""
         assert self.own_mag is not None
         self.mag, self.own_mag = self.own_mag, None
         self.mag_anchored, self._anchor_offsets = True, []
@@ -370,7 +370,9 @@ class GaitPipeline:
         if n >= self._mag_fit_n + max(1, n // 10):
             cal.fit()
             self._mag_fit_n = n
-        if self.own_mag is not None and self.own_mag.ready:
+        if self.own_mag is not None and self.own_mag.ready and (self.own_mag.trusted or not self.mag.trusted):
+            # a trusted loaded compass stays until the own fit is trusted too: an early own fit, from the few
+            # stances of a returning user's examinations, is often not (auto would then keep the gyroscope on)
             self._adopt_own()
         return self.mag.ready
 

@@ -236,6 +236,24 @@ def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() 
     assert gp.own_mag is not None  # Gait-DR stances have no ZUPT-KF heading: they do not feed the own fit
 
 
+def test_trusted_loaded_compass_is_not_replaced_by_an_untrusted_own_fit() -> None:
+    """A returning user's own fit from a few examination stances can be ready but not trusted (its headings
+    disagree with the ZUPT-KF's); replacing a trusted loaded compass with it would make auto keep the gyroscope
+    on (mixed-day returning seeds 1-2: energy ratio 0.10 -> 0.25). The loaded one stays."""
+    rng = np.random.default_rng(23)
+    stored = _calibrated_compass(rng)
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
+    yaws = rng.uniform(-math.pi, math.pi, 20)
+    for k, yaw in enumerate(yaws):  # ZUPT-KF headings 20 deg off the compass's at random: an untrusted fit
+        off = float(rng.normal(scale=math.radians(20.0)))
+        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw) + off))
+    assert gp.own_mag is not None and gp.own_mag.ready and not gp.own_mag.trusted
+    assert gp.mag.trusted and gp.heading_source()
+    assert gp.mag.n_stances == stored.n_stances
+
+
 def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round_trips() -> None:
     """The same with Gait-DR soon after the start (one ZUPT-KF stance): 3 stances move the gate to this place, 3
     clean ones re-anchor it; the heading is held until then and follows the compass after. The state round trip keeps
