@@ -27,7 +27,7 @@ from models.batch import BatchError, SensorBatch
 from models.behaviour import BehaviourRecognizer
 from models.detectors import first_still_run
 from models.heading_deviation import HeadingDeviationKF, wrap_angle
-from models.rotations import dcm_to_quat
+from models.rotations import dcm_heading, dcm_to_quat, euler_to_dcm
 from models.strapdown import integrate
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
 
@@ -585,8 +585,7 @@ class Engine:
         if float(t[-1]) - float(t[0]) > _LEAD_MAX_S:
             return None
         c = align_at_rest(acc_rest)
-        dpsi = heading - math.atan2(c[1, 0], c[0, 0])
-        rz = np.array([[math.cos(dpsi), -math.sin(dpsi), 0.0], [math.sin(dpsi), math.cos(dpsi), 0.0], [0.0, 0.0, 1.0]])
+        rz = euler_to_dcm(0.0, 0.0, heading - float(dcm_heading(c)))  # levelled attitude turned to ``heading``
         q0 = dcm_to_quat(rz @ c)
         nav = self._nav
         _, _, p = integrate(-t[::-1], a[::-1] - nav.acc_bias, -(g[::-1] - nav.gyro_bias), q0)
@@ -610,8 +609,7 @@ class Engine:
         """
         held = self._head if math.isfinite(self._head) else self._nav.heading
         down = -np.asarray(acc_rest, dtype=float) / max(float(np.linalg.norm(acc_rest)), 1e-9)  # NED down, body
-        h = held + float(self._pre_rot @ down)
-        return math.atan2(math.sin(h), math.cos(h))
+        return wrap_angle(held + float(self._pre_rot @ down))
 
     def _nav_ops(self, out: NavOutput) -> list[tuple]:
         """ZUPT-KF output as queue entries: per-sample trace pieces and stances, in time order."""

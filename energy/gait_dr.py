@@ -339,11 +339,17 @@ class GaitPipeline:
         """This session's own compass fit is ready (and trusted, or the loaded one is not): it supersedes the
         loaded one (same frame once anchored, and this place's field and this mount's hard iron)."""
         assert self.own_mag is not None
-        self.mag, self.own_mag = self.own_mag, None
-        self.mag_anchored, self._anchor_offsets = True, []
-        self.mag_placed, self._place = True, []
+        own, self.own_mag = self.own_mag, None
+        self._use_compass(own, loaded=False)
         self.follower.forget()  # the compass changed: no stance-to-stance change across the two
         self.follower.clean_run = 0  # nor a clean run counted by the other calibration's gate
+
+    def _use_compass(self, cal: MagCalibrator, loaded: bool) -> None:
+        """Make ``cal`` the compass in use; a ``loaded`` one (from a profile) still has to be checked against
+        this place's field and re-anchored to this session's frame."""
+        self.mag = cal
+        self.mag_anchored = self.mag_placed = not loaded
+        self._anchor_offsets, self._place = [], []
 
     def ready(self, behaviour: str) -> bool:
         """Enough calibration steps, and a calibrated compass when a magnetometer is there.
@@ -424,10 +430,9 @@ class GaitPipeline:
         shoe the sensor sat on); both are learned again from this session's ZUPT-KF strides."""
         for b in behaviours:
             self.kf2[_behaviour(b)] = HeadingDeviationKF()
-        self.mag, self.own_mag = MagCalibrator(), None
+        self.own_mag = None
+        self._use_compass(MagCalibrator(), loaded=False)
         self._mag_fit_n = -1
-        self.mag_anchored, self._anchor_offsets = True, []
-        self.mag_placed, self._place = True, []
         self.follower.forget()
 
     def bootstrapped(self) -> bool:
@@ -455,9 +460,7 @@ class GaitPipeline:
                 # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
                 # frame (its field azimuth is in the earlier session's) and its gate checked against this place
                 self.own_mag = self.mag if self.own_mag is None else self.own_mag
-                self.mag = loaded
-                self.mag_anchored = self.mag_placed = False
-                self._anchor_offsets, self._place = [], []
+                self._use_compass(loaded, loaded=True)
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
             kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])

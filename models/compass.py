@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from models.heading_deviation import wrap_angle
 from models.rotations import euler_to_dcm
 
 __all__ = ["tilt_from_acc", "level_heading", "follow_compass", "CompassFollower", "MagCalibrator"]
@@ -82,10 +83,9 @@ def follow_compass(heading: float, compass: float, clean: bool, gain: float = 0.
     turn : float
         Innovations larger than this [rad] on a clean field are turns (taken whole).
     """
-    nu = math.atan2(math.sin(compass - heading), math.cos(compass - heading))
+    nu = wrap_angle(compass - heading)
     step = nu if (clean and abs(nu) > turn) else gain * nu
-    h = heading + step
-    return math.atan2(math.sin(h), math.cos(h))
+    return wrap_angle(heading + step)
 
 
 class CompassFollower:
@@ -149,7 +149,7 @@ class CompassFollower:
         if self.prev is None:
             return 0.0
         c0, n0, d0 = self.prev
-        dc = math.atan2(math.sin(compass - c0), math.cos(compass - c0))
+        dc = wrap_angle(compass - c0)
         same_field = abs(norm - n0) <= self.rot_mag_tol * max(n0, 1e-9) and abs(dip - d0) <= self.rot_dip_tol
         return dc if (same_field and abs(dc) > self.min_turn) else 0.0
 
@@ -179,8 +179,7 @@ class CompassFollower:
             return follow_compass(heading, compass, clean, self.gain, self.turn)
         if clean and self.clean_run >= self.reanchor_stances:
             return follow_compass(heading, compass, True, self.gain, self.turn)
-        h = heading + turned
-        return math.atan2(math.sin(h), math.cos(h))
+        return wrap_angle(heading + turned)
 
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
@@ -391,7 +390,7 @@ class MagCalibrator:
         n, e = float(self.m_n[0]), float(self.m_n[1])
         self.m_n = np.array([c * n - s_ * e, s_ * n + c * e, float(self.m_n[2])])
         for r in self._rows:
-            r[6] = math.atan2(math.sin(r[6] + delta), math.cos(r[6] + delta))
+            r[6] = wrap_angle(r[6] + delta)
 
     def heading(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> float:
         """Compass heading [rad] of the body in the navigator's NED frame (NaN before calibration)."""
