@@ -523,6 +523,35 @@ class GaitPipeline:
             out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
         return out
 
+    def turn_to(self, t_start_s: float) -> tuple[float, float] | None:
+        """Turn of the foot [rad] by the compass from the last Gait-DR stance to the step event of the stance
+        starting at ``t_start_s`` [s], and its standard deviation [rad]; None where the compass cannot tell.
+
+        Only by :class:`models.compass.CompassFollower`'s rules for letting the absolute compass lead: a
+        trusted calibration in this session's frame, an established clean field before, a clean field at the
+        event, and the same field magnitude and dip at both stances (the foot rotated, the field did not). A
+        change, not the absolute compass: inside steel the gated compass erred by up to 45 deg on such stances
+        (synthetic mixed day, seed 4), its change from one stance to the next by under 8 deg. The standard
+        deviation is that of a difference of two readings, each with the compass's RMS disagreement with the
+        ZUPT-KF on its calibration stances.
+        """
+        cal = self.mag
+        if not (cal.ready and cal.trusted and self.mag_anchored and self.follower.established):
+            return None
+        near = [q for q in self.queue if abs(q.t_s - t_start_s) <= PAIR_TOL_S]
+        if not near:
+            return None
+        e = min(near, key=lambda q: abs(q.t_s - t_start_s))
+        m = self.mag_at(e)
+        acc = np.asarray(e.acc_stance)
+        if m is None or cal.disturbed(acc, m):
+            return None
+        turn = self.follower.turn_since(cal.heading(acc, m), *cal.field_shape(acc, m))
+        if turn is None:
+            return None
+        sigma = cal.heading_rms if math.isfinite(cal.heading_rms) else cal.max_heading_rms
+        return turn, math.sqrt(2.0) * sigma
+
     def field_clean(self, e: StepEvent) -> bool:
         """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""
         m = self.mag_at(e)

@@ -144,14 +144,24 @@ class CompassFollower:
         """A step without a usable field reading, or a restart from another heading: no previous compass."""
         self.prev = None
 
+    def turn_since(self, compass: float, norm: float, dip: float) -> float | None:
+        """Compass change [rad] since the previous stance when the field's magnitude [uT] and dip [rad] stayed
+        within ``rot_mag_tol``/``rot_dip_tol`` of it (a rotation of the foot, not of the field); else None."""
+        if self.prev is None:
+            return None
+        c0, n0, d0 = self.prev
+        same_field = abs(norm - n0) <= self.rot_mag_tol * max(n0, 1e-9) and abs(dip - d0) <= self.rot_dip_tol
+        return wrap_angle(compass - c0) if same_field else None
+
+    @property
+    def established(self) -> bool:
+        """The last ``reanchor_stances`` stances all passed the disturbance gate (the absolute compass leads)."""
+        return self.clean_run >= self.reanchor_stances
+
     def rotation(self, compass: float, norm: float, dip: float) -> float:
         """Compass change since the previous stance [rad] if it is a turn of the foot, else 0."""
-        if self.prev is None:
-            return 0.0
-        c0, n0, d0 = self.prev
-        dc = wrap_angle(compass - c0)
-        same_field = abs(norm - n0) <= self.rot_mag_tol * max(n0, 1e-9) and abs(dip - d0) <= self.rot_dip_tol
-        return dc if (same_field and abs(dc) > self.min_turn) else 0.0
+        dc = self.turn_since(compass, norm, dip)
+        return dc if (dc is not None and abs(dc) > self.min_turn) else 0.0
 
     def step(self, heading: float, compass: float, clean: bool, norm: float, dip: float, trusted: bool = True) -> float:
         """Heading [rad] after a Gait-DR stance.
@@ -177,7 +187,7 @@ class CompassFollower:
         self.observe(compass, clean, norm, dip)
         if not trusted:
             return follow_compass(heading, compass, clean, self.gain, self.turn)
-        if clean and self.clean_run >= self.reanchor_stances:
+        if clean and self.established:
             return follow_compass(heading, compass, True, self.gain, self.turn)
         return wrap_angle(heading + turned)
 

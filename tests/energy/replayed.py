@@ -12,9 +12,11 @@ from models.batch import SensorBatch
 __all__ = ["replayed_batches"]
 
 
-def replayed_batches(rec: Any, config: EngineConfig, profile: dict | None = None) -> list[SensorBatch]:
-    """Replay ``rec`` (a synthesised recording) through an auto-mode engine in 1-s uploads and return every batch
-    the device sent, in order; re-feeding them elsewhere reproduces what the engine saw."""
+def replayed_batches(rec: Any, config: EngineConfig, profile: dict | None = None,
+                     batch_seconds: float | None = 1.0) -> list[SensorBatch]:
+    """Replay ``rec`` (a synthesised recording) through an auto-mode engine in ``batch_seconds`` uploads (None:
+    as long as the engine asks) and return every batch the device sent, in order; re-feeding them elsewhere
+    reproduces what the engine saw."""
     sent: list[SensorBatch] = []
     eng = Engine(mode="auto", config=config, profile=profile)
     orig = eng.feed
@@ -24,5 +26,5 @@ def replayed_batches(rec: Any, config: EngineConfig, profile: dict | None = None
         return orig(batch)
 
     eng.feed = feed  # type: ignore[method-assign]
-    replay(eng, rec.batch, batch_seconds=1.0)
+    replay(eng, rec.batch, batch_seconds=batch_seconds)
     return sent

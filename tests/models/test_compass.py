@@ -271,3 +271,33 @@ def test_follower_state_round_trip() -> None:
     for g in (f, back):
         g.forget()
     assert back.step(0.0, 1.0, False, 52.0, 1.0) == f.step(0.0, 1.0, False, 52.0, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("d_norm", "d_dip_deg", "same"),
+    [(0.0, 0.0, True), (0.04, 2.5, True), (0.06, 0.0, False), (0.0, 3.5, False), (-0.06, -3.5, False)],
+)
+def test_turn_since_is_the_compass_change_only_where_the_field_kept_its_shape(d_norm, d_dip_deg, same) -> None:
+    """A rotation of the foot leaves the field's magnitude and dip unchanged; a field that changed shape
+    (a disturbance moved into) gives no turn, whatever the compass says."""
+    from models.compass import CompassFollower
+
+    f = CompassFollower()
+    assert f.turn_since(1.0, 47.0, 1.1) is None  # no previous stance
+    f.observe(3.0, True, 47.0, 1.1)
+    got = f.turn_since(-3.0, 47.0 * (1.0 + d_norm), 1.1 + math.radians(d_dip_deg))
+    if same:
+        assert got == pytest.approx(math.remainder(-6.0, 2 * math.pi))  # wrapped across +-pi
+    else:
+        assert got is None
+
+
+def test_the_absolute_compass_leads_only_on_an_established_clean_field() -> None:
+    from models.compass import CompassFollower
+
+    f = CompassFollower(reanchor_stances=3)
+    for clean in (True, True, False, True, True):
+        f.observe(0.0, clean, 47.0, 1.1)
+        assert not f.established
+    f.observe(0.0, True, 47.0, 1.1)
+    assert f.established
