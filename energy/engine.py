@@ -769,12 +769,15 @@ class Engine:
         assert gait is not None
         steps = gait.reckon(before_s, self._labels.at)
         self._moved = self._moved or bool(steps)
-        for step, _, source in steps:
+        for step, e, source in steps:
             self._apply_labels(step.t_s, events)
             t_ns = self._ns(step.t_s)
             pos = step.position
             positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
             events += self._sched.tick(step.t_s, t_ns)
+            if not e.after_rest:  # 004 Table 2 (ii): a walking pattern the step-length model has not seen
+                fitted = gait.cal.cadence_range(self._sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
+                events += self._sched.on_cadence(e.f_s, fitted, t_ns)
             self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
             if self._disturbed_run >= _ASSIST_AFTER_STEPS:
                 events += self._sched.request_heading_assist(t_ns)

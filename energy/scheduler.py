@@ -23,6 +23,15 @@ EXAM_STRIDES_TO_FAIL = 2  # consecutive examination strides outside 3 sigma_d be
 # An examination of a behaviour whose stored heading deviation has not been confirmed in this session goes on
 # (gyroscope on) over strides that observe no gamma - psi (turning strides), up to this many strides in all
 EXAM_MAX_STRIDES = 4
+# 004 Table 2 (ii), Section 4.2: a walking pattern (step frequency) the step-length model was not fitted on.
+# Hysteresis: the median cadence of this many consecutive Gait-DR strides (more than half of them: not one or
+# two odd strides) must lie outside the cadences of the model's calibration pairs
+PATTERN_STRIDES = 5
+# ZUPT-KF strides of the new pattern that join the behaviour's calibration before its model is refitted, far
+# shorter than L0. The new strides' mean is then known to sigma_d / sqrt(6) (~1 % of a stride). 8 (the
+# calibrator's min_pairs) took the new user's energy_ratio over 0.25 on the synthetic mixed day (seeds 2, 3:
+# 0.2505; 7: 0.2502 on seed 0 with measured compute costs); 6 is the longest within that budget.
+PATTERN_INIT_STRIDES = 6
 # Wake-on-motion (SensorConfig.gyro_wake_on_motion), the device's activity/inactivity function (LSM9DS1 ACT_THS /
 # ACT_DUR). Threshold: per axis, 0.5 m/s^2 (51 mg): >= 10x the still foot's accelerometer noise (per-axis std
 # 0.01-0.04 m/s^2 over the first 0.6 s of the gdin recordings at 200 Hz, 0.03 on the synthetic foot), far below
@@ -73,6 +82,8 @@ class Scheduler:
         self.deviation_pending: set[str] = (
             {b for b, c in profile.behaviours.items() if c.calibrated} if mode != "zupt" else set())
         self.heading_misses = 0  # consecutive heading-deviation misses outside an examination
+        self.cadences: list[float] = []  # step frequencies of the latest Gait-DR strides of this behaviour [Hz]
+        self.pattern_left: int | None = None  # ZUPT-KF strides still wanted by a walking-pattern initialisation
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -82,14 +93,17 @@ class Scheduler:
             return events
         events.append(Event(t_ns, "behaviour", {"from": self.behaviour, "to": label}))
         previous, self.behaviour = self.behaviour, label
+        self.cadences = []
         if self.mode != "auto" or label not in _MOVING:
             return events
-        if self.working == "pdr" and previous in _MOVING and label != previous:
-            if self._resumable(label):
-                events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
-            else:
-                self._calibrate(label)
-                events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
+        if self.working == "pdr" and not self._resumable(label):
+            # 004 Table 2 (i), also after a stand: Gait-DR had only the generic prior for these strides (the
+            # first run strides of the synthetic mixed day, after a stand, came out 23 % short until an
+            # examination failed on them)
+            self._calibrate(label)
+            events += self._switch("zupt", t_ns, reason=f"new behaviour {label}")
+        elif self.working == "pdr" and previous in _MOVING and label != previous:
+            events += self._start_exam(t_s, t_ns, reason="calibrated behaviour resumed")
         elif self.working == "zupt" and self.calibrating != label:
             if self._resumable(label):
                 events += self._switch("pdr", t_ns, reason=f"profile has {label} calibration")
@@ -105,11 +119,43 @@ class Scheduler:
         if self.calibrating is None and self.behaviour in _MOVING:
             self._calibrate(self.behaviour)
         self.l_zupt_m += d_m
+        if self.pattern_left is not None:
+            self.pattern_left -= 1
         return []
 
     def ready_for_pdr(self) -> bool:
-        """004 Table 2: L_ZUPT-KF >= L0 ends the initialisation."""
-        return self.mode != "zupt" and self.working == "zupt" and self.l_zupt_m >= self.config.l0_m
+        """004 Table 2: L_ZUPT-KF >= L0 ends the initialisation (a walking pattern's: its strides)."""
+        if self.mode == "zupt" or self.working != "zupt":
+            return False
+        return self.l_zupt_m >= self.config.l0_m or (self.pattern_left is not None and self.pattern_left <= 0)
+
+    def on_cadence(self, f_s: float, fitted: tuple[float, float] | None, t_ns: int) -> list[Event]:
+        """A Gait-DR stride of step frequency ``f_s`` [Hz]; ``fitted`` the cadences [Hz] the current
+        behaviour's step-length model was fitted on (:meth:`models.step_length.StepLengthCalibrator.cadence_range`).
+
+        004 Table 2 (ii): when the median cadence of the latest ``PATTERN_STRIDES`` strides leaves that range,
+        the model would extrapolate to a walking pattern it has not seen (a walk fitted at 0.87 Hz put the
+        0.98 Hz strides of a faster walk 5-11 % short, and the 3-sigma examination passed them): the ZUPT-KF
+        takes ``PATTERN_INIT_STRIDES`` strides of the new pattern, which join the behaviour's calibration
+        (its refit covers both patterns), then Gait-DR resumes. Auto mode only.
+        """
+        if self.mode != "auto" or self.working != "pdr" or self.behaviour not in _MOVING or fitted is None:
+            self.cadences = []
+            return []
+        self.cadences = (self.cadences + [float(f_s)])[-PATTERN_STRIDES:]
+        if len(self.cadences) < PATTERN_STRIDES:
+            return []
+        f = sorted(self.cadences)[PATTERN_STRIDES // 2]  # median (PATTERN_STRIDES odd)
+        if fitted[0] <= f <= fitted[1]:
+            return []
+        b = self.behaviour
+        events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f, "fitted_hz": list(fitted)})]
+        self._calibrate(b)
+        self.progress_m.pop(b, None)
+        self.l_zupt_m = 0.0
+        self.pattern_left = PATTERN_INIT_STRIDES
+        events += self._switch("zupt", t_ns, reason=f"walking pattern of {b} changed")
+        return events
 
     def on_calibrated(self, t_s: float, t_ns: int, detail: dict[str, Any] | None = None) -> list[Event]:
         """The engine fitted the step model and KF II after L0: switch to Gait-DR. ``detail`` joins the event."""
@@ -119,6 +165,7 @@ class Scheduler:
         events = [Event(t_ns, "calibration_done", info)]
         self.progress_m.pop(info["behaviour"], None)
         self.calibrating = None
+        self.pattern_left = None
         self.last_exam_s = t_s
         events += self._switch("pdr", t_ns, reason="initialisation complete")
         return events
@@ -329,6 +376,7 @@ class Scheduler:
         if self.calibrating is not None:
             self.progress_m[self.calibrating] = self.l_zupt_m
         self.calibrating, self.l_zupt_m = behaviour, self.progress_m.get(behaviour, 0.0)
+        self.pattern_left = None  # a full initialisation (a walking pattern's sets it again after this)
 
     def _resumable(self, behaviour: str) -> bool:
         """Calibrated (profile or this session) and not failed an examination since."""
@@ -338,6 +386,9 @@ class Scheduler:
         if working == self.working:
             return []
         previous, self.working = self.working, working
+        self.cadences = []
+        if working == "pdr":
+            self.pattern_left = None
         if working == "zupt":
             self.exam_active = False
             self.assist_active = False
@@ -373,6 +424,8 @@ class Scheduler:
             "heading_misses": self.heading_misses,
             "failed": sorted(self.failed),
             "progress_m": dict(self.progress_m),
+            "cadences": list(self.cadences),
+            "pattern_left": self.pattern_left,
         }
 
     @classmethod
@@ -389,4 +442,7 @@ class Scheduler:
         obj.heading_misses = int(d.get("heading_misses", 0))
         obj.failed = set(d["failed"])
         obj.progress_m = {str(k): float(v) for k, v in d["progress_m"].items()}
+        obj.cadences = [float(f) for f in d.get("cadences", [])]  # older states: none yet
+        left = d.get("pattern_left")
+        obj.pattern_left = None if left is None else int(left)
         return obj

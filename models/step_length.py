@@ -282,6 +282,21 @@ class StepLengthCalibrator:
         self._fits.update(out)
         return out
 
+    def cadence_range(self, behaviour: str, period_res_s: float = 0.0) -> tuple[float, float] | None:
+        """Step frequencies [Hz] the behaviour's fitted model has seen: min and max over the pairs its pooled
+        fit used (None when not fitted), each widened by half the cadence resolution of a step period measured
+        to ``period_res_s`` [s] (``f^2 period_res_s / 2``: a cadence within half a resolution step of a
+        fitted one is the same walking pattern). Outside this range the model extrapolates along the prior's
+        shape (004 Section 4.2: a changed step frequency may leave the calibrated model inaccurate).
+        """
+        e = self._fits.get(behaviour)
+        pairs = self._pairs.get(behaviour, [])
+        if e is None or not pairs:
+            return None
+        f = [q[0] for q in pairs[: int(e["n"])]]
+        lo, hi = min(f), max(f)
+        return lo - 0.5 * lo * lo * period_res_s, hi + 0.5 * hi * hi * period_res_s
+
     def _entry(self, behaviour: str, f_s: float) -> dict | None:
         return self._fits.get(f"{behaviour}/{self.band(f_s)}") or self._fits.get(behaviour)
 

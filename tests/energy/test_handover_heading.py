@@ -38,8 +38,8 @@ def _heading_errors_deg(rec, positions) -> np.ndarray:
 def test_a_segment_started_mid_turn_takes_the_turn_the_gyroscope_missed(profile, seed) -> None:
     """Second walks of the README demo: each has a segment the device started 16-33 deg into a turn (Gait-DR's
     last heading plus the gyroscope's part left 22 / 32 / 16 deg on every ZUPT-KF position of it). The
-    compass's change recovers the missed part; seed 2 keeps 11 deg, the lag of Gait-DR's own heading behind
-    its compass at its last stance, which a change of the compass does not see."""
+    compass's change recovers the missed part; seed 2 keeps the lag of Gait-DR's own heading behind
+    its compass at its last stance, which a change of the compass does not see (11-13 deg)."""
     rec = synthesize("demo", seed=seed)
     res = replay(Engine(mode="auto", profile=profile), rec.batch, batch_seconds=None)
     err = _heading_errors_deg(rec, res.positions)

@@ -84,6 +84,21 @@ def test_table2_new_behaviour_sends_gait_dr_back_to_zupt() -> None:
     assert any(e.kind == "mode_switch" and e.detail["to"] == "zupt" for e in events)
 
 
+def test_table2_new_behaviour_after_a_stand_sends_gait_dr_back_to_zupt() -> None:
+    s = aligned("auto", CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    s.profile.behaviours["walk"] = calibrated("walk").behaviours["walk"]  # what the engine stores
+    s.on_behaviour("stand", 11.0, 11)
+    s.on_behaviour("walk", 14.0, 14)  # calibrated: Gait-DR goes on
+    assert s.working == "pdr" and not s.exam_active
+    s.on_behaviour("stand", 20.0, 20)
+    events = s.on_behaviour("run", 24.0, 24)  # no model for it: the generic prior would place its strides
+    assert s.working == "zupt" and s.calibrating == "run" and s.l_zupt_m == 0.0
+    assert any(e.kind == "mode_switch" and e.detail["to"] == "zupt" for e in events)
+
+
 def test_table2_calibrated_behaviour_resumes_gait_dr_with_an_examination() -> None:
     s = aligned("auto", CFG, calibrated("walk"))
     events = s.on_behaviour("walk", 1.0, 1)
@@ -372,3 +387,86 @@ def test_a_session_start_on_an_unconfirmed_deviation_leaves_the_first_strides_to
     s.on_exam_result(True, 1.4, 1.41, 6.0, 6, FITS)
     s.on_behaviour("stand", 9.0, 9)
     assert s.idle()  # confirmed: later stands sleep
+
+
+# ---------------------------------------------------------------- Table 2 (ii): walking pattern
+FITTED_HZ = (0.71, 0.90)  # cadences the walk model was fitted on
+
+
+def walking_in_gait_dr(mode: str = "auto") -> Scheduler:
+    s = aligned(mode, CFG, Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, CFG.l0_m)
+    s.on_calibrated(10.0, 10)
+    s.profile.behaviours["walk"] = calibrated("walk").behaviours["walk"]  # what the engine stores
+    assert s.working == "pdr"
+    return s
+
+
+def test_a_sustained_cadence_change_re_initialises_the_walking_pattern_and_one_odd_stride_does_not() -> None:
+    from energy.scheduler import PATTERN_INIT_STRIDES, PATTERN_STRIDES
+
+    s = walking_in_gait_dr()
+    # odd strides, single and in pairs, fast and slow (the window's median stays inside)
+    odd = [0.87] * 4 + [1.05] + [0.86] * 6 + [0.60] + [0.88] * 3 + [1.05, 1.1] + [0.88] * 3 + [0.6, 0.5] + [0.88] * 5
+    assert not [e for f in odd for e in s.on_cadence(f, FITTED_HZ, 1)]
+    assert s.working == "pdr"
+    fast = [1.0, 0.96, 1.04]
+    n_out = PATTERN_STRIDES // 2 + 1  # the median leaves the range with the majority of the window
+    for f in fast[:n_out - 1]:
+        assert s.on_cadence(f, FITTED_HZ, 2) == []
+    events = s.on_cadence(fast[n_out - 1], FITTED_HZ, 3)
+    assert [e.kind for e in events] == ["walking_pattern_changed", "mode_switch"]
+    assert events[0].detail["f_s_hz"] > FITTED_HZ[1] and len(s.cadences) == 0
+    assert s.working == "zupt" and s.gyro_wanted() and s.calibrating == "walk" and s.l_zupt_m == 0.0
+    assert PATTERN_STRIDES < PATTERN_INIT_STRIDES  # the hysteresis is shorter than the re-initialisation
+    for _ in range(PATTERN_INIT_STRIDES - 1):  # far shorter than L0
+        s.on_zupt_distance(1.6, 4)
+        assert not s.ready_for_pdr()
+    s.on_zupt_distance(1.6, 5)
+    assert s.ready_for_pdr() and s.l_zupt_m < CFG.l0_m
+    s.on_calibrated(20.0, 20)
+    assert s.working == "pdr" and s.pattern_left is None and s.last_exam_s == 20.0
+
+
+def test_the_walking_pattern_trigger_needs_auto_mode_gait_dr_and_a_fitted_model() -> None:
+    fast = [1.0] * 6
+    p = walking_in_gait_dr("pdr")  # the fixed scheme has no examinations
+    assert not [e for f in fast for e in p.on_cadence(f, FITTED_HZ, 1)] and p.working == "pdr"
+    a = walking_in_gait_dr()
+    assert not [e for f in fast for e in a.on_cadence(f, None, 1)] and a.working == "pdr"
+    a.on_behaviour("run", 30.0, 30)  # a new behaviour is initialised in full, not as a walking pattern
+    assert a.working == "zupt" and a.pattern_left is None
+
+
+def test_a_behaviour_change_or_stand_restarts_the_cadence_window() -> None:
+    from energy.scheduler import PATTERN_STRIDES
+
+    s = walking_in_gait_dr()
+    for _ in range(PATTERN_STRIDES - 1):
+        s.on_cadence(1.0, FITTED_HZ, 1)
+    s.on_behaviour("stand", 30.0, 30)
+    s.on_behaviour("walk", 33.0, 33)
+    assert s.on_cadence(1.0, FITTED_HZ, 34) == [] and s.working == "pdr"
+
+
+def test_walking_pattern_state_round_trip() -> None:
+    from energy.scheduler import PATTERN_INIT_STRIDES, PATTERN_STRIDES
+
+    s = walking_in_gait_dr()
+    for _ in range(PATTERN_STRIDES - 1):
+        s.on_cadence(1.0, FITTED_HZ, 1)
+    r = Scheduler.from_state(s.get_state())  # a window half full
+    assert r.get_state() == s.get_state() and r.cadences == s.cadences
+    for sched in (s, r):
+        assert sched.on_cadence(1.0, FITTED_HZ, 2)[0].kind == "walking_pattern_changed"
+        sched.on_zupt_distance(1.6, 3)
+    r = Scheduler.from_state(s.get_state())  # during the re-initialisation
+    assert r.get_state() == s.get_state() and r.pattern_left == PATTERN_INIT_STRIDES - 1
+    for _ in range(PATTERN_INIT_STRIDES - 1):
+        r.on_zupt_distance(1.6, 4)
+    assert r.ready_for_pdr()
+    old = s.get_state()
+    del old["cadences"], old["pattern_left"]  # a state stored before the walking-pattern trigger
+    o = Scheduler.from_state(old)
+    assert o.cadences == [] and o.pattern_left is None

@@ -217,3 +217,24 @@ def test_running_model_follows_the_cadence_and_older_states_keep_the_cube_root()
     old = StepLengthCalibrator().get_state()
     del old["run_model"]
     assert StepLengthCalibrator.from_state(old).model_for("run") == "eq15_run"
+
+
+def test_cadence_range_is_that_of_the_fitted_pairs_widened_by_half_a_resolution_step() -> None:
+    rng = np.random.default_rng(3)
+    cal = StepLengthCalibrator()
+    assert cal.cadence_range("walk") is None
+    xs = _features(rng, 12, 0.8, 0.9)
+    for x in xs:
+        cal.add("walk", x, 1.35)
+    assert cal.cadence_range("walk") is None  # pairs without a fitted model
+    cal.fit("walk")
+    lo, hi = min(x.f_s for x in xs), max(x.f_s for x in xs)
+    assert cal.cadence_range("walk") == pytest.approx((lo, hi))
+    res = 0.04  # a step period measured to one sample at 25 Hz
+    assert cal.cadence_range("walk", res) == pytest.approx((lo - lo * lo * res / 2, hi + hi * hi * res / 2))
+    cal.add("walk", StepFeatures(1.0, 13.0, 40.0, 10.0), 1.6)  # an examination stride, not yet fitted
+    assert cal.cadence_range("walk") == pytest.approx((lo, hi))
+    cal.fit("walk")
+    assert cal.cadence_range("walk")[1] == pytest.approx(1.0)
+    r = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
+    assert r.cadence_range("walk") == cal.cadence_range("walk")
