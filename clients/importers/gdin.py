@@ -33,7 +33,14 @@ from typing import Any
 import numpy as np
 import scipy.io as sio
 
-from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch, seconds_to_ns
+from clients.importers._common import (
+    ImporterError,
+    check_finite,
+    clean_stream,
+    drop_untimed_rows,
+    make_batch,
+    seconds_to_ns,
+)
 from clients.importers.sensorconnect import load_sensorconnect
 from clients.importers.sensorconnect import sniff as sniff_sensorconnect
 from clients.recording import Recording, RecordingMeta, Truth
@@ -110,10 +117,13 @@ def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
         raise ImporterError(p, "imu_data", "no samples (empty)")
     if ts.size != imu.shape[0]:
         raise ImporterError(p, "timestamps", f"{ts.size} timestamps for {imu.shape[0]} imu_data rows")
-    check_finite(p, [f"imu_data[:,{i}]" for i in range(6)], imu)
-    t_ns = seconds_to_ns(p, "timestamps", ts)
-    t_ns, imu, notes = clean_timestamps(p, "timestamps", t_ns, imu)
-    batch = make_batch(p, t_ns, imu[:, :3], t_ns.copy(), imu[:, 3:])
+    keep, notes = drop_untimed_rows(p, "timestamps", ts)
+    imu, ts = imu[keep], ts[keep]
+    t_all = seconds_to_ns(p, "timestamps", ts)
+    acc_t, acc, n1 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3)], t_all, imu[:, :3])
+    gyr_t, gyr, n2 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3, 6)], t_all, imu[:, 3:])
+    notes += n1 + n2
+    batch = make_batch(p, acc_t, acc, gyr_t, gyr)
     meta = RecordingMeta(
         source_format="gdin-llio-mat",
         rate_hz=float(batch.rate_hz("acc")),
