@@ -4,6 +4,8 @@ Format A (``scaledAccel*``/``scaledGyro*``/``scaledMag*``): accelerometer in g, 
 magnetometer in gauss (MicroStrain 3DM-GX5 "scaled" channels). Converted: g -> m/s^2 (x 9.80665),
 gauss -> uT (x 100). The units are read from the channel names and then checked against the data
 (|a| at rest ~1 g, |m| ~0.2-0.7 G): a file whose values contradict its header is rejected, never guessed.
+The magnetometer is optional (a 6-axis export has no ``scaledMag*`` columns; the recording then has no
+magnetometer stream and the metadata says so).
 
 Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
 node id or be absent); the time column is ``Time`` [s]. Rows that cannot be read (a line with another number
@@ -124,11 +126,17 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
     it = cols.index("Time")
     acc_names, gyr_names = (_A_ACC, _A_GYR) if fmt == "A" else (_B_ACC, _B_GYR)
     ia, ig = _index(p, cols, acc_names), _index(p, cols, gyr_names)
-    im = _index(p, cols, _A_MAG) if fmt == "A" else []
+    mag_present = [c for c in _A_MAG if c in cols] if fmt == "A" else []
+    im = [cols.index(c) for c in _A_MAG] if len(mag_present) == len(_A_MAG) else []
     data, notes, n_lines = read_csv_rows(p, len(cols))
     if n_lines == 0:
         raise ImporterError(p, "rows", "no samples (empty file)")
     units: dict[str, str] = {}
+    if fmt == "A" and not im:
+        missing = ", ".join(c for c in _A_MAG if c not in mag_present)
+        notes.append("no scaledMag* columns: recording without magnetometer" if not mag_present else
+                     f"magnetometer incomplete ({missing} missing): left out")
+        log.warning("%s: %s", p, notes[-1])
     if fmt == "B":
         flags = [cols.index(f"{c}:valid") for c in _B_ACC + _B_GYR if f"{c}:valid" in cols]
         if flags:
