@@ -17,6 +17,9 @@ Sample policy (applies to every importer; what is dropped is logged and noted in
   sample or two, which the engine handles). More than :data:`MAX_CONFLICT_FRACTION` of the samples in such
   groups: rejected (the clock is too coarse for the rate; dropping would leave holes everywhere).
 - Jitter (monotonic, uneven spacing) is kept as recorded: the engine works with real timestamps.
+- The accelerometer's median sample interval must give a rate within :data:`RATE_RANGE_HZ`; otherwise the
+  time column is in another unit than the format says (ms, us, ns read as s) and the file is rejected with
+  the unit it looks like, never rescaled by guess.
 """
 
 from __future__ import annotations
@@ -35,11 +38,13 @@ __all__ = [
     "MAX_DROPPED_ROW_FRACTION",
     "MAX_CONFLICT_FRACTION",
     "MIN_SAMPLES",
+    "RATE_RANGE_HZ",
     "seconds_to_ns",
     "check_finite",
     "clean_timestamps",
     "drop_untimed_rows",
     "clean_stream",
+    "check_rate",
     "read_csv_rows",
     "make_batch",
 ]
@@ -50,6 +55,8 @@ G0 = 9.80665  # standard gravity [m/s^2], the unit "g" of accelerometer vendors
 MAX_DROPPED_ROW_FRACTION = 0.10  # rows without a usable time (or malformed) above this: the file is rejected
 MAX_CONFLICT_FRACTION = 0.05  # samples in conflicting duplicated-timestamp groups above this: rejected
 MIN_SAMPLES = 10  # a required stream needs at least this many finite samples
+RATE_RANGE_HZ = (2.0, 10000.0)  # plausible accelerometer rates [Hz]; outside: the time unit is not seconds
+_MAX_SECONDS = 9.0e9  # |t| [s] that int64 nanoseconds can hold (2^63 ns = 9.22e9 s)
 
 
 class ImporterError(ValueError):
@@ -91,6 +98,9 @@ def seconds_to_ns(path: str | Path, field: str, t_s: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(t)):
         i = int(np.argmax(~np.isfinite(t)))
         raise ImporterError(path, field, f"time of row {i} is not finite ({t[i]})")
+    if t.size and float(np.max(np.abs(t))) > _MAX_SECONDS:
+        raise ImporterError(path, field, f"time {float(np.max(np.abs(t))):.6g} is beyond int64 nanoseconds as seconds: "
+                            "the times look like nanoseconds or microseconds, not seconds; refusing to guess")
     return np.round(t * 1e9).astype(np.int64)
 
 
@@ -253,6 +263,29 @@ def clean_stream(
     return t, v, notes + n
 
 
+def check_rate(path: str | Path, field: str, t_ns: np.ndarray) -> None:
+    """Reject a time axis whose median sample interval is not a plausible IMU rate (:data:`RATE_RANGE_HZ`).
+
+    A time column in milliseconds read as seconds gives intervals of ~5 "s" (0.2 Hz); one in nanoseconds gives
+    ~5e6 "s". The message says which unit it looks like; the importer never rescales by guess.
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    if t.size < MIN_SAMPLES:
+        return
+    dt_s = float(np.median(np.diff(t))) * 1e-9
+    lo, hi = RATE_RANGE_HZ
+    if dt_s <= 0 or not (1.0 / hi <= dt_s <= 1.0 / lo):
+        rate = 1.0 / dt_s if dt_s > 0 else float("inf")
+        if dt_s > 1.0 / lo:
+            hint = next((u for u, k in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+                         if 1.0 / hi <= dt_s / k <= 1.0 / lo), "another unit")
+        else:
+            hint = "another unit (or far too many samples per second)"
+        raise ImporterError(
+            path, field, f"median sample interval {dt_s:.6g} s ({rate:.4g} Hz) is not a plausible IMU rate "
+            f"({lo:g}-{hi:g} Hz): the times look like {hint}, not seconds; refusing to guess")
+
+
 def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[np.ndarray, list[str], int]:
     """The data rows of a comma-separated file with ``n_cols`` fields per line, as floats.
 
@@ -312,7 +345,9 @@ def make_batch(
     mag: np.ndarray | None = None,
 ) -> SensorBatch:
     """Assemble and validate a :class:`SensorBatch` (SI units), turning a ``BatchError`` into an
-    :class:`ImporterError` that names the file."""
+    :class:`ImporterError` that names the file; the accelerometer's rate must be plausible
+    (:func:`check_rate`)."""
+    check_rate(path, "acc time", acc_t_ns)
     kw: dict[str, np.ndarray] = {"acc_t_ns": acc_t_ns, "acc": acc}
     if gyr is not None and gyr_t_ns is not None:
         kw.update(gyr_t_ns=gyr_t_ns, gyr=gyr)

@@ -299,3 +299,23 @@ def test_format_a_without_magnetometer_columns_is_a_six_axis_recording(tmp_path:
     assert rec.batch.mag.shape == (0, 3) and "mag" not in rec.meta.units_converted
     assert ("without magnetometer" if not mag_cols else "scaledMagZ missing") in _notes(rec)
     np.testing.assert_allclose(rec.batch.acc, rows[:, 1:4] * G0, rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- time units
+@pytest.mark.parametrize("fmt", list(FORMATS))
+@pytest.mark.parametrize(("scale", "unit"), [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_times_in_another_unit_than_seconds_are_refused_not_rescaled(
+    tmp_path: Path, fmt: str, scale: float, unit: str
+) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    epoch = 1.7e18 if scale == 1e9 and fmt in ("C", "vicon") else 0.0  # an epoch clock where the file keeps 17 digits
+    rows[:, 0] = np.round(rows[:, 0] * scale + epoch)
+    with pytest.raises(ImporterError, match=unit) as ei:
+        load(_write(tmp_path, fmt, rows))
+    assert FORMATS[fmt][1] in str(ei.value)
+
+
+@pytest.mark.parametrize("rate", [20.0, 100.0, 250.0, 400.0, 1000.0])
+def test_plausible_rates_pass_the_time_unit_check(tmp_path: Path, rate: float) -> None:
+    rec = load(write_a(tmp_path / "SensorConnectData_95.csv", _rows(rate=rate)))
+    assert rec.meta.rate_hz == pytest.approx(rate, rel=1e-3)
