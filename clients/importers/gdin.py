@@ -140,36 +140,47 @@ def load_truth_mat(path: str | Path) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``gcp_m`` (K, 2) float [m] (cast from possibly integer storage), ``gcp_stride_numbers`` (K,) int,
-        ``gcp_exist_and_correct`` bool, ``number_of_strides`` int or None, ``tile_edge_length_m`` float or
-        None, ``closed_loop`` bool (first and last GCP coincide), ``truth_path_length_m`` float.
+        ``gcp_m`` (K, 2) float [m] (cast from possibly integer storage), ``gcp_stride_numbers`` (K,) int or
+        None (optional: only plots use it), ``gcp_exist_and_correct`` bool (True when the flag is absent),
+        ``number_of_strides`` int or None, ``tile_edge_length_m`` float or None, ``closed_loop`` bool (first
+        and last GCP coincide), ``truth_path_length_m`` float, ``truth_notes`` tuple of str (what was missing).
     """
     p = Path(path)
     try:
         d = sio.loadmat(p)
     except Exception as exc:  # noqa: BLE001
         raise ImporterError(p, "file", f"not a readable MATLAB file ({exc})") from exc
-    for key in ("GCP_meters", "GCP_stride_numbers", "GCP_exist_and_correct"):
-        if key not in d:
-            raise ImporterError(p, key, "variable missing (not a gdin ground-truth file)")
+    if "GCP_meters" not in d:
+        raise ImporterError(p, "GCP_meters", "variable missing (not a gdin ground-truth file)")
     gcp = np.asarray(d["GCP_meters"]).astype(np.float64)  # some files store integers: cast before differencing
     if gcp.ndim != 2 or gcp.shape[1] != 2 or gcp.shape[0] < 2:
         raise ImporterError(p, "GCP_meters", f"expected K x 2 (K >= 2) points [m], got shape {gcp.shape}")
     check_finite(p, ["GCP_meters x", "GCP_meters y"], gcp)
-    sn = np.asarray(d["GCP_stride_numbers"]).astype(np.int64).reshape(-1)
-    if sn.size != gcp.shape[0]:
-        raise ImporterError(p, "GCP_stride_numbers", f"{sn.size} entries for {gcp.shape[0]} GCPs")
+    notes: list[str] = []
+    if "GCP_stride_numbers" in d:  # only plots use it: optional
+        sn: np.ndarray | None = np.asarray(d["GCP_stride_numbers"]).astype(np.int64).reshape(-1)
+        if sn.size != gcp.shape[0]:
+            raise ImporterError(p, "GCP_stride_numbers", f"{sn.size} entries for {gcp.shape[0]} GCPs")
+    else:
+        sn = None
+        notes.append("GCP_stride_numbers missing")
+    if "GCP_exist_and_correct" in d:
+        usable = bool(int(np.asarray(d["GCP_exist_and_correct"]).reshape(-1)[0]) != 0)
+    else:  # the authors flag unusable points explicitly; without the flag they are taken as they are
+        usable = True
+        notes.append("GCP_exist_and_correct missing: ground-control points taken as usable")
     n_str = int(np.asarray(d["numberOfStrides"]).reshape(-1)[0]) if "numberOfStrides" in d else None
     tile = float(np.asarray(d["tile_edge_length"]).reshape(-1)[0]) if "tile_edge_length" in d else None
     seg = np.linalg.norm(np.diff(gcp, axis=0), axis=1)
     return {
         "gcp_m": gcp,
         "gcp_stride_numbers": sn,
-        "gcp_exist_and_correct": bool(int(np.asarray(d["GCP_exist_and_correct"]).reshape(-1)[0]) != 0),
+        "gcp_exist_and_correct": usable,
         "number_of_strides": n_str,
         "tile_edge_length_m": tile,
         "closed_loop": bool(np.linalg.norm(gcp[-1] - gcp[0]) < 1e-6),
         "truth_path_length_m": float(seg.sum()),
+        "truth_notes": tuple(notes),
     }
 
 

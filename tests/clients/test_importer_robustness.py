@@ -319,3 +319,43 @@ def test_times_in_another_unit_than_seconds_are_refused_not_rescaled(
 def test_plausible_rates_pass_the_time_unit_check(tmp_path: Path, rate: float) -> None:
     rec = load(write_a(tmp_path / "SensorConnectData_95.csv", _rows(rate=rate)))
     assert rec.meta.rate_hz == pytest.approx(rate, rel=1e-3)
+
+
+# ---------------------------------------------------------------------------------------------- gdin truth
+def _truth(path: Path, drop: tuple[str, ...] = (), **kw: np.ndarray) -> Path:
+    d = {"GCP_meters": np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 0.0]]),
+         "GCP_stride_numbers": np.array([[0, 2, 4, 6]]), "GCP_exist_and_correct": np.array([[1]], dtype=bool),
+         "numberOfStrides": np.array([[6.0]]), "tile_edge_length": np.array([[0.6]]), "expID": np.array([[96.0]])}
+    d.update(kw)
+    sio.savemat(path, {k: v for k, v in d.items() if k not in drop})
+    return path
+
+
+@pytest.mark.parametrize(
+    ("drop", "kw", "usable"),
+    [
+        (("GCP_stride_numbers",), {}, True),
+        (("GCP_exist_and_correct",), {}, True),
+        (("numberOfStrides", "tile_edge_length", "expID"), {}, True),
+        ((), {"GCP_meters": np.array([[0, 0], [3, 0], [3, 2], [0, 0]], dtype=np.int16)}, True),
+        ((), {"GCP_stride_numbers": np.array([[0], [2], [4], [6]], dtype=np.uint8)}, True),
+        ((), {"GCP_exist_and_correct": np.array([[0.0]])}, False),
+    ],
+)
+def test_gdin_truth_optional_fields_and_types(tmp_path: Path, drop: tuple[str, ...], kw: dict, usable: bool) -> None:
+    from clients.importers.gdin import load_truth_mat
+
+    x = load_truth_mat(_truth(tmp_path / "SensorConnectData_96.mat", drop, **kw))
+    assert x["gcp_m"].dtype == np.float64 and x["closed_loop"]
+    assert x["truth_path_length_m"] == pytest.approx(3.0 + 2.0 + np.hypot(3.0, 2.0))
+    assert x["gcp_exist_and_correct"] is usable
+    for k in drop:
+        assert any(k in n for n in x["truth_notes"]) or k in ("numberOfStrides", "tile_edge_length", "expID")
+
+
+def test_gdin_truth_without_ground_control_points_is_refused_by_name(tmp_path: Path) -> None:
+    from clients.importers.gdin import load_truth_mat
+
+    with pytest.raises(ImporterError, match="GCP_meters") as ei:
+        load_truth_mat(_truth(tmp_path / "SensorConnectData_97.mat", ("GCP_meters",)))
+    assert "SensorConnectData_97.mat" in str(ei.value)
