@@ -85,7 +85,7 @@ def load(path: str | Path) -> Recording:
     exp = experiment_number(p)
     root = p.parent.parent
     if exp is not None:
-        for e in find_gdin(root):
+        for e in find_gdin(root, recursive=False):  # the layout around this file only, never a deep scan
             if e.exp == exp and e.sensor_path.resolve() == p.resolve():
                 return load_gdin(e)
     if sniff(p):
@@ -220,18 +220,24 @@ class GdinEntry:
         return f"exp{self.exp:02d}"
 
 
-def find_gdin(root: str | Path) -> list[GdinEntry]:
+def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     """Pair every gdin sensor file under ``root`` with its truth by experiment number (sorted by NN).
 
-    Sensor files: ``*/SensorConnectData_NN.csv`` (formats A/B) and ``llio_mat/SensorConnectData_NN_*.mat``
-    (format C). Truth: ``*/SensorConnectData_NN.mat`` (excluding llio_mat) and
-    ``stride_gcp/SensorConnectData_NN_*.csv``.
+    Sensor files: ``<folder>/SensorConnectData_NN.csv`` (formats A/B) and ``llio_mat/SensorConnectData_NN_*.mat``
+    (format C). Truth: ``<folder>/SensorConnectData_NN.mat`` (excluding llio_mat) and
+    ``stride_gcp/SensorConnectData_NN_*.csv``. The folders may sit at any depth below ``root`` (the dataset
+    repository keeps them under ``data/``); when one experiment's file of a kind appears at several depths the
+    shallowest is used, at one depth the last in path order, and a CSV beats a format C copy of the same
+    experiment. Extensions are matched in any case. ``recursive=False``: only the folders directly below
+    ``root`` (what pairing one sensor file with its truth needs).
     """
     r = Path(root)
     sensors: dict[int, Path] = {}
     truths: dict[int, Path] = {}
     strides: dict[int, Path] = {}
-    for f in sorted(r.glob("*/SensorConnectData_*")):
+    candidates = r.rglob("SensorConnectData_*") if recursive else r.glob("*/SensorConnectData_*")
+    found = [f for f in candidates if f.is_file() and f.parent != r]
+    for f in sorted(found, key=lambda f: (-len(f.relative_to(r).parts), str(f))):  # deepest first: shallow wins
         exp = experiment_number(f)
         if exp is None:
             continue
@@ -239,7 +245,8 @@ def find_gdin(root: str | Path) -> list[GdinEntry]:
         if folder == "stride_gcp" and f.suffix.lower() == ".csv":
             strides[exp] = f
         elif folder == "llio_mat" and f.suffix.lower() == ".mat":
-            sensors.setdefault(exp, f)
+            if exp not in sensors or sensors[exp].suffix.lower() == ".mat":
+                sensors[exp] = f
         elif f.suffix.lower() == ".csv" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
             sensors[exp] = f  # a CSV beats a format C copy of the same experiment (it has the magnetometer)
         elif f.suffix.lower() == ".mat" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
@@ -275,6 +282,11 @@ def load_gdin(entry: GdinEntry) -> Recording:
     elif sniff_sensorconnect(entry.sensor_path):
         rec = load_sensorconnect(entry.sensor_path, name=entry.name)
     else:
+        try:  # says what is wrong with the header (missing Time / acc columns, empty file ...)
+            load_sensorconnect(entry.sensor_path, name=entry.name)
+        except ImporterError as exc:
+            problem = f"not a gdin sensor file (format A, B or C): {exc.problem}"
+            raise ImporterError(exc.path, exc.field, problem) from exc
         raise ImporterError(entry.sensor_path, "file", "not a gdin sensor file (format A, B or C)")
     extra: dict[str, Any] = {"exp": entry.exp}
     if entry.truth_path is not None:
