@@ -289,12 +289,15 @@ def test_gaitmap_index_with_a_dropped_sample_is_still_an_index(tmp_path: Path) -
 
 # ---------------------------------------------------------------------------------------------- 6-axis format A
 @pytest.mark.parametrize("mag_cols", [(), ("X", "Y")])
-def test_format_a_without_magnetometer_columns_is_a_six_axis_recording(tmp_path: Path, mag_cols: tuple[str, ...]) -> None:
+def test_format_a_without_magnetometer_columns_is_a_six_axis_recording(
+    tmp_path: Path, mag_cols: tuple[str, ...]
+) -> None:
     rows = _rows(mag=False)
     names = ["Time"] + [PREFIX + f"scaled{s}{a}" for s in ("Accel", "Gyro") for a in "XYZ"]
     names += [PREFIX + f"scaledMag{a}" for a in mag_cols]
     extra = np.column_stack([rows] + [np.full(N, 0.3)] * len(mag_cols))
-    rec = load(_csv(tmp_path / "SensorConnectData_94.csv", names + [PREFIX + "roll"], np.column_stack([extra, np.zeros(N)])))
+    rows_out = np.column_stack([extra, np.zeros(N)])
+    rec = load(_csv(tmp_path / "SensorConnectData_94.csv", names + [PREFIX + "roll"], rows_out))
     assert rec.meta.source_format == "sensorconnect-a" and len(rec.batch) == N
     assert rec.batch.mag.shape == (0, 3) and "mag" not in rec.meta.units_converted
     assert ("without magnetometer" if not mag_cols else "scaledMagZ missing") in _notes(rec)
