@@ -43,6 +43,7 @@ __all__ = [
     "apply_batch",
     "close_session",
     "engine_profile_in",
+    "engine_profile_from_stored",
     "feed_engine",
     "pool_feed",
     "json_safe",
@@ -132,7 +133,7 @@ class EngineHost:
             return hit[1]
         blob = load_state()
         if blob is None:
-            return self.new(mode, profile)
+            return self.new(mode, engine_profile_from_stored(profile))
         return self.engine_cls.from_bytes(unpack_state(blob))
 
     def remember(self, session_id: int, version: int, engine: EngineLike) -> None:
@@ -171,12 +172,34 @@ def json_safe(obj: Any) -> Any:
     return obj
 
 
+def _null_to_nan(v: Any) -> Any:
+    if v is None:
+        return float("nan")
+    if isinstance(v, dict):
+        return {k: _null_to_nan(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_null_to_nan(x) for x in v]
+    return v
+
+
 def _calibration_in(data: dict[str, Any]) -> dict[str, Any]:
-    """Stored calibration -> engine form: float fields stored as None (NaN) become NaN again."""
+    """Stored calibration -> engine form: a null float becomes NaN again, inside ``step_model`` at any depth.
+
+    The stored form is :func:`json_safe`'s: each non-finite float became null (JSON has none), also inside
+    ``step_model`` (a compass that never got its fit keeps its field ``m_n``, ``residual_std`` and
+    ``heading_rms`` NaN). The engine's profile form holds no None of its own, so a null is always such a
+    float. Restoring only the top-level fields left ``float(None)`` in the compass's ``from_state``: every
+    session start of a user whose stored profile came from a session without a magnetometer fit failed with
+    HTTP 500. (An infinite float, stored as null too, comes back as NaN.) At the top level only the float
+    fields are restored (a null ``calibrated`` or ``n_steps`` stays invalid input, as before).
+    """
     from energy.profile import BehaviourCalibration
 
     floats = {f.name for f in dataclasses.fields(BehaviourCalibration) if f.type in ("float", float)}
-    return {k: (float("nan") if k in floats and v is None else v) for k, v in data.items()}
+    out = {k: (float("nan") if k in floats and v is None else v) for k, v in data.items()}
+    if isinstance(out.get("step_model"), dict):
+        out["step_model"] = _null_to_nan(out["step_model"])
+    return out
 
 
 def validate_calibration(behaviour: str, data: dict[str, Any]) -> None:
@@ -184,6 +207,15 @@ def validate_calibration(behaviour: str, data: dict[str, Any]) -> None:
     from energy.profile import Profile
 
     Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
+
+
+def engine_profile_from_stored(profile: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A session's stored ``profile_in`` (:func:`json_safe` form, what :func:`engine_profile_in` handed its
+    engine) in the engine's form again."""
+    if not profile:
+        return None
+    behaviours = profile.get("behaviours") or {}
+    return {**profile, "behaviours": {b: _calibration_in(c) for b, c in behaviours.items() if isinstance(c, dict)}}
 
 
 def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:

@@ -8,7 +8,10 @@ Forms (DESIGN.md "Evaluation contracts")::
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
 goes to stderr. Exit status 0 when every selected recording was evaluated, 1 when any failed (the failure is
-listed in its row as ``"error"``; the JSON document is still printed).
+listed in its row as ``"error"`` and logged as one line naming the file and the problem, with a traceback only
+for unexpected errors; the JSON document is still printed) or when the folder holds no recording at all.
+A gdin recording without ground truth is not a failure: it is listed with the figures that need no truth and
+a note, and left out of the summary.
 
 ``--profile leave-one-out`` (pdr/auto): the returning-user protocol of :mod:`clients.evaluation.harness`.
 Each recording starts from the profile the engine handed out after walking the other selected recordings of
@@ -35,6 +38,22 @@ def _default_dir(name: str) -> Path | None:
     from clients.datasets import dataset_dir
 
     return dataset_dir(name)
+
+
+def _log_failure(what: Any, exc: Exception) -> None:
+    """One line for a file that cannot be used (``ImporterError``: the message names file, field and problem);
+    the traceback only for unexpected errors."""
+    from clients.importers import ImporterError
+
+    if isinstance(exc, ImporterError):
+        log.error("%s", exc)
+    else:
+        log.exception("%s failed", what)
+
+
+def _nothing_found(dataset: str, directory: Path, match: Any) -> None:
+    how = f" matching {match}" if match else ""
+    print(f"pednav eval {dataset}: no recording{how} found in {directory}", file=sys.stderr)
 
 
 def _progress(items: list[Any], desc: str) -> Any:
@@ -69,6 +88,8 @@ def _run_vicon(args: argparse.Namespace) -> int:
         print(f"pednav eval vicon: data folder not found ({args.dir or 'PEDNAV_DATA/vicon'})", file=sys.stderr)
         return 2
     files = harness.select(harness.vicon_files(directory), lambda f: f.stem, args.match, args.limit)
+    if not files:
+        _nothing_found("vicon", directory, args.match)
     runner = _runner(args.batch_seconds)
     rows: list[dict[str, Any]] = []
     failed = 0
@@ -76,7 +97,7 @@ def _run_vicon(args: argparse.Namespace) -> int:
         try:
             ev = harness.evaluate_vicon_recording(harness.load_vicon_trial(f), runner)
         except Exception as exc:  # noqa: BLE001 - one broken trial must not hide the others
-            log.exception("%s failed", f)
+            _log_failure(f, exc)
             rows.append({"name": f.stem, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
@@ -102,7 +123,7 @@ def _run_vicon(args: argparse.Namespace) -> int:
         s = doc["summary"]
         print(f"\n{s['trials']} trials: mean 2-D ARMSE {_fmt(s['mean_armse_2d_m'], '.3f')} m, "
               f"median {_fmt(s['median_armse_2d_m'], '.3f')} m")
-    return 1 if failed else 0
+    return 1 if failed or not files else 0
 
 
 def _run_gdin(args: argparse.Namespace) -> int:
@@ -120,6 +141,8 @@ def _run_gdin(args: argparse.Namespace) -> int:
         print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
         return 2
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
+    if not entries:
+        _nothing_found("gdin", directory, args.match)
     runner = _runner(args.batch_seconds, args.conventional)
     rows: list[dict[str, Any]] = []
     failed = 0
@@ -130,7 +153,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
             rec = harness.load_gdin_entry(e)
             ev = harness.evaluate_gdin_recording(rec, runner, args.mode, args.l0)
         except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
-            log.exception("%s failed", e.sensor_path)
+            _log_failure(e.sensor_path, exc)
             rows.append({"name": e.name, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
@@ -138,7 +161,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
         rows.append(ev.row)
         if loo:
             recs[e.name], new_user[e.name] = rec, (run.profile, run.events)
-        elif args.plot:
+        elif args.plot and "gcp_xy" in ev.plot:
             from clients.evaluation.plots import plot_gdin
 
             plot_gdin(args.plot, ev.row, ev.plot)
@@ -174,8 +197,8 @@ def _run_gdin(args: argparse.Namespace) -> int:
             print(
                 f"{r['name']:<6} {r['format']:<16} {_fmt(r.get('loop_closure_pct'), '6.2f')} "
                 f"{_fmt(r.get('stride_mean_err_m'), '7.2f')} {_fmt(r.get('stride_rmse_m'), '7.2f')} "
-                f"{r['distance_err_pct']:>6.2f} {r['strides_detected']:>4d}/{r['strides_truth']:<4d} "
-                f"{r['gyro_on_fraction']:>5.2f} {r['mean_rate_hz']:>6.1f}  {'' if r['gt_usable'] else 'GT flagged unusable: not in summary'}"
+                f"{_fmt(r['distance_err_pct'], '6.2f')} {r['strides_detected']:>4d}/{_fmt(r['strides_truth'], '<4d')} "
+                f"{r['gyro_on_fraction']:>5.2f} {r['mean_rate_hz']:>6.1f}  {_gt_note(r)}"
             )
         print("\nsummary (usable ground truth only):")
         for k, s in doc["summary"].items():
@@ -193,7 +216,13 @@ def _run_gdin(args: argparse.Namespace) -> int:
                           f"{pr['calibrated_in'].get('walk', '-'):<6} resumed {str(pr['resumed']):<5} "
                           f"exam passed/failed {ev['examination_passed']}/{ev['examination_failed']} "
                           f"calibrations {ev['calibration_done']}")
-    return 1 if failed else 0
+    return 1 if failed or not entries else 0
+
+
+def _gt_note(row: dict[str, Any]) -> str:
+    if row["gt_usable"]:
+        return ""
+    return "no ground truth: not in summary" if row.get("strides_truth") is None else "GT flagged unusable: not in summary"
 
 
 _COMPARED = ("loop_closure_pct", "stride_mean_err_m", "stride_rmse_m", "distance_err_pct", "gyro_on_fraction",
@@ -233,7 +262,7 @@ def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: d
                 raise RuntimeError(f"{name} would feed its own profile")
             ev = harness.evaluate_gdin_recording(recs[name], runner, args.mode, args.l0, profile=profile)
         except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
-            log.exception("%s (returning user) failed", name)
+            _log_failure(f"{name} (returning user)", exc)
             rows.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
@@ -242,7 +271,7 @@ def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: d
         ev.row["new_user"] = {k: by_name[name].get(k) for k in _COMPARED if k in by_name[name]}
         ev.row["new_user"]["events"] = harness.event_counts(new_user[name][1])
         rows.append(ev.row)
-        if args.plot:
+        if args.plot and "gcp_xy" in ev.plot:
             from clients.evaluation.plots import plot_gdin
 
             plot_gdin(args.plot, ev.row, ev.plot)

@@ -234,6 +234,8 @@ def evaluate_vicon_recording(rec: Recording, runner: Runner) -> Evaluated:
         "behaviour": behaviour_fractions(run.t_ns, run.behaviour),
         "stances": int(run.stances.shape[0]),
     }
+    if rec.meta.notes:  # what the importer dropped (e.g. truth samples of an occluded marker)
+        row["notes"] = list(rec.meta.notes)
     return Evaluated(row, {"est_xy": aligned[:, :2], "truth_xy": gt0[:, :2]})
 
 
@@ -242,13 +244,28 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     """gdin metrics of DESIGN.md for one recording (keys present only where that truth exists).
 
     ``profile``: the per-user profile the engine starts with (passed to ``runner`` as ``profile=`` only when
-    not None); the plot dict keeps the :class:`EngineRun` under ``"run"``.
+    not None); the plot dict keeps the :class:`EngineRun` under ``"run"``. A recording without ground-control
+    points still runs: its row has the figures that need no truth, ``distance_err_pct``/``strides_truth``
+    ``None``, ``gt_usable`` False (never in the summary) and a note; stride errors need strides 0 and 1 in
+    both the stride table and ``GCP_meters``. ``notes`` (only when there are any): what the importer dropped
+    or found missing (``RecordingMeta.notes``, ``truth_notes``) and why a metric is absent.
     """
     x = rec.truth.extra if rec.truth is not None else {}
-    if "gcp_m" not in x:
-        raise ValueError(f"{rec.name}: no ground-control points (truth .mat missing)")
     run = runner(rec.batch, mode, l0_m) if profile is None else runner(rec.batch, mode, l0_m, profile=profile)  # type: ignore[call-arg]
     st = run.stances
+    notes = list(rec.meta.notes) + list(x.get("truth_notes", ()))
+    if "gcp_m" not in x:
+        # nothing to compare with: the engine's own figures, listed but never in the summary
+        notes.append("no ground truth (no SensorConnectData_NN.mat with GCP_meters for this experiment): "
+                     "figures without truth only, left out of the summary")
+        est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
+        row0: dict[str, Any] = {
+            "name": rec.name, "distance_err_pct": None, "strides_detected": max(int(st.shape[0]) - 1, 0),
+            "strides_truth": None, "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
+            "gt_usable": False, "format": rec.meta.source_format, "est_path_m": est_len, "truth_path_m": None,
+            "notes": notes,
+        }
+        return Evaluated(row0, {"stances_xy": st[:, 1:3].copy(), "run": run}, usable=False)
     truth_len = float(x["truth_path_length_m"])
     n_truth = x.get("number_of_strides")
     row: dict[str, Any] = {"name": rec.name}
@@ -260,11 +277,16 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     }
     if x.get("closed_loop") and st.shape[0] >= 2:
         row["loop_closure_pct"] = metrics.loop_closure_pct(st[0, 1:3], st[-1, 1:3], truth_len)
+    n = -1
     if "stride_t_ns" in x:
         gcp = np.asarray(x["gcp_m"], dtype=np.float64)
         n = min(len(x["stride_t_ns"]), gcp.shape[0]) - 1
         if n_truth is not None:
             n = min(n, int(n_truth))
+        if n < 1:
+            notes.append(f"stride table and GCP_meters share {n + 1} stride(s): no stride errors "
+                         "(need strides 0 and 1)")
+    if n >= 1:
         est = positions_at(run.t_ns, run.pos, np.asarray(x["stride_t_ns"])[: n + 1])
         se = metrics.stride_errors(est[:, :2], gcp[: n + 1])
         row["stride_mean_err_m"] = se.mean_m
@@ -287,6 +309,8 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     row["format"] = rec.meta.source_format
     row["est_path_m"] = est_len
     row["truth_path_m"] = truth_len
+    if notes:
+        row["notes"] = notes
     return Evaluated(row, plot, usable=row["gt_usable"])
 
 
@@ -316,8 +340,9 @@ def select(items: Iterable[Any], names: Callable[[Any], str], match: Sequence[st
 
 
 def vicon_files(directory: str | Path) -> list[Path]:
-    """Every ``*.mat`` in ``directory`` (sorted), as DESIGN.md's ``pednav eval vicon DIR`` specifies."""
-    return sorted(Path(directory).glob("*.mat"))
+    """Every ``*.mat`` in ``directory`` (sorted), as DESIGN.md's ``pednav eval vicon DIR`` specifies (the
+    extension in any case: ``.MAT`` from a Windows export too)."""
+    return sorted(f for f in Path(directory).iterdir() if f.suffix.lower() == ".mat" and f.is_file())
 
 
 def gdin_entries(directory: str | Path) -> list[GdinEntry]:

@@ -1,19 +1,31 @@
 """Shared checks of the importers: one error type, timestamp policy, finite checks, batch assembly.
 
-Timestamp policy (applies to every importer)
---------------------------------------------
+Sample policy (applies to every importer; what is dropped is logged and noted in ``RecordingMeta.notes``)
+------------------------------------------------------------------------------------------------------
+- A row whose time is not finite (empty cell, NaN) cannot be placed: it is dropped. More than
+  :data:`MAX_DROPPED_ROW_FRACTION` of such rows: the file is rejected (it is not what it claims to be).
+- A sample with a non-finite value (empty cell, NaN, inf) is dropped from its stream only, as a sample the
+  sensor did not deliver (loggers leave the cells of a slower stream empty; a logging glitch leaves a row
+  empty). A required stream (accelerometer, gyroscope) left with fewer than :data:`MIN_SAMPLES` samples is
+  rejected; an optional one (magnetometer) is then left out.
 - Timestamps going backwards: rejected (:class:`ImporterError`); a file whose clock jumps back cannot be
   ordered without guessing.
 - A duplicated timestamp whose row is an exact copy of the previous row (logger wrote a sample twice):
-  the copy is dropped, a warning is logged and a note is added to ``RecordingMeta.notes``.
-- A duplicated timestamp with *different* values: rejected; which of the two samples is right (or whether
-  the clock stalled) cannot be decided without guessing.
+  the copy is dropped.
+- A duplicated timestamp with *different* values: which of the samples is right (or whether the clock
+  stalled) cannot be decided, so neither is used: every sample of that timestamp is dropped (a gap of a
+  sample or two, which the engine handles). More than :data:`MAX_CONFLICT_FRACTION` of the samples in such
+  groups: rejected (the clock is too coarse for the rate; dropping would leave holes everywhere).
 - Jitter (monotonic, uneven spacing) is kept as recorded: the engine works with real timestamps.
+- The accelerometer's median sample interval must give a rate within :data:`RATE_RANGE_HZ`; otherwise the
+  time column is in another unit than the format says (ms, us, ns read as s) and the file is rejected with
+  the unit it looks like, never rescaled by guess.
 """
 
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,15 +35,28 @@ from models.batch import BatchError, SensorBatch
 __all__ = [
     "ImporterError",
     "G0",
+    "MAX_DROPPED_ROW_FRACTION",
+    "MAX_CONFLICT_FRACTION",
+    "MIN_SAMPLES",
+    "RATE_RANGE_HZ",
     "seconds_to_ns",
     "check_finite",
     "clean_timestamps",
+    "drop_untimed_rows",
+    "clean_stream",
+    "check_rate",
+    "read_csv_rows",
     "make_batch",
 ]
 
 log = logging.getLogger(__name__)
 
 G0 = 9.80665  # standard gravity [m/s^2], the unit "g" of accelerometer vendors
+MAX_DROPPED_ROW_FRACTION = 0.10  # rows without a usable time (or malformed) above this: the file is rejected
+MAX_CONFLICT_FRACTION = 0.05  # samples in conflicting duplicated-timestamp groups above this: rejected
+MIN_SAMPLES = 10  # a required stream needs at least this many finite samples
+RATE_RANGE_HZ = (2.0, 10000.0)  # plausible accelerometer rates [Hz]; outside: the time unit is not seconds
+_MAX_SECONDS = 9.0e9  # |t| [s] that int64 nanoseconds can hold (2^63 ns = 9.22e9 s)
 
 
 class ImporterError(ValueError):
@@ -73,6 +98,9 @@ def seconds_to_ns(path: str | Path, field: str, t_s: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(t)):
         i = int(np.argmax(~np.isfinite(t)))
         raise ImporterError(path, field, f"time of row {i} is not finite ({t[i]})")
+    if t.size and float(np.max(np.abs(t))) > _MAX_SECONDS:
+        raise ImporterError(path, field, f"time {float(np.max(np.abs(t))):.6g} is beyond int64 nanoseconds as seconds: "
+                            "the times look like nanoseconds or microseconds, not seconds; refusing to guess")
     return np.round(t * 1e9).astype(np.int64)
 
 
@@ -97,14 +125,19 @@ def clean_timestamps(
     t_ns : ndarray of int64, shape (N,)
         Sample times [ns].
     values : ndarray, shape (N, M)
-        All value columns sharing that time axis (any units).
+        All value columns sharing that time axis (any units; NaN equals NaN when rows are compared).
 
     Returns
     -------
     t_ns, values : ndarray
-        With exact duplicate rows removed.
+        With exact duplicate rows reduced to one and conflicting duplicated timestamps removed.
     notes : list of str
         What was repaired (empty when nothing was).
+
+    Raises
+    ------
+    ImporterError
+        Empty, timestamps going backwards, or conflicting duplicates above :data:`MAX_CONFLICT_FRACTION`.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     v = np.asarray(values, dtype=np.float64).reshape(t.size, -1)
@@ -116,20 +149,190 @@ def clean_timestamps(
         raise ImporterError(path, field, f"timestamps go backwards at row {i} ({t[i - 1]} -> {t[i]} ns)")
     notes: list[str] = []
     dup = np.flatnonzero(d == 0) + 1
-    if dup.size:
-        same = np.all(v[dup] == v[dup - 1], axis=1)
-        if not np.all(same):
-            i = int(dup[np.argmin(same)])
-            raise ImporterError(
-                path, field, f"duplicated timestamp {t[i]} ns at row {i} with different values (cannot tell which is right)"
-            )
-        keep = np.ones(t.size, dtype=bool)
-        keep[dup] = False
-        t, v = t[keep], v[keep]
-        msg = f"{field}: dropped {dup.size} exact duplicate row(s) (repeated timestamp and values)"
+    if not dup.size:
+        return t, v, notes
+    a, b = v[dup], v[dup - 1]
+    same = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    keep = np.ones(t.size, dtype=bool)
+    keep[dup[same]] = False  # exact copies: the first one stays
+    n_copies = int(same.sum())
+    if n_copies:
+        msg = f"{field}: dropped {n_copies} exact duplicate row(s) (repeated timestamp and values)"
         log.warning("%s: %s", path, msg)
         notes.append(msg)
-    return t, v, notes
+    conflict_t = np.unique(t[dup[~same]])
+    if conflict_t.size:
+        bad = np.isin(t, conflict_t)
+        n_bad = int(bad.sum())
+        if n_bad > MAX_CONFLICT_FRACTION * t.size:
+            i = int(dup[~same][0])
+            raise ImporterError(
+                path, field, f"{n_bad} of {t.size} samples share a timestamp with different values (first at row {i}, "
+                f"{t[i]} ns): the clock is too coarse for the sample rate; cannot tell the samples' times")
+        keep &= ~bad
+        msg = (f"{field}: {conflict_t.size} timestamp(s) carried different values (first {int(conflict_t[0])} ns); "
+               f"all {n_bad} sample(s) at them dropped (cannot tell which is right)")
+        log.warning("%s: %s", path, msg)
+        notes.append(msg)
+    return t[keep], v[keep], notes
+
+
+def drop_untimed_rows(
+    path: str | Path, field: str, t_s: np.ndarray, n_total: int | None = None
+) -> tuple[np.ndarray, list[str]]:
+    """Which rows have a finite time; rejects a file where too many do not.
+
+    Parameters
+    ----------
+    path, field : str
+        Used in error messages and notes (``field`` = the time column).
+    t_s : ndarray, shape (N,)
+        Times [any unit]; NaN/inf where the cell was empty or unreadable.
+    n_total : int, optional
+        Rows the file had before other rows were discarded (e.g. malformed lines) that count against
+        :data:`MAX_DROPPED_ROW_FRACTION` too (default N).
+
+    Returns
+    -------
+    keep : ndarray of bool, shape (N,)
+        Rows with a finite time.
+    notes : list of str
+    """
+    t = np.asarray(t_s, dtype=np.float64).reshape(-1)
+    keep = np.isfinite(t)
+    total = max(int(n_total if n_total is not None else t.size), 1)
+    lost = total - int(keep.sum())
+    if not keep.any():
+        raise ImporterError(path, field, "no row has a finite time")
+    if lost > MAX_DROPPED_ROW_FRACTION * total:
+        i = int(np.argmax(~keep)) if (~keep).any() else -1
+        raise ImporterError(path, field, f"{lost} of {total} rows have no usable time (first unusable row {i}): "
+                            "not a recording this importer can trust")
+    notes: list[str] = []
+    if (~keep).any():
+        i = int(np.argmax(~keep))
+        msg = f"{field}: dropped {int((~keep).sum())} row(s) whose time is not finite (first row {i})"
+        log.warning("%s: %s", path, msg)
+        notes.append(msg)
+    return keep, notes
+
+
+def clean_stream(
+    path: str | Path, time_field: str, columns: list[str], t_ns: np.ndarray, values: np.ndarray, required: bool = True
+) -> tuple[np.ndarray | None, np.ndarray | None, list[str]]:
+    """One sensor stream after the sample policy: non-finite samples dropped, then :func:`clean_timestamps`.
+
+    Parameters
+    ----------
+    path, time_field : str
+        Used in error messages and notes.
+    columns : list of str
+        Names of the value columns (errors and notes name the first one).
+    t_ns : ndarray of int64, shape (N,)
+        Sample times [ns] (finite).
+    values : ndarray, shape (N, M)
+        The stream's values (any units); NaN/inf where the sensor did not deliver.
+    required : bool
+        An accelerometer/gyroscope (True: fewer than :data:`MIN_SAMPLES` finite samples is an error) or an
+        optional stream (False: then ``None`` is returned with a note).
+
+    Returns
+    -------
+    t_ns, values : ndarray or None
+        The usable samples (``None`` for an optional stream without any).
+    notes : list of str
+    """
+    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    v = np.asarray(values, dtype=np.float64).reshape(t.size, -1)
+    ok = np.all(np.isfinite(v), axis=1)
+    notes: list[str] = []
+    name = columns[0] if columns else "values"
+    if int(ok.sum()) < (MIN_SAMPLES if required else 1):
+        if required:
+            raise ImporterError(path, name, f"only {int(ok.sum())} of {t.size} samples are finite: no usable stream")
+        msg = f"{name}: no finite sample; stream left out"
+        log.warning("%s: %s", path, msg)
+        return None, None, [msg]
+    if not ok.all():
+        i = int(np.argmax(~ok))
+        msg = f"{name}: dropped {int((~ok).sum())} sample(s) with a non-finite value (first row {i})"
+        log.warning("%s: %s", path, msg)
+        notes.append(msg)
+        t, v = t[ok], v[ok]
+    t, v, n = clean_timestamps(path, time_field, t, v)
+    return t, v, notes + n
+
+
+def check_rate(path: str | Path, field: str, t_ns: np.ndarray) -> None:
+    """Reject a time axis whose median sample interval is not a plausible IMU rate (:data:`RATE_RANGE_HZ`).
+
+    A time column in milliseconds read as seconds gives intervals of ~5 "s" (0.2 Hz); one in nanoseconds gives
+    ~5e6 "s". The message says which unit it looks like; the importer never rescales by guess.
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    if t.size < MIN_SAMPLES:
+        return
+    dt_s = float(np.median(np.diff(t))) * 1e-9
+    lo, hi = RATE_RANGE_HZ
+    if dt_s <= 0 or not (1.0 / hi <= dt_s <= 1.0 / lo):
+        rate = 1.0 / dt_s if dt_s > 0 else float("inf")
+        if dt_s > 1.0 / lo:
+            hint = next((u for u, k in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+                         if 1.0 / hi <= dt_s / k <= 1.0 / lo), "another unit")
+        else:
+            hint = "another unit (or far too many samples per second)"
+        raise ImporterError(
+            path, field, f"median sample interval {dt_s:.6g} s ({rate:.4g} Hz) is not a plausible IMU rate "
+            f"({lo:g}-{hi:g} Hz): the times look like {hint}, not seconds; refusing to guess")
+
+
+def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[np.ndarray, list[str], int]:
+    """The data rows of a comma-separated file with ``n_cols`` fields per line, as floats.
+
+    Empty or unreadable cells become NaN (the sample policy then drops them per stream). Lines with another
+    number of fields (e.g. the last line of a logger stopped mid-write) are skipped and named in a note;
+    blank lines are ignored; CR/LF line ends are both accepted.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    n_cols : int
+        Fields per line (the header's).
+    skip_header : int
+        Header lines before the data.
+
+    Returns
+    -------
+    rows : ndarray, shape (R, n_cols)
+    notes : list of str
+    n_lines : int
+        Non-blank data lines in the file (read or not), for :func:`drop_untimed_rows`.
+    """
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace", newline=None) as fh:
+            lines = fh.read().splitlines()[skip_header:]
+    except OSError as exc:
+        raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
+    numbered = [(i + skip_header + 1, ln) for i, ln in enumerate(lines) if ln.strip()]
+    good = [ln for _, ln in numbered if ln.count(",") == n_cols - 1]
+    bad = [k for k, ln in numbered if ln.count(",") != n_cols - 1]
+    notes: list[str] = []
+    if bad:
+        shown = ", ".join(str(k) for k in bad[:5]) + (" ..." if len(bad) > 5 else "")
+        msg = f"skipped {len(bad)} line(s) without {n_cols} fields (line {shown})"
+        log.warning("%s: %s", p, msg)
+        notes.append(msg)
+    if len(bad) > MAX_DROPPED_ROW_FRACTION * max(len(numbered), 1):
+        raise ImporterError(p, "rows", f"{len(bad)} of {len(numbered)} lines do not have the header's {n_cols} fields "
+                            f"(first: line {bad[0]}): not the format the header announces")
+    if not good:
+        return np.zeros((0, n_cols)), notes, len(numbered)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unreadable cells become NaN, handled by the sample policy
+        data = np.genfromtxt(good, delimiter=",", dtype=np.float64, invalid_raise=True)
+    return np.atleast_2d(data).reshape(len(good), n_cols), notes, len(numbered)
 
 
 def make_batch(
@@ -142,7 +345,9 @@ def make_batch(
     mag: np.ndarray | None = None,
 ) -> SensorBatch:
     """Assemble and validate a :class:`SensorBatch` (SI units), turning a ``BatchError`` into an
-    :class:`ImporterError` that names the file."""
+    :class:`ImporterError` that names the file; the accelerometer's rate must be plausible
+    (:func:`check_rate`)."""
+    check_rate(path, "acc time", acc_t_ns)
     kw: dict[str, np.ndarray] = {"acc_t_ns": acc_t_ns, "acc": acc}
     if gyr is not None and gyr_t_ns is not None:
         kw.update(gyr_t_ns=gyr_t_ns, gyr=gyr)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch
+from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, read_csv_rows
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "load", "load_gaitmap"]
@@ -103,15 +103,9 @@ def load_gaitmap(
     axes, sensors = _headers(p)
     if foot not in ("left", "right"):
         raise ValueError(f"foot must be 'left' or 'right', got {foot!r}")
-    try:
-        data = np.genfromtxt(p, delimiter=",", skip_header=2 if sensors else 1, dtype=np.float64)
-    except ValueError as exc:
-        raise ImporterError(p, "rows", f"malformed CSV ({exc})") from exc
-    if data.size == 0:
+    data, notes, n_lines = read_csv_rows(p, len(axes), skip_header=2 if sensors else 1)
+    if n_lines == 0:
         raise ImporterError(p, "rows", "no samples (empty file)")
-    data = np.atleast_2d(data)
-    if data.shape[1] != len(axes):
-        raise ImporterError(p, "rows", f"{data.shape[1]} values per row but {len(axes)} header columns")
 
     def col(name: str) -> int:
         for i, a in enumerate(axes):
@@ -122,9 +116,15 @@ def load_gaitmap(
     idx = [col(a) for a in _AXES]
     has_mag = sensors is None and all(m in axes for m in _MAG)
     midx = [col(m) for m in _MAG] if has_mag else []
-    check_finite(p, [axes[0] or "index/time"] + [axes[i] for i in idx + midx], data[:, [0] + idx + midx])
+    tname = axes[0] or "index/time"
+    keep, tn = drop_untimed_rows(p, tname, data[:, 0], n_total=n_lines)
+    notes += tn
+    data = data[keep]
     first = data[:, 0]
-    is_index = bool(np.allclose(first, np.round(first)) and first.size > 1 and np.all(np.diff(first) == 1))
+    # a sample index: whole numbers counting up by one (a dropped sample leaves a step of 2, not a new unit)
+    steps = np.diff(first)
+    is_index = bool(first.size > 1 and np.allclose(first, np.round(first)) and np.all(steps >= 0)
+                    and float(np.median(steps)) == 1.0)
     if is_index:
         rate = rate_hz if rate_hz is not None else KNOWN_RATES_HZ.get(p.name)
         if rate is None:
@@ -133,19 +133,25 @@ def load_gaitmap(
     else:
         t_s = first - first[0]
     t_ns = np.round(t_s * 1e9).astype(np.int64)
-    t_ns, vals, notes = clean_timestamps(p, axes[0] or "time", t_ns, data[:, idx + midx])
-    acc = vals[:, 0:3]
-    gyr = np.deg2rad(vals[:, 3:6])
+    acc_t, acc_v, n1 = clean_stream(p, tname, [axes[i] for i in idx[:3]], t_ns, data[:, idx[:3]])
+    gyr_t, gyr_v, n2 = clean_stream(p, tname, [axes[i] for i in idx[3:]], t_ns, data[:, idx[3:]])
+    mag_t = mag_v = None
+    n3: list[str] = []
+    if midx:
+        mag_t, mag_v, n3 = clean_stream(p, tname, [axes[i] for i in midx], t_ns, data[:, midx], required=False)
+    notes += n1 + n2 + n3
+    acc = acc_v
+    gyr = np.deg2rad(gyr_v)
     units = {"gyr": "deg/s -> rad/s (x pi/180)"}
     mag = None
-    if has_mag:
+    if has_mag and mag_v is not None:
         if mag_scale_ut is None:
             units["mag"] = "Xsens normalised (scale unknown) -> NOT imported; pass mag_scale_ut to convert"
             notes.append("magnetometer in Xsens normalised units with unknown scale: left out of the batch")
         else:
-            mag = vals[:, 6:9] * float(mag_scale_ut)
+            mag = mag_v * float(mag_scale_ut)
             units["mag"] = f"Xsens normalised -> uT (x {mag_scale_ut:g}, user-supplied scale)"
-    batch = make_batch(p, t_ns, acc, t_ns.copy(), gyr, t_ns.copy() if mag is not None else None, mag)
+    batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t if mag is not None else None, mag)
     truth = _mocap_truth(p, foot) if sensors is not None else None
     meta = RecordingMeta(
         source_format="gaitmap-csv",

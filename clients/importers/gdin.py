@@ -33,7 +33,14 @@ from typing import Any
 import numpy as np
 import scipy.io as sio
 
-from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch, seconds_to_ns
+from clients.importers._common import (
+    ImporterError,
+    check_finite,
+    clean_stream,
+    drop_untimed_rows,
+    make_batch,
+    seconds_to_ns,
+)
 from clients.importers.sensorconnect import load_sensorconnect
 from clients.importers.sensorconnect import sniff as sniff_sensorconnect
 from clients.recording import Recording, RecordingMeta, Truth
@@ -78,7 +85,7 @@ def load(path: str | Path) -> Recording:
     exp = experiment_number(p)
     root = p.parent.parent
     if exp is not None:
-        for e in find_gdin(root):
+        for e in find_gdin(root, recursive=False):  # the layout around this file only, never a deep scan
             if e.exp == exp and e.sensor_path.resolve() == p.resolve():
                 return load_gdin(e)
     if sniff(p):
@@ -110,10 +117,13 @@ def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
         raise ImporterError(p, "imu_data", "no samples (empty)")
     if ts.size != imu.shape[0]:
         raise ImporterError(p, "timestamps", f"{ts.size} timestamps for {imu.shape[0]} imu_data rows")
-    check_finite(p, [f"imu_data[:,{i}]" for i in range(6)], imu)
-    t_ns = seconds_to_ns(p, "timestamps", ts)
-    t_ns, imu, notes = clean_timestamps(p, "timestamps", t_ns, imu)
-    batch = make_batch(p, t_ns, imu[:, :3], t_ns.copy(), imu[:, 3:])
+    keep, notes = drop_untimed_rows(p, "timestamps", ts)
+    imu, ts = imu[keep], ts[keep]
+    t_all = seconds_to_ns(p, "timestamps", ts)
+    acc_t, acc, n1 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3)], t_all, imu[:, :3])
+    gyr_t, gyr, n2 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3, 6)], t_all, imu[:, 3:])
+    notes += n1 + n2
+    batch = make_batch(p, acc_t, acc, gyr_t, gyr)
     meta = RecordingMeta(
         source_format="gdin-llio-mat",
         rate_hz=float(batch.rate_hz("acc")),
@@ -130,36 +140,47 @@ def load_truth_mat(path: str | Path) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``gcp_m`` (K, 2) float [m] (cast from possibly integer storage), ``gcp_stride_numbers`` (K,) int,
-        ``gcp_exist_and_correct`` bool, ``number_of_strides`` int or None, ``tile_edge_length_m`` float or
-        None, ``closed_loop`` bool (first and last GCP coincide), ``truth_path_length_m`` float.
+        ``gcp_m`` (K, 2) float [m] (cast from possibly integer storage), ``gcp_stride_numbers`` (K,) int or
+        None (optional: only plots use it), ``gcp_exist_and_correct`` bool (True when the flag is absent),
+        ``number_of_strides`` int or None, ``tile_edge_length_m`` float or None, ``closed_loop`` bool (first
+        and last GCP coincide), ``truth_path_length_m`` float, ``truth_notes`` tuple of str (what was missing).
     """
     p = Path(path)
     try:
         d = sio.loadmat(p)
     except Exception as exc:  # noqa: BLE001
         raise ImporterError(p, "file", f"not a readable MATLAB file ({exc})") from exc
-    for key in ("GCP_meters", "GCP_stride_numbers", "GCP_exist_and_correct"):
-        if key not in d:
-            raise ImporterError(p, key, "variable missing (not a gdin ground-truth file)")
+    if "GCP_meters" not in d:
+        raise ImporterError(p, "GCP_meters", "variable missing (not a gdin ground-truth file)")
     gcp = np.asarray(d["GCP_meters"]).astype(np.float64)  # some files store integers: cast before differencing
     if gcp.ndim != 2 or gcp.shape[1] != 2 or gcp.shape[0] < 2:
         raise ImporterError(p, "GCP_meters", f"expected K x 2 (K >= 2) points [m], got shape {gcp.shape}")
     check_finite(p, ["GCP_meters x", "GCP_meters y"], gcp)
-    sn = np.asarray(d["GCP_stride_numbers"]).astype(np.int64).reshape(-1)
-    if sn.size != gcp.shape[0]:
-        raise ImporterError(p, "GCP_stride_numbers", f"{sn.size} entries for {gcp.shape[0]} GCPs")
+    notes: list[str] = []
+    if "GCP_stride_numbers" in d:  # only plots use it: optional
+        sn: np.ndarray | None = np.asarray(d["GCP_stride_numbers"]).astype(np.int64).reshape(-1)
+        if sn.size != gcp.shape[0]:
+            raise ImporterError(p, "GCP_stride_numbers", f"{sn.size} entries for {gcp.shape[0]} GCPs")
+    else:
+        sn = None
+        notes.append("GCP_stride_numbers missing")
+    if "GCP_exist_and_correct" in d:
+        usable = bool(int(np.asarray(d["GCP_exist_and_correct"]).reshape(-1)[0]) != 0)
+    else:  # the authors flag unusable points explicitly; without the flag they are taken as they are
+        usable = True
+        notes.append("GCP_exist_and_correct missing: ground-control points taken as usable")
     n_str = int(np.asarray(d["numberOfStrides"]).reshape(-1)[0]) if "numberOfStrides" in d else None
     tile = float(np.asarray(d["tile_edge_length"]).reshape(-1)[0]) if "tile_edge_length" in d else None
     seg = np.linalg.norm(np.diff(gcp, axis=0), axis=1)
     return {
         "gcp_m": gcp,
         "gcp_stride_numbers": sn,
-        "gcp_exist_and_correct": bool(int(np.asarray(d["GCP_exist_and_correct"]).reshape(-1)[0]) != 0),
+        "gcp_exist_and_correct": usable,
         "number_of_strides": n_str,
         "tile_edge_length_m": tile,
         "closed_loop": bool(np.linalg.norm(gcp[-1] - gcp[0]) < 1e-6),
         "truth_path_length_m": float(seg.sum()),
+        "truth_notes": tuple(notes),
     }
 
 
@@ -199,18 +220,24 @@ class GdinEntry:
         return f"exp{self.exp:02d}"
 
 
-def find_gdin(root: str | Path) -> list[GdinEntry]:
+def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     """Pair every gdin sensor file under ``root`` with its truth by experiment number (sorted by NN).
 
-    Sensor files: ``*/SensorConnectData_NN.csv`` (formats A/B) and ``llio_mat/SensorConnectData_NN_*.mat``
-    (format C). Truth: ``*/SensorConnectData_NN.mat`` (excluding llio_mat) and
-    ``stride_gcp/SensorConnectData_NN_*.csv``.
+    Sensor files: ``<folder>/SensorConnectData_NN.csv`` (formats A/B) and ``llio_mat/SensorConnectData_NN_*.mat``
+    (format C). Truth: ``<folder>/SensorConnectData_NN.mat`` (excluding llio_mat) and
+    ``stride_gcp/SensorConnectData_NN_*.csv``. The folders may sit at any depth below ``root`` (the dataset
+    repository keeps them under ``data/``); when one experiment's file of a kind appears at several depths the
+    shallowest is used, at one depth the last in path order, and a CSV beats a format C copy of the same
+    experiment. Extensions are matched in any case. ``recursive=False``: only the folders directly below
+    ``root`` (what pairing one sensor file with its truth needs).
     """
     r = Path(root)
     sensors: dict[int, Path] = {}
     truths: dict[int, Path] = {}
     strides: dict[int, Path] = {}
-    for f in sorted(r.glob("*/SensorConnectData_*")):
+    candidates = r.rglob("SensorConnectData_*") if recursive else r.glob("*/SensorConnectData_*")
+    found = [f for f in candidates if f.is_file() and f.parent != r]
+    for f in sorted(found, key=lambda f: (-len(f.relative_to(r).parts), str(f))):  # deepest first: shallow wins
         exp = experiment_number(f)
         if exp is None:
             continue
@@ -218,7 +245,8 @@ def find_gdin(root: str | Path) -> list[GdinEntry]:
         if folder == "stride_gcp" and f.suffix.lower() == ".csv":
             strides[exp] = f
         elif folder == "llio_mat" and f.suffix.lower() == ".mat":
-            sensors.setdefault(exp, f)
+            if exp not in sensors or sensors[exp].suffix.lower() == ".mat":
+                sensors[exp] = f
         elif f.suffix.lower() == ".csv" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
             sensors[exp] = f  # a CSV beats a format C copy of the same experiment (it has the magnetometer)
         elif f.suffix.lower() == ".mat" and re.fullmatch(r"SensorConnectData_\d+", f.stem):
@@ -254,6 +282,11 @@ def load_gdin(entry: GdinEntry) -> Recording:
     elif sniff_sensorconnect(entry.sensor_path):
         rec = load_sensorconnect(entry.sensor_path, name=entry.name)
     else:
+        try:  # says what is wrong with the header (missing Time / acc columns, empty file ...)
+            load_sensorconnect(entry.sensor_path, name=entry.name)
+        except ImporterError as exc:
+            problem = f"not a gdin sensor file (format A, B or C): {exc.problem}"
+            raise ImporterError(exc.path, exc.field, problem) from exc
         raise ImporterError(entry.sensor_path, "file", "not a gdin sensor file (format A, B or C)")
     extra: dict[str, Any] = {"exp": entry.exp}
     if entry.truth_path is not None:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch
+from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch
 from clients.recording import Recording, RecordingMeta
 
 __all__ = ["sniff", "load", "load_phyphox"]
@@ -117,11 +117,13 @@ def load_phyphox(path: str | Path) -> Recording:
                 notes.append(f"{where}: linear acceleration (gravity removed) ignored; not specific force")
             continue
         cols = _xyz_columns(head, where)
-        check_finite(where, [head[i] for i in cols], data[:, cols])
+        keep, n0 = drop_untimed_rows(where, head[0], data[:, 0])
+        data = data[keep]
         t = np.round(data[:, 0] * 1e9).astype(np.int64) + t_epoch
-        t, v, n = clean_timestamps(where, head[0], t, data[:, cols])
-        notes += n
-        streams[kind] = (t, v)
+        t, v, n = clean_stream(where, head[0], [head[i] for i in cols], t, data[:, cols], required=kind == "acc")
+        notes += n0 + n
+        if t is not None and v is not None:
+            streams[kind] = (t, v)
     if "acc" not in streams:
         raise ImporterError(p, "Acceleration x (m/s^2)", "no accelerometer with g found (use the 'Acceleration with g' sensor)")
     if not t_epoch:

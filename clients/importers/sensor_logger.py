@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import G0, ImporterError, check_finite, clean_timestamps, make_batch
+from clients.importers._common import G0, ImporterError, clean_stream, make_batch
 from clients.recording import Recording, RecordingMeta
 
 __all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
@@ -145,14 +145,14 @@ def load_sensor_logger(path: str | Path) -> Recording:
 
     def clean(name: str) -> tuple[np.ndarray, np.ndarray]:
         t, v = streams[name]
-        check_finite(src, [f"{name}.x", f"{name}.y", f"{name}.z"], v)
         order = np.argsort(t, kind="stable")
         if np.any(order != np.arange(len(t))):
             notes.append(f"{name}: rows were not in time order; sorted")
             t, v = t[order], v[order]
-        t, v, n = clean_timestamps(src, f"{name}.time", t, v)
+        t2, v2, n = clean_stream(src, f"{name}.time", [f"{name}.x", f"{name}.y", f"{name}.z"], t, v)
+        assert t2 is not None and v2 is not None  # required: clean_stream raises instead
         notes.extend(n)
-        return t, v
+        return t2, v2
 
     if "TotalAcceleration" in streams:
         acc_t, acc = clean("TotalAcceleration")

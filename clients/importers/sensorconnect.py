@@ -4,6 +4,13 @@ Format A (``scaledAccel*``/``scaledGyro*``/``scaledMag*``): accelerometer in g, 
 magnetometer in gauss (MicroStrain 3DM-GX5 "scaled" channels). Converted: g -> m/s^2 (x 9.80665),
 gauss -> uT (x 100). The units are read from the channel names and then checked against the data
 (|a| at rest ~1 g, |m| ~0.2-0.7 G): a file whose values contradict its header is rejected, never guessed.
+The magnetometer is optional (a 6-axis export has no ``scaledMag*`` columns; the recording then has no
+magnetometer stream and the metadata says so).
+
+Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
+node id or be absent); the time column is ``Time`` [s]. Rows that cannot be read (a line with another number
+of fields, e.g. the last line of a logger that was stopped mid-write) and empty cells follow the sample policy
+of :mod:`clients.importers._common`: dropped, logged and noted.
 
 Format B (``estCompensatedAccel*``/``estAngularRate*`` with ``:valid`` flag columns, 250 Hz, no
 magnetometer): the sensor's bias-compensated filter outputs, already m/s^2 and rad/s. Rows whose acc/gyro
@@ -15,7 +22,6 @@ Orientation columns (roll/pitch/yaw, est*) are the sensor's own estimates, not t
 from __future__ import annotations
 
 import logging
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +29,10 @@ import numpy as np
 from clients.importers._common import (
     G0,
     ImporterError,
-    check_finite,
-    clean_timestamps,
+    clean_stream,
+    drop_untimed_rows,
     make_batch,
+    read_csv_rows,
     seconds_to_ns,
 )
 from clients.recording import Recording, RecordingMeta
@@ -44,20 +51,22 @@ _B_GYR = ("estAngularRateX", "estAngularRateY", "estAngularRateZ")
 
 
 def read_header(path: str | Path) -> list[str]:
-    """Channel names of a SensorConnect CSV with the ``inertial-<serial>:`` prefix removed."""
+    """Channel names of a SensorConnect CSV with the ``inertial-<serial>:`` prefix (any node id) removed
+    (a byte-order mark and quotes around the names are ignored)."""
     p = Path(path)
     try:
-        with open(p, encoding="utf-8", errors="replace") as fh:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
             line = fh.readline()
     except OSError as exc:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
     if not line.strip():
         raise ImporterError(p, "header", "empty file")
-    return [c.strip().split(":", 1)[1] if ":" in c else c.strip() for c in line.strip().split(",")]
+    names = [c.strip().strip('"').strip() for c in line.strip().split(",")]
+    return [c.split(":", 1)[1] if ":" in c else c for c in names]
 
 
 def sniff(path: str | Path) -> bool:
-    """True for a ``.csv`` whose header has SensorConnect format A or B channels."""
+    """True for a ``.csv`` whose header has a ``Time`` column and SensorConnect format A or B channels."""
     p = Path(path)
     if p.suffix.lower() != ".csv":
         return False
@@ -65,7 +74,7 @@ def sniff(path: str | Path) -> bool:
         cols = read_header(p)
     except ImporterError:
         return False
-    return bool(cols) and cols[0] == "Time" and (_A_ACC[0] in cols or _B_ACC[0] in cols)
+    return "Time" in cols and (_A_ACC[0] in cols or _B_ACC[0] in cols)
 
 
 def load(path: str | Path) -> Recording:
@@ -93,80 +102,83 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
     Returns
     -------
     Recording
-        ``batch``: acc [m/s^2], gyr [rad/s] and (format A) mag [uT] in the sensor's body frame, all on the
-        file's ``Time`` column [s] converted to int64 ns. ``truth`` is ``None`` (see
-        :func:`clients.importers.gdin.load_gdin` for the paired ground truth).
+        ``batch``: acc [m/s^2], gyr [rad/s] and (format A with magnetometer columns) mag [uT] in the sensor's
+        body frame, on the file's ``Time`` column [s] converted to int64 ns (each stream keeps the rows where
+        its values are finite). ``truth`` is ``None`` (see :func:`clients.importers.gdin.load_gdin` for the
+        paired ground truth).
 
     Raises
     ------
     ImporterError
-        Unknown or missing columns, empty file, NaN/inf, non-monotonic/conflicting times, values that
-        contradict the header's units.
+        Unknown or missing acc/gyro columns, empty file, too many unreadable rows, non-monotonic times,
+        implausible rate, values that contradict the header's units.
     """
     p = Path(path)
     cols = read_header(p)
-    if not cols or cols[0] != "Time":
-        raise ImporterError(p, "Time", f"first column must be 'Time' [s], got {cols[:1]}")
+    if "Time" not in cols:
+        raise ImporterError(p, "Time", f"no 'Time' [s] column (have: {', '.join(cols)})")
     if _A_ACC[0] in cols:
         fmt = "A"
     elif _B_ACC[0] in cols:
         fmt = "B"
     else:
         raise ImporterError(p, "header", "neither scaledAccel* (format A) nor estCompensatedAccel* (format B) columns")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "empty input file": reported below as an ImporterError
-            data = np.genfromtxt(p, delimiter=",", skip_header=1, dtype=np.float64, invalid_raise=True)
-    except ValueError as exc:
-        raise ImporterError(p, "rows", f"malformed CSV ({exc})") from exc
-    if data.size == 0:
+    it = cols.index("Time")
+    acc_names, gyr_names = (_A_ACC, _A_GYR) if fmt == "A" else (_B_ACC, _B_GYR)
+    ia, ig = _index(p, cols, acc_names), _index(p, cols, gyr_names)
+    mag_present = [c for c in _A_MAG if c in cols] if fmt == "A" else []
+    im = [cols.index(c) for c in _A_MAG] if len(mag_present) == len(_A_MAG) else []
+    data, notes, n_lines = read_csv_rows(p, len(cols))
+    if n_lines == 0:
         raise ImporterError(p, "rows", "no samples (empty file)")
-    data = np.atleast_2d(data)
-    if data.shape[1] != len(cols):
-        raise ImporterError(p, "rows", f"{data.shape[1]} values per row but {len(cols)} header columns")
-    notes: list[str] = []
     units: dict[str, str] = {}
-    if fmt == "A":
-        ia, ig, im = _index(p, cols, _A_ACC), _index(p, cols, _A_GYR), _index(p, cols, _A_MAG)
-        used = [0] + ia + ig + im
-    else:
-        ia, ig = _index(p, cols, _B_ACC), _index(p, cols, _B_GYR)
-        im = []
-        used = [0] + ia + ig
+    if fmt == "A" and not im:
+        missing = ", ".join(c for c in _A_MAG if c not in mag_present)
+        notes.append("no scaledMag* columns: recording without magnetometer" if not mag_present else
+                     f"magnetometer incomplete ({missing} missing): left out")
+        log.warning("%s: %s", p, notes[-1])
+    if fmt == "B":
         flags = [cols.index(f"{c}:valid") for c in _B_ACC + _B_GYR if f"{c}:valid" in cols]
         if flags:
-            fv = data[:, flags]
-            check_finite(p, [cols[i] for i in flags], fv)
-            ok = np.all(fv != 0, axis=1)
+            ok = np.all(data[:, flags] != 0, axis=1) & np.all(np.isfinite(data[:, flags]), axis=1)
             if not ok.all():
-                msg = f"dropped {int((~ok).sum())} row(s) whose acc/gyro valid flag is 0"
+                msg = f"dropped {int((~ok).sum())} row(s) whose acc/gyro valid flag is 0 or missing"
                 log.warning("%s: %s", p, msg)
                 notes.append(msg)
                 data = data[ok]
                 if data.shape[0] == 0:
                     raise ImporterError(p, "valid", "no row has valid acc/gyro flags")
-    check_finite(p, [cols[i] for i in used], data[:, used])
-    t_ns = seconds_to_ns(p, "Time", data[:, 0])
-    t_ns, vals, tnotes = clean_timestamps(p, "Time", t_ns, data[:, used[1:]])
-    notes += tnotes
-    acc, gyr = vals[:, 0:3], vals[:, 3:6]
-    mag = vals[:, 6:9] if fmt == "A" else None
+    keep, tn = drop_untimed_rows(p, "Time", data[:, it], n_total=n_lines)
+    notes += tn
+    data = data[keep]
+    t_all = seconds_to_ns(p, "Time", data[:, it])
+    acc_t, acc, n1 = clean_stream(p, "Time", [cols[i] for i in ia], t_all, data[:, ia])
+    gyr_t, gyr, n2 = clean_stream(p, "Time", [cols[i] for i in ig], t_all, data[:, ig])
+    mag_t = mag = None
+    n3: list[str] = []
+    if im:
+        mag_t, mag, n3 = clean_stream(p, "Time", [cols[i] for i in im], t_all, data[:, im], required=False)
+    notes += n1 + n2 + n3
+    assert acc is not None and gyr is not None
     if fmt == "A":
         med_a = float(np.median(np.linalg.norm(acc, axis=1)))
         if not 0.5 <= med_a <= 2.5:
             raise ImporterError(
-                p, _A_ACC[0], f"header says g (scaledAccel) but median |a| = {med_a:.3g}; units unclear, refusing to guess"
+                p, _A_ACC[0],
+                f"header says g (scaledAccel) but median |a| = {med_a:.3g}; units unclear, refusing to guess",
             )
         acc = acc * G0
         units["acc"] = f"g -> m/s^2 (x {G0})"
-        med_m = float(np.median(np.linalg.norm(mag, axis=1)))
-        if not 0.05 <= med_m <= 2.0:
-            raise ImporterError(
-                p, _A_MAG[0], f"header says gauss (scaledMag) but median |m| = {med_m:.3g}; units unclear, refusing to guess"
-            )
-        mag = mag * GAUSS_TO_UT
-        units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
-    batch = make_batch(p, t_ns, acc, t_ns.copy(), gyr, t_ns.copy() if mag is not None else None, mag)
+        if mag is not None:
+            med_m = float(np.median(np.linalg.norm(mag, axis=1)))
+            if not 0.05 <= med_m <= 2.0:
+                raise ImporterError(
+                    p, _A_MAG[0],
+                    f"header says gauss (scaledMag) but median |m| = {med_m:.3g}; units unclear, refusing to guess",
+                )
+            mag = mag * GAUSS_TO_UT
+            units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
+    batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t, mag)
     meta = RecordingMeta(
         source_format=f"sensorconnect-{fmt.lower()}",
         rate_hz=float(batch.rate_hz("acc")),

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io as sio
 
-from clients.importers._common import ImporterError, check_finite, clean_timestamps, make_batch, seconds_to_ns
+from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, seconds_to_ns
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["sniff", "load", "load_vicon"]
@@ -51,12 +51,14 @@ def load_vicon(path: str | Path) -> Recording:
     Recording
         ``batch``: acc [m/s^2] and gyr [rad/s] in the sensor's body frame (z down) on the ``ts`` clock
         converted to int64 ns; no magnetometer. ``truth.positions``: Vicon positions [m] per sample in the
-        capture frame (x, y horizontal, z UP), ``truth.t_ns`` = the same timestamps.
+        capture frame (x, y horizontal, z UP), ``truth.t_ns`` = the same timestamps (samples whose position
+        is not finite, e.g. an occluded marker, are left out of the truth and noted).
 
     Raises
     ------
     ImporterError
-        Missing variables, wrong shapes, NaN/inf, empty, non-monotonic or conflicting duplicated times.
+        Missing variables, wrong shapes, empty, non-monotonic times, too few finite samples (the sample
+        policy of :mod:`clients.importers._common`).
     """
     p = Path(path)
     try:
@@ -77,12 +79,15 @@ def load_vicon(path: str | Path) -> Recording:
         raise ImporterError(p, "ts", f"{ts.size} timestamps for {imu.shape[0]} imu rows")
     if gt.shape != (imu.shape[0], 3):
         raise ImporterError(p, "gt", f"expected {imu.shape[0]} x 3 positions, got shape {gt.shape}")
-    check_finite(p, _IMU_COLUMNS, imu)
-    check_finite(p, ["gt x", "gt y", "gt z"], gt)
-    t_ns = seconds_to_ns(p, "ts", ts)
-    t_ns, rows, notes = clean_timestamps(p, "ts", t_ns, np.hstack([imu, gt]))
-    imu, gt = rows[:, :6], rows[:, 6:]
-    batch = make_batch(p, t_ns, imu[:, :3], t_ns.copy(), imu[:, 3:])
+    keep, notes = drop_untimed_rows(p, "ts", ts)
+    imu, gt, ts = imu[keep], gt[keep], ts[keep]
+    t_all = seconds_to_ns(p, "ts", ts)
+    acc_t, acc, n1 = clean_stream(p, "ts", _IMU_COLUMNS[:3], t_all, imu[:, :3])
+    gyr_t, gyr, n2 = clean_stream(p, "ts", _IMU_COLUMNS[3:], t_all, imu[:, 3:])
+    # truth: Vicon loses the marker now and then (occlusion); such samples are simply not compared
+    gt_t, gt, n3 = clean_stream(p, "ts", ["gt x", "gt y", "gt z"], t_all, gt)
+    notes += n1 + n2 + n3
+    batch = make_batch(p, acc_t, acc, gyr_t, gyr)
     meta = RecordingMeta(
         source_format="vicon-mat",
         rate_hz=float(batch.rate_hz("acc")),
@@ -91,7 +96,7 @@ def load_vicon(path: str | Path) -> Recording:
         notes=tuple(notes),
     )
     truth = Truth(
-        t_ns=t_ns.copy(),
+        t_ns=gt_t,
         positions=gt,
         extra={"frame": "vicon capture frame: x, y horizontal, z up (right-handed)"},
     )

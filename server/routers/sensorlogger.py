@@ -21,7 +21,7 @@ from sqlalchemy.exc import IntegrityError
 from models.batch import BatchError, SensorBatch
 from server import crud
 from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
-from server.ingest import apply_batch, engine_profile_in
+from server.ingest import apply_batch, engine_profile_in, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
 from server.statecodec import pack_state
@@ -82,7 +82,7 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
     profile = engine_profile_in(db, user)
     engine = host.new(settings.engine_mode, profile)
     sess = crud.create_session(
-        db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=profile,
+        db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
         engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id)

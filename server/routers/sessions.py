@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, Query, status
 
 from server import crud
 from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
-from server.ingest import close_session, engine_profile_in
+from server.ingest import close_session, engine_profile_in, json_safe
 from server.reprocess import ReprocessConflict, reprocess_session
 from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut
 from server.statecodec import pack_state
@@ -32,7 +32,7 @@ def start_session(body: SessionCreate, db: SessionDep, user: CurrentUser, settin
     sess = crud.create_session(
         db, user, device_kind=body.device_kind, device_id=body.device_id, latitude_deg=body.latitude_deg,
         longitude_deg=body.longitude_deg, altitude_m=body.altitude_m, engine_mode=settings.engine_mode,
-        profile_in=profile, engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
+        profile_in=json_safe(profile), engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     db.commit()
     return sess

@@ -1,0 +1,364 @@
+"""Importers on the damaged and unusual files real loggers write (sample policy of clients.importers._common).
+
+Every file is generated in memory (tmp_path): the five formats of the evaluation data (gdin A/B/C, VICON,
+gaitmap) with empty cells, unreadable time cells, a line cut mid-write, repeated and conflicting timestamps.
+A few samples that cannot be used are dropped and noted; a file is refused only when it is unusable, and the
+message names the file, the column and the problem.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io as sio
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from clients.importers import ImporterError, load
+from clients.importers._common import G0, MAX_CONFLICT_FRACTION
+from clients.importers.gaitmap import load_gaitmap
+from clients.importers.gdin import load_llio_mat
+from clients.importers.sensorconnect import load_sensorconnect
+from clients.importers.vicon import load_vicon
+
+PREFIX = "inertial-6253.76535:"
+N = 400
+
+# ---------------------------------------------------------------------------------------------- writers
+# Each writer takes a rows array (N, 1 + 6 [+ 3]): time [s], acc, gyr [, mag] in the file's own units, and
+# writes the file; ``rows`` comes from _rows() so every format starts from the same still sensor.
+
+
+def _rows(n: int = N, rate: float = 200.0, acc_unit: float = 1.0, mag: bool = True) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    t = np.arange(n) / rate
+    acc = (np.tile([0.0, 0.0, 1.0], (n, 1)) + 0.002 * rng.standard_normal((n, 3))) * acc_unit
+    gyr = 0.01 * rng.standard_normal((n, 3))
+    cols = [t[:, None], acc, gyr]
+    if mag:
+        cols.append(np.tile([0.2, 0.0, -0.4], (n, 1)) + 0.001 * rng.standard_normal((n, 3)))
+    return np.hstack(cols)
+
+
+def _csv(path: Path, header: list[str], rows: np.ndarray, cut_last: bool = False) -> Path:
+    lines = [",".join(header)]
+    lines += [",".join("" if not np.isfinite(v) else f"{v:.9g}" for v in r) for r in rows]
+    if cut_last:
+        lines[-1] = lines[-1][: len(lines[-1]) // 2]  # the logger stopped mid-write
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_a(path: Path, rows: np.ndarray, cut_last: bool = False) -> Path:
+    names = ["Time"] + [PREFIX + f"scaled{s}{a}" for s in ("Accel", "Gyro", "Mag") for a in "XYZ"][: rows.shape[1] - 1]
+    return _csv(path, names, rows, cut_last)
+
+
+def write_b(path: Path, rows: np.ndarray, cut_last: bool = False) -> Path:
+    names, cols = ["Time"], [rows[:, 0]]
+    for k, c in enumerate(f"{s}{a}" for s in ("estCompensatedAccel", "estAngularRate") for a in "XYZ"):
+        names += [PREFIX + c, PREFIX + c + ":valid"]
+        cols += [rows[:, 1 + k] * (G0 if k < 3 else 1.0), np.ones(len(rows))]
+    return _csv(path, names, np.column_stack(cols), cut_last)
+
+
+def write_c(path: Path, rows: np.ndarray, cut_last: bool = False) -> Path:
+    imu = np.column_stack([rows[:, 1:4] * G0, rows[:, 4:7]])
+    sio.savemat(path, {"imu_data": imu, "timestamps": rows[:, 0][None, :]})
+    return path
+
+
+def write_vicon(path: Path, rows: np.ndarray, cut_last: bool = False) -> Path:
+    n = len(rows)
+    imu = np.column_stack([rows[:, 1:4] * -G0, rows[:, 4:7]])  # z down
+    gt = np.column_stack([np.linspace(0.0, 1.0, n), np.zeros(n), np.full(n, 0.1)])
+    sio.savemat(path, {"imu": imu, "ts": rows[:, 0][None, :], "gt": gt})
+    return path
+
+
+def write_gaitmap(path: Path, rows: np.ndarray, cut_last: bool = False) -> Path:
+    data = np.column_stack([rows[:, 0], rows[:, 1:4] * G0, np.rad2deg(rows[:, 4:7])])
+    return _csv(path, ["", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"], data, cut_last)
+
+
+FORMATS: dict[str, tuple[Callable[..., Path], str, bool]] = {  # writer, file name, has a magnetometer
+    "A": (write_a, "SensorConnectData_90.csv", True),
+    "B": (write_b, "SensorConnectData_91.csv", False),
+    "C": (write_c, "SensorConnectData_92_LLIO.mat", False),
+    "vicon": (write_vicon, "2099-01-01-00-00-00.mat", False),
+    "gaitmap": (write_gaitmap, "walk_in_seconds.csv", False),
+}
+CSV_FORMATS = ("A", "B", "gaitmap")
+
+
+def _write(tmp_path: Path, fmt: str, rows: np.ndarray | None = None, **kw: bool) -> Path:
+    writer, name, mag = FORMATS[fmt]
+    if rows is None:
+        rows = _rows(mag=mag)
+    return writer(tmp_path / name, rows, **kw)
+
+
+def _notes(rec) -> str:  # type: ignore[no-untyped-def]
+    return " | ".join(rec.meta.notes)
+
+
+# ---------------------------------------------------------------------------------------------- non-finite samples
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_empty_rows_are_dropped_not_the_recording(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[[50, 51, 300], 1:] = np.nan  # a logging glitch: the whole row empty but its time
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N - 3 and len(rec.batch.gyr_t_ns) == N - 3
+    assert not np.isin(rec.batch.acc_t_ns, np.round(rows[[50, 51, 300], 0] * 1e9).astype(np.int64)).any()
+    assert "non-finite" in _notes(rec) and "row 50" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_missing_gyro_sample_leaves_the_accelerometer_sample(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[120, 4:7] = np.nan
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N and len(rec.batch.gyr_t_ns) == N - 1
+    assert rec.batch.acc_t_ns[120] not in set(rec.batch.gyr_t_ns.tolist())
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_rows_without_a_time_are_dropped(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[[3, 200], 0] = np.nan
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N - 2
+    assert "time is not finite" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_file_mostly_without_times_is_refused_by_name(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[::3, 0] = np.nan
+    with pytest.raises(ImporterError, match="no usable time") as ei:
+        load(_write(tmp_path, fmt, rows))
+    assert FORMATS[fmt][1] in str(ei.value)
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_stream_without_finite_values_is_refused_by_name(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[:, 4:7] = np.nan
+    with pytest.raises(ImporterError, match="finite") as ei:
+        load(_write(tmp_path, fmt, rows))
+    assert FORMATS[fmt][1] in str(ei.value)
+
+
+def test_format_a_magnetometer_at_half_rate(tmp_path: Path) -> None:
+    """SensorConnect leaves a slower channel's cells empty on the rows it has no sample for."""
+    rows = _rows()
+    rows[1::2, 7:10] = np.nan
+    rec = load_sensorconnect(write_a(tmp_path / "a.csv", rows))
+    assert len(rec.batch) == N and len(rec.batch.mag_t_ns) == N // 2
+    assert rec.batch.rate_hz("mag") == pytest.approx(100.0, rel=1e-3)
+
+
+def test_format_a_magnetometer_columns_all_empty(tmp_path: Path) -> None:
+    rows = _rows()
+    rows[:, 7:10] = np.nan
+    rec = load_sensorconnect(write_a(tmp_path / "a.csv", rows))
+    assert rec.batch.mag.shape == (0, 3) and "stream left out" in _notes(rec)
+    assert "mag" not in rec.meta.units_converted
+
+
+def test_vicon_occluded_marker_leaves_those_truth_samples_out(tmp_path: Path) -> None:
+    p = write_vicon(tmp_path / "v.mat", _rows(mag=False))
+    d = sio.loadmat(p)
+    d["gt"][100:140] = np.nan  # marker occluded for 0.2 s
+    d["gt"][0] = np.nan
+    sio.savemat(p, {k: v for k, v in d.items() if not k.startswith("__")})
+    rec = load_vicon(p)
+    assert len(rec.batch) == N
+    assert rec.truth.positions.shape == (N - 41, 3) and rec.truth.t_ns.shape == (N - 41,)
+    assert np.all(np.isfinite(rec.truth.positions)) and "gt x" in _notes(rec)
+
+
+# ---------------------------------------------------------------------------------------------- timestamps
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_conflicting_duplicated_timestamp_drops_both_samples(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[41, 0] = rows[40, 0]  # the clock stalled for one sample: same time, another sample
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N - 2
+    assert np.all(np.diff(rec.batch.acc_t_ns) > 0)
+    assert "cannot tell which is right" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_clock_too_coarse_for_the_rate_is_refused(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    k = int(MAX_CONFLICT_FRACTION * N) + 2
+    rows[1 : 2 * k : 2, 0] = rows[0 : 2 * k - 1 : 2, 0]
+    with pytest.raises(ImporterError, match="too coarse"):
+        load(_write(tmp_path, fmt, rows))
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_exact_duplicates_and_backwards_time_keep_their_policy(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rec = load(_write(tmp_path, fmt, np.insert(rows, 50, rows[49], axis=0)))
+    assert len(rec.batch) == N and "exact duplicate" in _notes(rec)
+    rows[40, 0] = 0.1
+    with pytest.raises(ImporterError, match="backwards"):
+        load(_write(tmp_path, fmt, rows))
+
+
+# ---------------------------------------------------------------------------------------------- malformed lines
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
+def test_a_last_line_cut_mid_write_is_skipped(tmp_path: Path, fmt: str) -> None:
+    rec = load(_write(tmp_path, fmt, cut_last=True))
+    assert len(rec.batch) == N - 1
+    assert f"line {N + 1}" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
+def test_a_file_of_malformed_lines_is_refused(tmp_path: Path, fmt: str) -> None:
+    p = _write(tmp_path, fmt)
+    lines = p.read_text().splitlines()
+    lines[1:] = [ln + ",1" if i % 4 == 0 else ln for i, ln in enumerate(lines[1:])]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImporterError, match="fields"):
+        load(p)
+
+
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
+def test_crlf_line_ends_and_a_byte_order_mark(tmp_path: Path, fmt: str) -> None:
+    p = _write(tmp_path, fmt)
+    ref = load(p)
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes().replace(b"\n", b"\r\n"))
+    rec = load(p)
+    np.testing.assert_array_equal(rec.batch.acc_t_ns, ref.batch.acc_t_ns)
+    np.testing.assert_array_equal(rec.batch.gyr, ref.batch.gyr)
+
+
+@pytest.mark.parametrize("prefix", ["inertial-6253.76535:", "inertial-1234.99999:", ""])
+def test_format_a_columns_by_name_any_node_id_any_order(tmp_path: Path, prefix: str) -> None:
+    rows = _rows()
+    names = ["Time"] + [prefix + f"scaled{s}{a}" for s in ("Accel", "Gyro", "Mag") for a in "XYZ"]
+    ref = load_sensorconnect(_csv(tmp_path / "ref.csv", names, rows))
+    order = [3, 9, 0, 1, 5, 4, 2, 8, 7, 6]  # Time in the middle
+    extra = np.column_stack([rows[:, order], np.full(N, 21.5)])
+    rec = load(_csv(tmp_path / "SensorConnectData_93.csv", [names[i] for i in order] + [prefix + "temperature"], extra))
+    np.testing.assert_array_equal(rec.batch.acc_t_ns, ref.batch.acc_t_ns)
+    np.testing.assert_allclose(rec.batch.acc, ref.batch.acc)
+    np.testing.assert_allclose(rec.batch.mag, ref.batch.mag)
+
+
+# ---------------------------------------------------------------------------------------------- property
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cells=st.lists(st.tuples(st.integers(0, N - 1), st.integers(0, 9)), max_size=30))
+def test_format_a_any_empty_cells_give_finite_increasing_streams(tmp_path: Path, cells: list[tuple[int, int]]) -> None:
+    rows = _rows()
+    for r, c in cells:
+        rows[r, c] = np.nan
+    rec = load_sensorconnect(write_a(tmp_path / "h.csv", rows))
+    b = rec.batch
+    bad_t = {r for r, c in cells if c == 0}
+    for name, c0 in (("acc", 1), ("gyr", 4), ("mag", 7)):
+        t, v = b.stream(name)
+        lost = {r for r, c in cells if c0 <= c < c0 + 3} | bad_t
+        assert len(t) == N - len(lost)
+        assert np.all(np.isfinite(v)) and np.all(np.diff(t) > 0)
+
+
+def test_llio_mat_with_nan_rows_keeps_the_rest(tmp_path: Path) -> None:
+    rows = _rows(mag=False)
+    rows[7] = np.nan  # time and values
+    rec = load_llio_mat(write_c(tmp_path / "c.mat", rows))
+    assert len(rec.batch) == N - 1
+
+
+def test_gaitmap_index_with_a_dropped_sample_is_still_an_index(tmp_path: Path) -> None:
+    n = 300
+    rows = np.column_stack([np.arange(n), np.tile([0.0, 0.0, 9.81, 0.0, 0.0, 0.0], (n, 1))])
+    rows = np.delete(rows, 100, axis=0)  # sample 100 lost: the index steps by 2 once
+    p = tmp_path / "walk.csv"
+    np.savetxt(p, rows, delimiter=",", header=",acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z", comments="")
+    rec = load_gaitmap(p, rate_hz=200.0)
+    assert rec.meta.rate_hz == pytest.approx(200.0)
+    assert rec.batch.acc_t_ns[-1] == pytest.approx((n - 1) / 200.0 * 1e9)
+
+
+# ---------------------------------------------------------------------------------------------- 6-axis format A
+@pytest.mark.parametrize("mag_cols", [(), ("X", "Y")])
+def test_format_a_without_magnetometer_columns_is_a_six_axis_recording(
+    tmp_path: Path, mag_cols: tuple[str, ...]
+) -> None:
+    rows = _rows(mag=False)
+    names = ["Time"] + [PREFIX + f"scaled{s}{a}" for s in ("Accel", "Gyro") for a in "XYZ"]
+    names += [PREFIX + f"scaledMag{a}" for a in mag_cols]
+    extra = np.column_stack([rows] + [np.full(N, 0.3)] * len(mag_cols))
+    rows_out = np.column_stack([extra, np.zeros(N)])
+    rec = load(_csv(tmp_path / "SensorConnectData_94.csv", names + [PREFIX + "roll"], rows_out))
+    assert rec.meta.source_format == "sensorconnect-a" and len(rec.batch) == N
+    assert rec.batch.mag.shape == (0, 3) and "mag" not in rec.meta.units_converted
+    assert ("without magnetometer" if not mag_cols else "scaledMagZ missing") in _notes(rec)
+    np.testing.assert_allclose(rec.batch.acc, rows[:, 1:4] * G0, rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------- time units
+@pytest.mark.parametrize("fmt", list(FORMATS))
+@pytest.mark.parametrize(("scale", "unit"), [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_times_in_another_unit_than_seconds_are_refused_not_rescaled(
+    tmp_path: Path, fmt: str, scale: float, unit: str
+) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    epoch = 1.7e18 if scale == 1e9 and fmt in ("C", "vicon") else 0.0  # an epoch clock where the file keeps 17 digits
+    rows[:, 0] = np.round(rows[:, 0] * scale + epoch)
+    with pytest.raises(ImporterError, match=unit) as ei:
+        load(_write(tmp_path, fmt, rows))
+    assert FORMATS[fmt][1] in str(ei.value)
+
+
+@pytest.mark.parametrize("rate", [20.0, 100.0, 250.0, 400.0, 1000.0])
+def test_plausible_rates_pass_the_time_unit_check(tmp_path: Path, rate: float) -> None:
+    rec = load(write_a(tmp_path / "SensorConnectData_95.csv", _rows(rate=rate)))
+    assert rec.meta.rate_hz == pytest.approx(rate, rel=1e-3)
+
+
+# ---------------------------------------------------------------------------------------------- gdin truth
+def _truth(path: Path, drop: tuple[str, ...] = (), **kw: np.ndarray) -> Path:
+    d = {"GCP_meters": np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 2.0], [0.0, 0.0]]),
+         "GCP_stride_numbers": np.array([[0, 2, 4, 6]]), "GCP_exist_and_correct": np.array([[1]], dtype=bool),
+         "numberOfStrides": np.array([[6.0]]), "tile_edge_length": np.array([[0.6]]), "expID": np.array([[96.0]])}
+    d.update(kw)
+    sio.savemat(path, {k: v for k, v in d.items() if k not in drop})
+    return path
+
+
+@pytest.mark.parametrize(
+    ("drop", "kw", "usable"),
+    [
+        (("GCP_stride_numbers",), {}, True),
+        (("GCP_exist_and_correct",), {}, True),
+        (("numberOfStrides", "tile_edge_length", "expID"), {}, True),
+        ((), {"GCP_meters": np.array([[0, 0], [3, 0], [3, 2], [0, 0]], dtype=np.int16)}, True),
+        ((), {"GCP_stride_numbers": np.array([[0], [2], [4], [6]], dtype=np.uint8)}, True),
+        ((), {"GCP_exist_and_correct": np.array([[0.0]])}, False),
+    ],
+)
+def test_gdin_truth_optional_fields_and_types(tmp_path: Path, drop: tuple[str, ...], kw: dict, usable: bool) -> None:
+    from clients.importers.gdin import load_truth_mat
+
+    x = load_truth_mat(_truth(tmp_path / "SensorConnectData_96.mat", drop, **kw))
+    assert x["gcp_m"].dtype == np.float64 and x["closed_loop"]
+    assert x["truth_path_length_m"] == pytest.approx(3.0 + 2.0 + np.hypot(3.0, 2.0))
+    assert x["gcp_exist_and_correct"] is usable
+    for k in drop:
+        assert any(k in n for n in x["truth_notes"]) or k in ("numberOfStrides", "tile_edge_length", "expID")
+
+
+def test_gdin_truth_without_ground_control_points_is_refused_by_name(tmp_path: Path) -> None:
+    from clients.importers.gdin import load_truth_mat
+
+    with pytest.raises(ImporterError, match="GCP_meters") as ei:
+        load_truth_mat(_truth(tmp_path / "SensorConnectData_97.mat", ("GCP_meters",)))
+    assert "SensorConnectData_97.mat" in str(ei.value)
