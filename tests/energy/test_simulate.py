@@ -91,6 +91,22 @@ def test_targets_block_states_the_figures_it_tests(demo_doc):
     assert t["position_error_ratio_le_1.5"] == (a["position_error_m"]["ratio"] <= 1.5)
 
 
+def test_split_costs_recovers_per_sample_and_per_batch_costs():
+    """1-s and 4-s batches at 25 Hz: the fixed cost of a feed and the cost per sample are told apart, and the
+    fitted costs add up to the measured total; batches of one length cannot tell them apart (all per sample)."""
+    from energy.simulate import _split_costs
+
+    rng = np.random.default_rng(0)
+    n = np.array([25] * 30 + [100] * 40 + [26, 99, 24])
+    cpu = 3.0 * n + 120.0 + rng.normal(0.0, 5.0, n.size)
+    a, b = _split_costs(n, cpu)
+    assert a == pytest.approx(3.0, abs=0.2) and b == pytest.approx(120.0, abs=10.0)
+    assert a * n.sum() + b * n.size == pytest.approx(cpu.sum(), rel=1e-12)
+    one = np.array([200] * 50 + [201])
+    a1, b1 = _split_costs(one, 2.0 * one + 100.0)
+    assert b1 == 0.0 and a1 == pytest.approx((2.0 * one + 100.0).sum() / one.sum())
+
+
 def test_cost_class_is_the_one_of_energy_power():
     import energy.power
     import energy.simulate
