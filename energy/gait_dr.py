@@ -251,7 +251,8 @@ class GaitPipeline:
         ``(t >= t_s - window) & (t <= t_s)`` selects, in the same order: the same mean, bit for bit)."""
         i0 = int(self._mag_t.searchsorted(t_s - _MAG_WINDOW_S, "left"))
         i1 = int(self._mag_t.searchsorted(t_s, "right"))
-        return self._mag_v[i0:i1].mean(axis=0) if i1 > i0 else None
+        # .mean(axis=0) is add.reduce / count: the same without numpy's generic mean wrapper
+        return np.add.reduce(self._mag_v[i0:i1], axis=0) / (i1 - i0) if i1 > i0 else None
 
     def mag_at(self, e: StepEvent) -> np.ndarray | None:
         return self.stance_mag.get(e.index)
