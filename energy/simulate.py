@@ -682,7 +682,8 @@ def measure_compute_costs(day: SensorBatch, repeats: int = 3, batch_seconds: flo
     :func:`simulate` has it upload by default (``batch_seconds`` None: as long as its ``SensorConfig.batch_s``
     says, 4 s once the gyroscope is off and Gait-DR navigates, else 1 s), so the costs are those of the day the
     accounting charges them to. Every batch keeps the least of its ``repeats`` CPU times (the engine is
-    deterministic: the same batches each time; timing noise on a shared machine only ever adds time).
+    deterministic: the same batches each time; timing noise on a shared machine only ever adds time); the two
+    engines' replays alternate.
 
     Per cost class: ``us_per_sample`` (top level) is the class's total CPU time per accelerometer sample at
     that batching (the single figure of older files: ``zupt`` the baseline's, ``pdr``/``idle`` the
@@ -695,12 +696,15 @@ def measure_compute_costs(day: SensorBatch, repeats: int = 3, batch_seconds: flo
     _warm_up(day, batch_seconds)
     engines: dict[str, dict[str, Any]] = {}
     flat: dict[str, float] = {}
-    for mode, top in (("zupt", ("zupt",)), ("auto", ("pdr", "idle"))):
-        runs: list[list[BatchRecord]] = []
-        for _ in range(repeats):
+    engine_classes = (("zupt", ("zupt",)), ("auto", ("pdr", "idle")))
+    replays: dict[str, list[list[BatchRecord]]] = {mode: [] for mode, _top in engine_classes}
+    for _ in range(repeats):  # the engines interleaved: a change of the machine's load reaches both
+        for mode, _top in engine_classes:
             eng = MeteredEngine(Engine(mode=mode))
             replay(eng, day, batch_seconds=batch_seconds)  # type: ignore[arg-type]
-            runs.append(eng.records)
+            replays[mode].append(eng.records)
+    for mode, top in engine_classes:
+        runs = replays[mode]
         shape = [(r.cls, r.n_acc) for r in runs[0]]
         if any([(r.cls, r.n_acc) for r in rr] != shape for rr in runs):
             raise RuntimeError(f"Engine({mode!r}) replayed differently between repeats: not deterministic")

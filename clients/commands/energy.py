@@ -19,7 +19,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
     if args.measure_costs:
         # each engine uploads as it does in the simulated day (or in fixed batches with --batch-seconds)
-        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch, batch_seconds=args.batch_seconds)
+        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch, repeats=max(args.repeats, 1),
+                                      batch_seconds=args.batch_seconds)
         out = Path(__file__).resolve().parent.parent.parent / "energy" / "profiles" / "compute_costs.json"
         out.write_text(json.dumps(costs, indent=2) + "\n")
         print(f"wrote {out}", file=sys.stderr)
@@ -154,7 +155,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--repeats",
         type=int,
         default=3,
-        help="replay each engine this many times (interleaved) and charge the least CPU time of each (default 3)",
+        help="replay each engine this many times (interleaved) and charge the least CPU time of each (default 3; "
+        "with --measure-costs also the replays per engine of the measurement)",
     )
     s.add_argument(
         "--stored-costs",
