@@ -10,6 +10,7 @@ which sensors the device should use next (004 Tables 1-3). The complete state se
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
@@ -40,6 +41,7 @@ _GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (
 _GYRO_OFF_S = 0.075  # ... so does a shorter one with accelerometer rows inside it (below the 80-ms turn-on time)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
+_STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
@@ -221,12 +223,12 @@ class _LabelHistory:
 
     def prune(self, before_s: float) -> None:
         """Forget decisions superseded before ``before_s`` (keeps the one in force then)."""
-        cut = int(np.searchsorted(np.asarray(self.t), before_s, side="right")) - 1
+        cut = bisect_right(self.t, before_s) - 1  # the times increase: searchsorted(t, before_s, "right") - 1
         if cut > 0:
             del self.t[:cut], self.labels[:cut]
 
     def at(self, t_s: float) -> str:
-        i = int(np.searchsorted(np.asarray(self.t), t_s, side="right")) - 1
+        i = bisect_right(self.t, t_s) - 1
         return self.labels[i] if i >= 0 else "stand"
 
     def at_many(self, t_s: np.ndarray) -> np.ndarray:
@@ -376,7 +378,7 @@ class Engine:
         self._last_acc_t = int(t_acc[-1])
         self._acc_t = np.concatenate([self._acc_t, t_acc])
         self._acc_v = np.concatenate([self._acc_v, acc])
-        wait = int(_STREAM_WAIT_S * 1e9)
+        wait = _STREAM_WAIT_NS
         limit = min(self._gyr.complete_until(self._last_acc_t, wait), self._mag.complete_until(self._last_acc_t, wait))
         return self._pair_and_process(int(np.searchsorted(self._acc_t, limit, side="right")), final=False)
 
@@ -420,15 +422,19 @@ class Engine:
     def _ingest(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, final: bool) -> None:
         """Cut the gyroscope samples into ZUPT-KF segments and queue them."""
         has = ~np.isnan(gyr[:, 0])
-        idx = np.flatnonzero(has)
-        if len(idx):
+        if has.any():
+            idx = np.flatnonzero(has)
             ts = t_s[idx]
             # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
             # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
-            # loses the accelerometer too and splits only beyond _GYRO_GAP_S
-            off = np.diff(idx, prepend=-1) > 1
+            # loses the accelerometer too and splits only beyond _GYRO_GAP_S. (np.diff with prepend, written
+            # out: the same differences without its generic machinery)
+            off = np.empty(len(idx), dtype=bool)
             off[0] = self._gyro_missing or idx[0] > 0
-            dt = np.diff(ts, prepend=self._last_gyr_s)
+            np.greater(idx[1:] - idx[:-1], 1, out=off[1:])
+            dt = np.empty(len(ts))
+            dt[0] = ts[0] - self._last_gyr_s
+            np.subtract(ts[1:], ts[:-1], out=dt[1:])
             gaps = np.flatnonzero((dt > _GYRO_GAP_S) | (off & (dt > _GYRO_OFF_S))).tolist()
             for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
@@ -537,17 +543,27 @@ class Engine:
         t = horizon
         if self._ops:
             op = self._ops[0]
-            first = {"start": lambda: op[1], "samples": lambda: float(op[1][0]), "stance": lambda: op[1].t_start_s}
-            t = min(t, first.get(op[0], lambda: t)())
+            kind = op[0]
+            if kind == "start":
+                t = min(t, op[1])
+            elif kind == "samples":
+                t = min(t, float(op[1][0]))
+            elif kind == "stance":
+                t = min(t, op[1].t_start_s)
         elif self._in_seg:
             t = min(t, self._seg_t if self._seg_first else self._nav_t)
         return t
 
     def _apply_labels(self, upto_s: float, events: list[Event]) -> None:
-        """Hand the scheduler the behaviour decisions up to ``upto_s`` [s]."""
-        while self._labels_pending and self._labels_pending[0][0] <= upto_s:
-            td, label = self._labels_pending.pop(0)
-            events += self._sched.on_behaviour(label, td, self._ns(td))
+        """Hand the scheduler the behaviour decisions up to ``upto_s`` [s].
+
+        A decision that repeats the scheduler's behaviour changes nothing (``Scheduler.on_behaviour`` returns at
+        once), so it is only taken off the queue (most decisions: one every 0.25 s)."""
+        pending, sched = self._labels_pending, self._sched
+        while pending and pending[0][0] <= upto_s:
+            td, label = pending.pop(0)
+            if label != sched.behaviour:
+                events += sched.on_behaviour(label, td, self._ns(td))
 
     def _rest_start(self, op: tuple) -> tuple[int, int] | None:
         """Look for the first still stretch of a restarting segment (the foot on the ground).
@@ -791,6 +807,8 @@ class Engine:
         """Gait-DR steps with onset before ``before_s`` [s]."""
         gait = self._gait
         assert gait is not None
+        if not gait.queue:  # nothing to reckon (standing, or every step taken): nothing changes
+            return []
         steps = gait.reckon(before_s, self._labels.at)
         self._moved = self._moved or bool(steps)
         for step, e, source in steps:
@@ -832,8 +850,9 @@ class Engine:
         return cal
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
-        mode = "idle" if self._sched.idle() else self._sched.working
-        return Update(positions, events, self.sensor_config, self._sched.behaviour, mode)
+        sched = self._sched
+        config, idle = sched.config_and_idle()  # sensor_config and idle() at once
+        return Update(positions, events, config, sched.behaviour, "idle" if idle else sched.working)
 
     # ------------------------------------------------------------------ state
     def _ops_state(self) -> list[list[Any]]:

@@ -90,9 +90,13 @@ class _LowRate:
         prev = np.concatenate([[self.prev_t], t_s[:-1]])
         step = t_s - prev  # interval before each sample [s]
         fast = step < 1.0 / (1.6 * self.rate_hz)
+        if self.dec is None and not fast.any():
+            # the whole chunk already is at the low rate (Gait-DR, standing): it passes through as it is
+            self.prev_t = float(t_s[-1])
+            return self._newer(t_s, x)
         outs_t, outs_x = [], []
-        edges = np.flatnonzero(np.diff(fast.astype(np.int8))) + 1
-        cuts = edges.tolist()
+        # runs of fast and of slow samples (np.flatnonzero(np.diff(fast.astype(np.int8))) + 1, without the casts)
+        cuts = [] if fast.all() else (np.flatnonzero(fast[1:] != fast[:-1]) + 1).tolist()
         for lo, hi in zip([0, *cuts], [*cuts, len(t_s)]):
             if fast[lo]:
                 dt = _median(step[lo:hi])  # = np.median(np.diff(t_s[lo:hi], prepend=prev[lo]))
@@ -115,9 +119,13 @@ class _LowRate:
                 outs_t.append(t_s[lo:hi])
                 outs_x.append(x[lo:hi])
         self.prev_t = float(t_s[-1])
-        out_s, out_x = np.concatenate(outs_t), np.concatenate(outs_x)
+        return self._newer(np.concatenate(outs_t), np.concatenate(outs_x))
+
+    def _newer(self, out_s: np.ndarray, out_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The output samples after the last one returned (outputs never go back in time)."""
         keep = out_s > self.last_t
-        out_s, out_x = out_s[keep], out_x[keep]
+        if not keep.all():
+            out_s, out_x = out_s[keep], out_x[keep]
         if len(out_s):
             self.last_t = float(out_s[-1])
         return out_s, out_x
@@ -190,7 +198,11 @@ class GaitPipeline:
             self.t_in = float(t_s[-1])
         has_mag = ~np.isnan(mag[:, 0])
         self.has_mag = self.has_mag or bool(has_mag.any())
-        x = np.c_[acc, np.where(has_mag[:, None], mag, 0.0), has_mag.astype(float)]
+        # [acc(3), mag(3) (0 where none), mag flag], as np.c_ builds it (without its generic machinery)
+        x = np.empty((len(t_s), 7))
+        x[:, 0:3] = acc
+        x[:, 3:6] = np.where(has_mag[:, None], mag, 0.0)
+        x[:, 6] = has_mag
         lt, lx = self._low.process(t_s, x)
         if len(lt):
             self._append_low(lt, lx)
@@ -198,15 +210,19 @@ class GaitPipeline:
     def _append_low(self, lt: np.ndarray, lx: np.ndarray) -> None:
         """Low-rate samples ``[acc(3), mag(3), mag flag]`` to the field buffer and the step segmentation."""
         valid = lx[:, 6] > 0.999
-        self._mag_t = np.concatenate([self._mag_t, lt[valid]])
-        self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
+        if valid.any():
+            self._mag_t = np.concatenate([self._mag_t, lt[valid]])
+            self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
         for e in self._seg.feed(lt, lx[:, :3]):
             self.queue.append(e)
             self.stance_mag[e.index] = self._mag_before(e.t_s)
-        keep = self._mag_t >= lt[-1] - _MAG_KEEP_S
-        self._mag_t, self._mag_v = self._mag_t[keep], self._mag_v[keep]
-        live = {e.index for e in self.queue}
-        self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
+        # the field of the last _MAG_KEEP_S (_mag_t increases: one slice, the rows of t >= the start)
+        cut = int(self._mag_t.searchsorted(lt[-1] - _MAG_KEEP_S, "left"))
+        if cut:
+            self._mag_t, self._mag_v = self._mag_t[cut:], self._mag_v[cut:]
+        if self.stance_mag:
+            live = {e.index for e in self.queue}
+            self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
 
     def flush(self) -> None:
         """End of the session: the step events the filters and the segmenter's look-ahead still hold."""
@@ -229,9 +245,14 @@ class GaitPipeline:
         return self.t_in - SEGMENTER_LATENCY_S
 
     def _mag_before(self, t_s: float) -> np.ndarray | None:
-        """Mean field over the quiet window ending at a stance onset [uT]; None without magnetometer."""
-        m = (self._mag_t >= t_s - _MAG_WINDOW_S) & (self._mag_t <= t_s)
-        return self._mag_v[m].mean(axis=0) if np.any(m) else None
+        """Mean field over the quiet window ending at a stance onset [uT]; None without magnetometer.
+
+        ``_mag_t`` increases strictly, so the window is one slice (the rows a mask
+        ``(t >= t_s - window) & (t <= t_s)`` selects, in the same order: the same mean, bit for bit)."""
+        i0 = int(self._mag_t.searchsorted(t_s - _MAG_WINDOW_S, "left"))
+        i1 = int(self._mag_t.searchsorted(t_s, "right"))
+        # .mean(axis=0) is add.reduce / count: the same without numpy's generic mean wrapper
+        return np.add.reduce(self._mag_v[i0:i1], axis=0) / (i1 - i0) if i1 > i0 else None
 
     def mag_at(self, e: StepEvent) -> np.ndarray | None:
         return self.stance_mag.get(e.index)
@@ -497,10 +518,14 @@ class GaitPipeline:
             m = self.mag_at(e)
             acc_st = np.asarray(e.acc_stance)
             source = "none"
+            shape = (0.0, 0.0)
             if m is not None and self.mag.ready:
                 if not self.mag_placed:
                     self._check_place(acc_st, m)
-                clean = not self.mag.disturbed(acc_st, m)
+                # = not self.mag.disturbed(acc_st, m) (ready here); the field's shape depends on the hard/soft
+                # iron only, which neither the place check nor the anchoring changes: computed once
+                shape = self.mag.field_shape(acc_st, m)
+                clean = not self.mag.shape_disturbed(*shape)
                 if not self.mag_anchored and clean:
                     self._anchor_compass(self.heading, acc_st, m)
                 if self.mag_anchored:
@@ -511,7 +536,7 @@ class GaitPipeline:
                 self.follower.forget()
             else:
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
-                                                  *self.mag.field_shape(acc_st, m), self.mag.trusted)
+                                                  *shape, self.mag.trusted)
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:

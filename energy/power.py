@@ -5,9 +5,14 @@ Energy (all in mJ; ``uA x V x s = uJ``, ``mW x s = mJ``):
 - sensors: for every interval of constant configuration and every sensor,
   ``duration [s] x I(rate) [uA] x V [V]``, with ``I(rate)`` interpolated in the datasheet's current-vs-output
   data rate table and the power-down current when the sensor is off;
-- computation: per navigation mode, ``samples x cost_per_sample + steps x cost_per_step`` in microseconds
-  measured on the benchmark machine (``pednav bench speed``, stored with date and machine in the profile),
-  scaled by the target processor's slowdown relative to that machine, times its active power;
+- computation: per navigation mode, ``samples x cost_per_sample + batches x cost_per_batch + steps x
+  cost_per_step`` in microseconds measured on the benchmark machine (``pednav energy simulate
+  --measure-costs``, stored with date and machine in ``compute_costs.json``), scaled by the target processor's
+  slowdown relative to that machine, times its active power. Each engine (``zupt``: the always-on baseline,
+  ``auto``: the scheduler) has its own costs where the file has them (:meth:`ComputeCosts.for_engine`): the
+  scheduler's ZUPT-KF batches also run behaviour recognition, the Gait-DR step stream and the calibration, so
+  they cost more per sample than the baseline's. The per-batch term is the fixed cost of one ``Engine.feed``
+  (one upload), so a day uploaded in 4-s batches is not charged the overhead of 1-s batches;
 - radio: ``bytes x energy_per_byte + requests x energy_per_request``.
 
 The components add up to the total exactly (the total is computed as their sum in a fixed order).
@@ -131,11 +136,27 @@ class ComputeCosts:
         Extra microseconds per emitted position (step/stance) per mode.
     measured : dict
         ``{"date", "machine", "command"}`` of the measurement.
+    us_per_batch : dict of str to float, optional
+        Extra microseconds per batch (one ``Engine.feed``, i.e. one upload) per mode: the fixed cost of a call,
+        whatever its length. Empty: folded into ``us_per_sample`` at the batching it was measured with.
+    engines : dict of str to ComputeCosts, optional
+        Costs of one engine mode (``"zupt"``: the always-on baseline, ``"auto"``: the scheduler), used by
+        :meth:`for_engine` instead of these top-level figures.
     """
 
     us_per_sample: dict[str, float]
     us_per_step: dict[str, float]
     measured: dict[str, str]
+    us_per_batch: dict[str, float] = field(default_factory=dict)
+    engines: dict[str, ComputeCosts] = field(default_factory=dict)
+
+    def for_engine(self, mode: str) -> ComputeCosts:
+        """The costs of the engine running in ``mode`` (``zupt``, ``pdr``, ``auto``); these top-level figures
+        when the measurement has none of its own for it."""
+        own = self.engines.get(mode)
+        if own is None:
+            return self
+        return ComputeCosts(own.us_per_sample, own.us_per_step or self.us_per_step, self.measured, own.us_per_batch)
 
 
 @dataclass(frozen=True)
@@ -201,6 +222,8 @@ class Timeline:
         Bytes uploaded.
     requests : int
         Upload requests (batches).
+    batches_by_mode : dict of str to int, optional
+        Batches (``Engine.feed`` calls) per mode, charged the per-batch compute cost.
     """
 
     intervals: list[Interval]
@@ -208,6 +231,7 @@ class Timeline:
     steps_by_mode: dict[str, int] = field(default_factory=dict)
     bytes_sent: int = 0
     requests: int = 0
+    batches_by_mode: dict[str, int] = field(default_factory=dict)
 
     @property
     def duration_s(self) -> float:
@@ -226,20 +250,23 @@ class Timeline:
         batch (wake-on-motion). Samples per cost class (:func:`cost_class`: the batch's configuration and
         the behaviour the engine reported with it, so standing counts as ``idle`` whatever navigation mode is
         nominally active): ``acc rate x duration`` per batch, scaled so the total equals the accelerometer
-        samples actually sent. Steps per mode from ``res.positions``; bytes from ``res.samples_sent``
+        samples actually sent; batches per cost class of their configuration. Steps per mode from ``res.positions``; bytes from ``res.samples_sent``
         (``SAMPLE_BYTES + TIMESTAMP_BYTES`` per sample, ``REQUEST_OVERHEAD_BYTES`` per request).
         :func:`energy.simulate.run_engine` counts the samples and bytes of every batch exactly instead.
         """
         cfgs = list(res.configs)
         intervals = []
         est: dict[str, float] = {}
+        batches: dict[str, int] = {}
         for i, (t0, c) in enumerate(cfgs):
             t1 = cfgs[i + 1][0] if i + 1 < len(cfgs) else int(t_end_ns)
-            if t1 <= t0:
-                continue
             # the device's real sensor states in the batch (a wake-on-motion gyroscope runs for part of it)
             spans = res.spans[i] if i < len(res.spans) else [(t0, t1, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz)]
             behaviour = res.updates[i - 1].behaviour if 0 < i <= len(res.updates) else "stand"
+            kb = cost_class(bool(c.gyro_on or any(sp[3] > 0 for sp in spans)), str(behaviour))
+            batches[kb] = batches.get(kb, 0) + 1  # every batch is one Engine.feed
+            if t1 <= t0:
+                continue
             for a, b, acc_hz, gyr_hz, mag_hz in spans:
                 a, b = max(a, t0), min(b, t1)
                 if b <= a:
@@ -255,7 +282,7 @@ class Timeline:
             steps[p.mode] = steps.get(p.mode, 0) + 1
         n_samples = int(sum(res.samples_sent.values()))
         nbytes = n_samples * (SAMPLE_BYTES + TIMESTAMP_BYTES) + res.batches * REQUEST_OVERHEAD_BYTES
-        return cls(intervals, samples, steps, nbytes, int(res.batches))
+        return cls(intervals, samples, steps, nbytes, int(res.batches), batches)
 
 
 @dataclass(frozen=True)
@@ -302,10 +329,10 @@ def account(timeline: Timeline, profile: PowerProfile) -> EnergyReport:
     for m, n in timeline.samples_by_mode.items():
         if n and m not in cc.us_per_sample:
             raise ValueError(f"compute costs: no measured cost per sample for mode {m!r} ({cc.measured.get('date', '?')})")
-    for m in sorted(set(timeline.samples_by_mode) | set(timeline.steps_by_mode)):
-        us_by_mode[m] = timeline.samples_by_mode.get(m, 0) * cc.us_per_sample.get(m, 0.0) + timeline.steps_by_mode.get(
-            m, 0
-        ) * cc.us_per_step.get(m, 0.0)
+    for m in sorted(set(timeline.samples_by_mode) | set(timeline.steps_by_mode) | set(timeline.batches_by_mode)):
+        us_by_mode[m] = (timeline.samples_by_mode.get(m, 0) * cc.us_per_sample.get(m, 0.0)
+                         + timeline.batches_by_mode.get(m, 0) * cc.us_per_batch.get(m, 0.0)
+                         + timeline.steps_by_mode.get(m, 0) * cc.us_per_step.get(m, 0.0))
     target_s = sum(us_by_mode.values()) * 1e-6 * profile.processor.slowdown_vs_bench
     comp["compute"] = target_s * profile.processor.active_mw  # mW x s = mJ
     comp["radio"] = (timeline.bytes_sent * profile.radio.uj_per_byte + timeline.requests * profile.radio.uj_per_request) / 1000.0
@@ -325,13 +352,30 @@ def profile_names() -> list[str]:
     return sorted(p.stem for p in _profiles_dir().glob("*.json") if p.stem != "compute_costs")
 
 
+def _costs_of(d: dict[str, Any], key: str) -> dict[str, float]:
+    """``{mode: float}`` of one cost table (an absent table or ``null`` entries are left out)."""
+    return {k: float(v) for k, v in (d.get(key) or {}).items() if v is not None}
+
+
 def load_compute_costs(path: str | Path | None = None) -> ComputeCosts:
-    """Measured per-mode costs (default ``energy/profiles/compute_costs.json``)."""
+    """Measured per-mode costs (default ``energy/profiles/compute_costs.json``).
+
+    Files written before the per-batch term and the per-engine tables existed (only ``us_per_sample`` and
+    ``us_per_step``) load with both empty: everything is then charged per sample.
+    """
     d = json.loads(Path(path or _profiles_dir() / "compute_costs.json").read_text())
+    measured = {k: str(v) for k, v in d["measured"].items()}
+    engines = {
+        str(mode): ComputeCosts(_costs_of(e, "us_per_sample"), _costs_of(e, "us_per_step"), measured,
+                                _costs_of(e, "us_per_batch"))
+        for mode, e in (d.get("engines") or {}).items()
+    }
     return ComputeCosts(
-        us_per_sample={k: float(v) for k, v in d["us_per_sample"].items() if v is not None},
-        us_per_step={k: float(v) for k, v in d["us_per_step"].items() if v is not None},
-        measured={k: str(v) for k, v in d["measured"].items()},
+        us_per_sample=_costs_of(d, "us_per_sample"),
+        us_per_step=_costs_of(d, "us_per_step"),
+        measured=measured,
+        us_per_batch=_costs_of(d, "us_per_batch"),
+        engines=engines,
     )
 
 

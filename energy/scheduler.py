@@ -354,20 +354,26 @@ class Scheduler:
         return self.behaviour in _MOVING and self.step_t_s - self.last_exam_s >= self.config.t0_s - LOW_POWER_BATCH_S
 
     def sensor_config(self) -> SensorConfig:
+        return self.config_and_idle()[0]
+
+    def config_and_idle(self) -> tuple[SensorConfig, bool]:
+        """:meth:`sensor_config` and :meth:`idle` together, :meth:`gyro_wanted` evaluated once for both (the
+        engine asks for both after every batch)."""
         c = self.config
         gyro = self.gyro_wanted()
         batch = self.batch_s(gyro)
-        if self.idle():
-            return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0, batch_s=batch)
-        if self.wake_on_motion():  # standing: the device wakes the gyroscope (and the full rate) on motion
+        standing = self.mode == "auto" and self.behaviour == "stand"
+        if standing and not gyro:  # idle()
+            return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=0.0, batch_s=batch), True
+        if standing and self.zupt_aligned:  # wake_on_motion(): the device wakes the gyroscope (and the full rate) on motion
             return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
                                 batch_s=batch, gyro_wake_on_motion=True, wake_threshold_ms2=WAKE_THRESHOLD_MS2,
-                                sleep_after_s=SLEEP_AFTER_S)
+                                sleep_after_s=SLEEP_AFTER_S), False
         if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
             return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
-                                batch_s=batch)
+                                batch_s=batch), False
         # 004 Section 4.3: de-sampled Gait-DR
-        return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz, batch_s=batch)
+        return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz, batch_s=batch), False
 
     # ------------------------------------------------------------------ internals
     def _calibrate(self, behaviour: str) -> None:

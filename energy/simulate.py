@@ -12,8 +12,13 @@ batch: ``zupt`` (gyroscope on, ZUPT-KF at the full rate), ``pdr`` (gyroscope off
 rate) or ``idle`` (standing: the lowest accelerometer rate). The compute energy of a run is its own measured
 CPU time per class, scaled to the target processor. ``compute_reduction_pct`` is the 004 Table 9 figure: the
 scheduler's measured computation per step vs the baseline's, both measured in the same process run.
-:func:`component_meter` additionally splits the time by engine component (behaviour recognition, ZUPT-KF,
-Gait-DR stream, calibration, dead reckoning, input checks) so the report says where the computation goes.
+With stored costs (``measure=False``, ``--stored-costs``) each engine is charged the costs
+:func:`measure_compute_costs` measured for it with the batching of this simulation (the scheduler's 4-s
+uploads once the gyroscope is off): per accelerometer sample plus per batch (the fixed cost of one
+``Engine.feed``), per cost class. :func:`component_meter` additionally splits the time by engine component
+(behaviour recognition, ZUPT-KF, Gait-DR stream, calibration, dead reckoning, input checks) so the report says
+where the computation goes; with measured costs it meters a separate replay, so that its own clock reads are
+not charged as the engine's computation.
 
 Radio: the bytes of every uploaded batch as encoded by ``encode`` (the CLI passes the SDK's msgpack float32
 encoder, i.e. the bytes the project's client really sends, its per-body framing included), plus one request
@@ -256,6 +261,19 @@ class MeteredEngine:
                 out[r.cls] = out.get(r.cls, 0) + r.n_acc
         return out
 
+    def batches_by_class(self) -> dict[str, int]:
+        """``Engine.feed`` calls (uploads) per cost class; the final flush is not a batch."""
+        out: dict[str, int] = {}
+        for r in self.records:
+            if _is_batch(r):
+                out[r.cls] = out.get(r.cls, 0) + 1
+        return out
+
+
+def _is_batch(r: BatchRecord) -> bool:
+    """A record of an ``Engine.feed`` (an upload), not of the final ``flush`` (which uploads nothing)."""
+    return r.t0_ns != -1 or r.nbytes > 0
+
 ALIGN_RADIUS_M = 10.0  # m, the part of the path used to fit the heading alignment
 
 
@@ -356,7 +374,8 @@ def run_engine(
         Upload batch duration [s]; None: as long as the engine's ``SensorConfig.batch_s`` says.
     measure : bool
         Account the computation this run actually took (thread CPU time per cost class, see the module
-        docstring). False: use the stored per-sample costs of ``profile.compute`` (deterministic).
+        docstring). False: use the stored costs of ``profile.compute`` for this engine mode
+        (:meth:`energy.power.ComputeCosts.for_engine`: per sample, per batch and per step; deterministic).
     encode : callable, optional
         ``batch -> uploaded bytes`` (default :func:`model_bytes`).
     components : bool
@@ -387,7 +406,7 @@ def run_engine(
     samples = eng.samples_by_class()
     cpu = eng.cpu_us_by_class()
     nbytes = sum(r.nbytes for r in eng.records)
-    tl = Timeline(intervals, samples, steps, nbytes, int(res.batches))
+    tl = Timeline(intervals, samples, steps, nbytes, int(res.batches), eng.batches_by_class())
     if measure:
         # Each class's measured CPU time spread over its samples: account() then charges exactly the time taken
         # (the flush, which carries no samples, is in the time of the class of the last batch).
@@ -398,7 +417,7 @@ def run_engine(
         )
         rep = account(tl, dataclasses.replace(profile, compute=costs))
     else:
-        rep = account(tl, profile)
+        rep = account(tl, dataclasses.replace(profile, compute=profile.compute.for_engine(mode)))
     t = np.array([p.t_ns for p in res.positions], dtype=np.int64)
     ne = np.array([[p.north, p.east] for p in res.positions], dtype=float).reshape(-1, 2)
     errs = position_errors(t, ne, truth_t_ns, truth_pos[:, :2])
@@ -508,7 +527,10 @@ def simulate(
     encode : callable, optional
         ``batch -> uploaded bytes`` (default :func:`model_bytes`).
     components : bool
-        Split the measured CPU time by engine component.
+        Split the CPU time by engine component. With ``measure`` the split comes from one more replay of each
+        engine, metered by :func:`component_meter`; the timed replays that are charged run without the meter
+        (its two clock reads per metered call added ~15 us to a standing batch, ~10 % of the idle class, and
+        3-4 % to the baseline).
     repeats : int
         With ``measure``: replay each engine this many times, interleaved, and keep for each the run with the
         least total CPU time (timing noise on a shared machine only ever adds time). Positions and sensor
@@ -528,12 +550,19 @@ def simulate(
     if measure:
         _warm_up(batch, batch_seconds)
     runs: dict[str, RunResult] = {}
+    metered: dict[str, RunResult] = {}
     for _ in range(max(int(repeats), 1) if measure else 1):
         for m in ("auto", "zupt"):
-            r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, components,
-                           user_profile if m == "auto" else None)
+            # measured: the charged replays run without the component meter (its overhead is not the engine's)
+            r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode,
+                           components and not measure, user_profile if m == "auto" else None)
             if m not in runs or sum(r.cpu_us_by_class.values()) < sum(runs[m].cpu_us_by_class.values()):
                 runs[m] = r
+    if measure and components:
+        for m in ("auto", "zupt"):
+            metered[m] = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, True,
+                                    user_profile if m == "auto" else None)
+            runs[m].component_us = metered[m].component_us
     sched, base = runs["auto"], runs["zupt"]
     steps = max(int(truth_steps), 1)
 
@@ -553,7 +582,9 @@ def simulate(
             },
             "energy_by_class_mj": energy_by_class(r, profile),
             "mean_power_mw": e.total_mj / e.duration_s if e.duration_s > 0 else None,
-            "compute_source": "measured in this run (thread CPU time)" if measure else "stored costs (energy/profiles/compute_costs.json)",
+            "compute_source": "measured in this run (thread CPU time)" if measure else (
+                f"stored costs (energy/profiles/compute_costs.json, engine {r.mode!r}: per sample"
+                f"{' and per batch' if profile.compute.for_engine(r.mode).us_per_batch else ''})"),
             "compute_us_bench": us,
             "compute_us_per_step": us / steps,
             "compute_us_by_class": dict(e.compute_us_by_mode),
@@ -561,7 +592,11 @@ def simulate(
                 k: v / r.timeline.samples_by_mode[k] for k, v in e.compute_us_by_mode.items() if r.timeline.samples_by_mode.get(k)
             },
             "compute_us_by_component": {c: dict(v) for c, v in sorted(r.component_us.items())},
+            **({"compute_us_by_component_source": "a separate replay with the component meter (its overhead "
+                "included there, not in the charged compute_us_by_class)",
+                "compute_us_by_class_metered": dict(metered[r.mode].cpu_us_by_class)} if r.mode in metered else {}),
             "samples_by_class": dict(r.timeline.samples_by_mode),
+            "batches_by_class": dict(r.timeline.batches_by_mode),
             "steps_by_mode": dict(r.timeline.steps_by_mode),
             "bytes_sent": r.timeline.bytes_sent,
             "requests": r.timeline.requests,
@@ -610,38 +645,109 @@ def simulate(
     }
 
 
-def measure_compute_costs(day: SensorBatch, repeats: int = 3, batch_seconds: float = 1.0) -> dict[str, Any]:
+def _split_costs(n_acc: np.ndarray, cpu_us: np.ndarray) -> tuple[float, float]:
+    """``(us per sample, us per batch)`` of one cost class from its batches' sample counts and CPU times [us].
+
+    Least squares of ``cpu = a * n + b`` over the batches; with an intercept the fitted costs add up to the
+    measured total exactly. The two terms are separable only when the batches' lengths differ (the scheduler
+    uploads 1-s and 4-s batches, :attr:`energy.types.SensorConfig.batch_s`): with fewer than two lengths of at
+    least 3 batches each, or a negative term, everything is charged per sample (``b = 0``, ``a`` = total /
+    samples: exact at the batching measured).
+    """
+    total, samples = float(cpu_us.sum()), int(n_acc.sum())
+    folded = (total / samples if samples else 0.0, 0.0)
+    values, counts = np.unique(n_acc, return_counts=True)
+    # sample counts of one batch length vary by a few samples (rate changes, the first and last batch): group
+    # them by length within 10 %
+    groups: list[int] = []
+    for v, c in zip(values.tolist(), counts.tolist()):
+        if groups and v <= 1.1 * groups[-2]:
+            groups[-1] += c
+        else:
+            groups += [v, c]
+    if sum(1 for c in groups[1::2] if c >= 3) < 2:
+        return folded
+    a, b = np.linalg.lstsq(np.c_[n_acc, np.ones(len(n_acc))], cpu_us, rcond=None)[0]
+    if a < 0 or b < 0:
+        return folded
+    return float(a), float(b)
+
+
+def measure_compute_costs(day: SensorBatch, repeats: int = 3, batch_seconds: float | None = None) -> dict[str, Any]:
     """Measure per-class engine cost on this machine, in the ``compute_costs.json`` form.
 
     Replays ``day`` (a mixed scenario) through ``Engine("zupt")`` (the always-on baseline) and
     ``Engine("auto")`` (the scheduler) with :class:`MeteredEngine`: thread CPU time of every ``feed``,
-    attributed to the cost class of the batch's sensor configuration. ``zupt`` is the baseline's cost
-    per accelerometer sample, ``pdr`` and ``idle`` the scheduler's. Best (lowest) of ``repeats`` runs.
-    Per-step costs are folded into the per-sample figures (0 here).
+    attributed to the cost class of the batch's sensor configuration. Each engine uploads as
+    :func:`simulate` has it upload by default (``batch_seconds`` None: as long as its ``SensorConfig.batch_s``
+    says, 4 s once the gyroscope is off and Gait-DR navigates, else 1 s), so the costs are those of the day the
+    accounting charges them to. Every batch keeps the least of its ``repeats`` CPU times (the engine is
+    deterministic: the same batches each time; timing noise on a shared machine only ever adds time); the two
+    engines' replays alternate.
+
+    Per cost class: ``us_per_sample`` (top level) is the class's total CPU time per accelerometer sample at
+    that batching (the single figure of older files: ``zupt`` the baseline's, ``pdr``/``idle`` the
+    scheduler's); ``engines.<mode>`` splits each engine's classes into a per-sample and a per-batch cost
+    (:func:`_split_costs`), which :func:`energy.power.account` charges when accounting that engine.
     """
     from energy.device import replay
     from energy.engine import Engine
 
     _warm_up(day, batch_seconds)
-    best: dict[str, float] = {}
-    for _ in range(repeats):
-        for mode, classes in (("zupt", ("zupt",)), ("auto", ("pdr", "idle"))):
+    engines: dict[str, dict[str, Any]] = {}
+    flat: dict[str, float] = {}
+    engine_classes = (("zupt", ("zupt",)), ("auto", ("pdr", "idle")))
+    replays: dict[str, list[list[BatchRecord]]] = {mode: [] for mode, _top in engine_classes}
+    for _ in range(repeats):  # the engines interleaved: a change of the machine's load reaches both
+        for mode, _top in engine_classes:
             eng = MeteredEngine(Engine(mode=mode))
             replay(eng, day, batch_seconds=batch_seconds)  # type: ignore[arg-type]
-            cpu, n = eng.cpu_us_by_class(), eng.samples_by_class()
-            for k in classes:
-                if n.get(k):
-                    best[k] = min(best.get(k, float("inf")), cpu.get(k, 0.0) / n[k])
+            replays[mode].append(eng.records)
+    for mode, top in engine_classes:
+        runs = replays[mode]
+        shape = [(r.cls, r.n_acc) for r in runs[0]]
+        if any([(r.cls, r.n_acc) for r in rr] != shape for rr in runs):
+            raise RuntimeError(f"Engine({mode!r}) replayed differently between repeats: not deterministic")
+        cpu = np.min(np.array([[r.cpu_ns for r in rr] for rr in runs], dtype=np.float64), axis=0) / 1e3
+        cls = np.array([c for c, _ in shape])
+        n = np.array([k for _, k in shape], dtype=np.int64)
+        fed = np.array([_is_batch(r) for r in runs[0]])
+        per_sample: dict[str, float | None] = {}
+        per_batch: dict[str, float | None] = {}
+        seen: dict[str, dict[str, float]] = {}
+        for k in COST_CLASSES:
+            m = (cls == k) & fed
+            if not n[m].sum():
+                per_sample[k] = per_batch[k] = None
+                continue
+            # the flush (no samples) is charged with the class of the last batch, as in the simulated day
+            total = float(cpu[cls == k].sum())
+            a, b = _split_costs(n[m], cpu[m] * total / float(cpu[m].sum()))
+            per_sample[k], per_batch[k] = round(a, 4), round(b, 2)
+            seen[k] = {"batches": int(m.sum()), "samples": int(n[m].sum()), "cpu_us": round(total, 1)}
+            if k in top:
+                flat[k] = total / float(n[m].sum())
+        engines[mode] = {"us_per_sample": per_sample, "us_per_batch": per_batch, "measured_on": seen}
+    batching = (f"fixed {batch_seconds} s batches" if batch_seconds else
+                "each engine's own batching (SensorConfig.batch_s: the scheduler 4 s with the gyroscope off and "
+                "Gait-DR navigating, else 1 s; the baseline 1 s), as `pednav energy simulate` replays the day")
     return {
         # None = the engine never ran in that class during the measurement (accounting refuses to guess).
-        "us_per_sample": {m: (round(best[m], 3) if m in best else None) for m in COST_CLASSES},
+        "us_per_sample": {m: (round(flat[m], 3) if m in flat else None) for m in COST_CLASSES},
         "us_per_step": {"zupt": 0.0, "pdr": 0.0, "idle": 0.0},
+        "engines": engines,
         "measured": {
             "date": date.today().isoformat(),
             "machine": _machine(),
+            "load_average": " ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a",
             "command": "pednav energy simulate --measure-costs (energy.simulate.measure_compute_costs: synthetic "
-            "'mixed-day' seed 0, Engine('zupt') for zupt, Engine('auto') for pdr and idle, 1 s batches, best of 3)",
-            "note": "thread CPU time per accelerometer sample inside Engine.feed, attributed per batch to the cost "
-            "class of the sensor configuration the batch was recorded with; per-step costs folded into the per-sample figures",
+            f"'mixed-day' seed 0, Engine('zupt') and Engine('auto'), {batching}, least of {repeats} per batch)",
+            "note": "thread CPU time inside Engine.feed, attributed per batch to the cost class of the sensor "
+            "configuration the batch was recorded with. us_per_sample: a class's total per accelerometer sample at "
+            "that batching (zupt from the baseline engine, pdr/idle from the scheduler). engines.<mode>: each "
+            "engine's own costs, split into per accelerometer sample and per batch (one Engine.feed; least squares "
+            "over the day's batches, null = class not seen; per batch 0 where all its batches had one length: "
+            "folded into per sample; measured_on: batches, samples and CPU time behind them); the accounting "
+            "charges these. Per-step costs folded into the other terms",
         },
     }

@@ -528,6 +528,7 @@ class BehaviourRecognizer:
         nan = float("nan")
         per = perio = nan
         label = ""
+        current, recent = self.label, self._recent
         for j, (d, c) in enumerate(zip(td.tolist(), code.tolist())):
             if c != -1:  # a decided window
                 if c == -2:  # the stride period decides
@@ -535,13 +536,18 @@ class BehaviourRecognizer:
                 else:
                     label, per, perio = LABELS[c], nan, nan
                 last = j
-                self._vote(label)
-            out.append((d, self.label))
+                # the hysteresis of _vote, inline (one method call per decision was most of a standing batch)
+                recent = (recent + [label])[-HYSTERESIS_OF:]
+                if label != current and recent.count(label) >= HYSTERESIS:
+                    current, recent = label, []
+            out.append((d, current))
+        self.label, self._recent = current, recent
         if last >= 0:
             self.features = _features_of(label, *feats[last].tolist(), per, perio)
         self._k += len(td)
-        keep = self._t >= self._t0 + self._k * HOP_S - WINDOW_S
-        self._t, self._n = self._t[keep], self._n[keep]
+        # the samples of the windows still to come (t increases: one slice, the rows of t >= the start)
+        cut = int(self._t.searchsorted(self._t0 + self._k * HOP_S - WINDOW_S, "left"))
+        self._t, self._n = self._t[cut:], self._n[cut:]
         return out
 
     def _vote(self, new: str) -> None:

@@ -10,6 +10,7 @@ Needs no datasets.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import socket
 import sys
@@ -80,15 +81,19 @@ def _energy(res: Any, rec: Any, profile_name: str) -> dict[str, Any]:
             a, b = max(a, t0), min(b, t1)
             if b > a:
                 intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
+    batches: dict[str, int] = {}
     for r, b in zip(res.responses, res.stored):
         samples[r["mode"]] = samples.get(r["mode"], 0) + b["n_acc"]
+        batches[r["mode"]] = batches.get(r["mode"], 0) + 1
     steps: dict[str, int] = {}
     for p in res.positions:
         steps[p["mode"]] = steps.get(p["mode"], 0) + 1
     nbytes = sum(res.samples_sent.values()) * (SAMPLE_BYTES + TIMESTAMP_BYTES) + len(res.responses) * REQUEST_OVERHEAD_BYTES
-    sched = account(Timeline(intervals, samples, steps, nbytes, len(res.responses)), prof)
+    # each engine charged its own measured costs (energy.power.ComputeCosts.for_engine)
+    sched = account(Timeline(intervals, samples, steps, nbytes, len(res.responses), batches),
+                    dataclasses.replace(prof, compute=prof.compute.for_engine("auto")))
     base_res = replay(Engine(mode="zupt"), rec.batch, 1.0)
-    base = account(Timeline.from_replay(base_res, t_end), prof)
+    base = account(Timeline.from_replay(base_res, t_end), dataclasses.replace(prof, compute=prof.compute.for_engine("zupt")))
     return {"profile": prof.name, "scheduler_mj": sched.total_mj, "always_on_mj": base.total_mj,
             "ratio": sched.total_mj / base.total_mj if base.total_mj else float("nan"),
             "scheduler_components_mj": dict(sched.components_mj), "always_on_components_mj": dict(base.components_mj)}

@@ -18,7 +18,9 @@ def _simulate(args: argparse.Namespace) -> int:
     from energy.simulate import learn_profile, measure_compute_costs, simulate
 
     if args.measure_costs:
-        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch)
+        # each engine uploads as it does in the simulated day (or in fixed batches with --batch-seconds)
+        costs = measure_compute_costs(synthesize("mixed-day", seed=0).batch, repeats=max(args.repeats, 1),
+                                      batch_seconds=args.batch_seconds)
         out = Path(__file__).resolve().parent.parent.parent / "energy" / "profiles" / "compute_costs.json"
         out.write_text(json.dumps(costs, indent=2) + "\n")
         print(f"wrote {out}", file=sys.stderr)
@@ -153,16 +155,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--repeats",
         type=int,
         default=3,
-        help="replay each engine this many times (interleaved) and charge the least CPU time of each (default 3)",
+        help="replay each engine this many times (interleaved) and charge the least CPU time of each (default 3; "
+        "with --measure-costs also the replays per engine of the measurement)",
     )
     s.add_argument(
         "--stored-costs",
         action="store_true",
-        help="charge computation from energy/profiles/compute_costs.json (deterministic) instead of measuring this run",
+        help="charge computation from energy/profiles/compute_costs.json (per sample and per batch of each engine; "
+        "deterministic) instead of measuring this run",
     )
     s.add_argument(
         "--measure-costs",
         action="store_true",
-        help="re-measure the per-mode compute costs on this machine and store them in energy/profiles/compute_costs.json",
+        help="re-measure the per-mode compute costs (per sample and per batch, each engine batching as in the "
+        "simulated day) on this machine and store them in energy/profiles/compute_costs.json",
     )
     s.set_defaults(func=_simulate)

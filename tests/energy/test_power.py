@@ -117,6 +117,42 @@ def test_stored_compute_costs_have_provenance():
     c = load_compute_costs()
     assert c.measured["date"] and c.measured["machine"] and c.measured["command"]
     assert c.us_per_sample.get("zupt", 0) > 0
+    for mode in ("zupt", "auto"):  # each engine's own costs, measured with the batching of the simulated day
+        own = c.for_engine(mode)
+        assert own is not c and own.us_per_sample.get("zupt", 0) > 0
+    assert "batch" in c.measured["command"] and c.measured["load_average"]
+
+
+def test_per_batch_costs_are_charged_per_batch():
+    """The same samples in 4x fewer batches cost 4x less per-batch overhead; the per-sample part is unchanged."""
+    p = load_profile("foot-004", ComputeCosts({"pdr": 2.0}, {}, {"date": "test"}, us_per_batch={"pdr": 100.0}))
+    iv = [Interval(0.0, 100.0, 25.0, 0.0, 25.0)]
+    one = account(Timeline(iv, {"pdr": 2500}, batches_by_mode={"pdr": 100}), p)
+    four = account(Timeline(iv, {"pdr": 2500}, batches_by_mode={"pdr": 25}), p)
+    assert one.compute_us_by_mode["pdr"] == pytest.approx(2500 * 2.0 + 100 * 100.0)
+    assert four.compute_us_by_mode["pdr"] == pytest.approx(2500 * 2.0 + 25 * 100.0)
+    legacy = account(Timeline(iv, {"pdr": 2500}), p)  # no batch counts: per-sample part only
+    assert legacy.compute_us_by_mode["pdr"] == pytest.approx(2500 * 2.0)
+
+
+def test_engine_costs_replace_the_top_level_ones(tmp_path):
+    """compute_costs.json: an engine's own table is used for it; files without one (older) load as before."""
+    d = {"us_per_sample": {"zupt": 3.0, "pdr": 12.0, "idle": 7.0}, "us_per_step": {"zupt": 0.0, "pdr": 0.0, "idle": 0.0},
+         "measured": {"date": "d", "machine": "m", "command": "c"}}
+    f = tmp_path / "old.json"
+    f.write_text(json.dumps(d))
+    old = load_compute_costs(f)
+    assert old.for_engine("auto") is old and old.us_per_batch == {} and old.engines == {}
+    d["engines"] = {"auto": {"us_per_sample": {"zupt": 4.0, "pdr": 3.0, "idle": None}, "us_per_batch": {"zupt": 200.0, "pdr": 120.0}},
+                    "zupt": {"us_per_sample": {"zupt": 2.5}, "us_per_batch": {"zupt": 0.0}}}
+    f.write_text(json.dumps(d))
+    new = load_compute_costs(f)
+    auto = new.for_engine("auto")
+    assert auto.us_per_sample == {"zupt": 4.0, "pdr": 3.0} and auto.us_per_batch == {"zupt": 200.0, "pdr": 120.0}
+    assert auto.us_per_step == d["us_per_step"] and auto.measured == new.measured
+    assert new.for_engine("zupt").us_per_sample == {"zupt": 2.5}
+    assert new.for_engine("pdr") is new  # not measured on its own: the top-level figures
+    assert new.us_per_sample == {"zupt": 3.0, "pdr": 12.0, "idle": 7.0}
 
 
 @pytest.mark.parametrize("name", ["foot-004", "foot-lsm9ds1", "phone-bmi270"])

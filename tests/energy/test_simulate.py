@@ -91,6 +91,22 @@ def test_targets_block_states_the_figures_it_tests(demo_doc):
     assert t["position_error_ratio_le_1.5"] == (a["position_error_m"]["ratio"] <= 1.5)
 
 
+def test_split_costs_recovers_per_sample_and_per_batch_costs():
+    """1-s and 4-s batches at 25 Hz: the fixed cost of a feed and the cost per sample are told apart, and the
+    fitted costs add up to the measured total; batches of one length cannot tell them apart (all per sample)."""
+    from energy.simulate import _split_costs
+
+    rng = np.random.default_rng(0)
+    n = np.array([25] * 30 + [100] * 40 + [26, 99, 24])
+    cpu = 3.0 * n + 120.0 + rng.normal(0.0, 5.0, n.size)
+    a, b = _split_costs(n, cpu)
+    assert a == pytest.approx(3.0, abs=0.2) and b == pytest.approx(120.0, abs=10.0)
+    assert a * n.sum() + b * n.size == pytest.approx(cpu.sum(), rel=1e-12)
+    one = np.array([200] * 50 + [201])
+    a1, b1 = _split_costs(one, 2.0 * one + 100.0)
+    assert b1 == 0.0 and a1 == pytest.approx((2.0 * one + 100.0).sum() / one.sum())
+
+
 def test_cost_class_is_the_one_of_energy_power():
     import energy.power
     import energy.simulate
@@ -120,9 +136,10 @@ def test_measured_compute_is_the_cpu_time_the_run_took(measured_doc):
         us = sum(r["compute_us_by_class"].values())
         assert us > 0 and r["compute_source"].startswith("measured")
         assert r["energy_mj"]["compute"] == pytest.approx(us * 1e-6 * p.processor.slowdown_vs_bench * p.processor.active_mw, rel=1e-9)
-        comp = r["compute_us_by_component"]
-        for k, v in r["compute_us_by_class"].items():
+        comp = r["compute_us_by_component"]  # from its own metered replay: adds up to that replay's CPU time
+        for k, v in r["compute_us_by_class_metered"].items():
             assert sum(c.get(k, 0.0) for c in comp.values()) == pytest.approx(v, rel=1e-9)
+        assert set(r["compute_us_by_class_metered"]) == set(r["compute_us_by_class"])
         by = r["energy_by_class_mj"]
         for key in ("acc", "gyr", "mag", "compute", "radio", "total"):
             assert sum(d[key] for d in by.values()) == pytest.approx(r["energy_mj"][key], rel=1e-9)
