@@ -177,11 +177,12 @@ class DeviceEmulator:
         else:
             kw["acc_t_ns"], kw["acc"], windows = self._wake_on_motion(t0_ns, t1_ns, kw["acc_t_ns"], kw["acc"], fast_t, fast_v,
                                                                       blk_t, blk_v, config)
-            g_t, g_v = kw["gyr_t_ns"], kw["gyr"]
-            keep = np.zeros(len(g_t), dtype=bool)
-            for _, deliver, off in windows:
-                keep |= (g_t >= deliver) & (g_t < off)
-            kw["gyr_t_ns"], kw["gyr"] = g_t[keep], g_v[keep]
+            for name in ("gyr", "mag") if config.mag_follows_gyro else ("gyr",):
+                s_t, s_v = kw[f"{name}_t_ns"], kw[name]
+                keep = np.zeros(len(s_t), dtype=bool)
+                for _, deliver, off in windows:
+                    keep |= (s_t >= deliver) & (s_t < off)
+                kw[f"{name}_t_ns"], kw[name] = s_t[keep], s_v[keep]
             self.last_spans = self._spans(t0_ns, t1_ns, windows, config)
         newer = kw["acc_t_ns"] > self._last_acc_ns  # across a rate switch the outputs never go back in time
         kw["acc_t_ns"], kw["acc"] = kw["acc_t_ns"][newer], kw["acc"][newer]
@@ -283,7 +284,8 @@ class DeviceEmulator:
             charged = any(w[0] <= a and b <= w[2] for w in windows)
             delivering = any(w[1] <= a and b <= w[2] for w in windows)
             acc = config.gyr_rate_hz if delivering else config.acc_rate_hz
-            spans.append((a, b, acc, config.gyr_rate_hz if charged else 0.0, config.mag_rate_hz))
+            mag = config.mag_rate_hz if (charged or not config.mag_follows_gyro) else 0.0
+            spans.append((a, b, acc, config.gyr_rate_hz if charged else 0.0, mag))
         return spans
 
 

@@ -368,7 +368,7 @@ class Scheduler:
         if standing and self.zupt_aligned:  # wake_on_motion(): the device wakes the gyroscope (and the full rate) on motion
             return SensorConfig(gyro_on=False, acc_rate_hz=c.stand_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
                                 batch_s=batch, gyro_wake_on_motion=True, wake_threshold_ms2=WAKE_THRESHOLD_MS2,
-                                sleep_after_s=SLEEP_AFTER_S), False
+                                sleep_after_s=SLEEP_AFTER_S, mag_follows_gyro=True), False
         if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
             return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
                                 batch_s=batch), False

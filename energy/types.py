@@ -37,6 +37,10 @@ class SensorConfig:
         Activity threshold [m/s^2] per axis (used with ``gyro_wake_on_motion``).
     sleep_after_s : float
         Inactivity duration before the device powers the gyroscope down again [s] (with ``gyro_wake_on_motion``).
+    mag_follows_gyro : bool
+        With ``gyro_wake_on_motion``: the magnetometer is powered down while the gyroscope sleeps and samples at
+        ``mag_rate_hz`` while it is awake (the device's controller switches it on the same activity interrupt);
+        False: it samples at ``mag_rate_hz`` throughout.
 
     Raises
     ------
@@ -53,6 +57,7 @@ class SensorConfig:
     gyro_wake_on_motion: bool = False
     wake_threshold_ms2: float = 0.0
     sleep_after_s: float = 0.0
+    mag_follows_gyro: bool = False
 
     def __post_init__(self) -> None:
         if self.gyro_wake_on_motion:

@@ -98,6 +98,8 @@ class SensorConfigOut(BaseModel):
     gyro_wake_on_motion: bool = False
     wake_threshold_ms2: float = 0.0
     sleep_after_s: float = 0.0
+    # with gyro_wake_on_motion: the magnetometer sleeps and wakes with the gyroscope (rows stored before: False)
+    mag_follows_gyro: bool = False
 
 
 class SessionOut(_Out):

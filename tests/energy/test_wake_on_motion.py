@@ -84,6 +84,33 @@ def test_device_puts_the_gyro_down_after_the_inactivity_duration(day) -> None:
     assert [s[3] for s in dev.last_spans] == [200.0, 0.0]
 
 
+def test_the_magnetometer_sleeps_and_wakes_with_the_gyro(day) -> None:
+    """With ``mag_follows_gyro`` the magnetometer sends nothing and is not charged while the gyroscope sleeps;
+    awake, it samples at its rate (without it, it samples throughout, as before)."""
+    _, batch = day
+    t0 = int(batch.t_start_ns or 0)
+    base = {**WAKE.to_dict(), "mag_rate_hz": 50.0}
+    for follows in (True, False):
+        cfg = SensorConfig(**{**base, "mag_follows_gyro": follows})
+        dev = DeviceEmulator(batch)
+        mag_t, spans = [], []
+        for k in range(60):
+            out = dev.emit(t0 + k * 10**9, t0 + (k + 1) * 10**9, cfg)
+            mag_t.append(out.stream("mag")[0])
+            spans += dev.last_spans
+        m = (np.concatenate(mag_t) - t0) / 1e9
+        awake = [((a - t0) / 1e9, (b - t0) / 1e9) for a, b, _, gyr, _ in spans if gyr > 0]
+        inside = np.zeros(len(m), dtype=bool)
+        for a, b in awake:
+            inside |= (m >= a) & (m < b)
+        if follows:
+            assert inside.all() and len(m) > 0.8 * 50.0 * sum(b - a for a, b in awake) - 50
+            assert all((mag > 0) == (gyr > 0) for _, _, _, gyr, mag in spans)
+        else:
+            assert (~inside).sum() > 0.9 * 50.0 * 40.0  # the 40-s stand
+            assert all(mag == 50.0 for *_, mag in spans)
+
+
 def test_energy_is_charged_from_the_wake_only(day) -> None:
     rec, batch = day
     res = replay(Engine(mode="auto"), batch, batch_seconds=None)
