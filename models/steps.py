@@ -36,6 +36,11 @@ replaced (checked on every gdin recording at 20, 25, 50 Hz and native rate). Per
 step-length models: step frequency f_s = 1 / period (004 eq. 15), mean, maximum
 and minimum of the filtered acceleration magnitude over the step. The gyroscope, when on, is not used, so
 the events do not change when the engine switches it. Chunk-invariant and serialisable.
+
+Memory is bounded while the person stands: a quiet stretch that has already been decided on keeps only its
+start (and the context before it) and the samples near its current end; the samples in between collapse into
+one that holds their largest ``|a|`` (:meth:`StepSegmenter._collapse_quiet`), so the state no longer grows with
+the time stood and the events stay the same, bit for bit.
 """
 
 from __future__ import annotations
@@ -173,6 +178,12 @@ class StepSegmenter:
         self._keep = int(round((self.max_period_s + self.level_s + 2 * self.context_s) * self.rate_hz)) + self._w
         self._n_long = max(2, min(int(round(self.long_stance_s * self.rate_hz)),
                                   int((self.max_latency_s - self.context_s) * self.rate_hz) - self._w))
+        # samples a decided quiet stretch keeps before its newest one (see _collapse_quiet): the trim's own
+        # look-back (so its first cut after the stretch ends drops the collapsed part whole) and the longest
+        # step a stance after the stretch can measure its features over (nominal stance after a rest included)
+        longest_step = max(self.min_period_s, self.max_period_s + _REST_STANCE_S)
+        self._tail = max(self._keep, self._n_lvl + self._n_ctx + self._w,
+                         self._w + int(math.ceil(longest_step * self.rate_hz))) + 2
         self._pf = np.array([self.stance_threshold, self.swing_min, self.refractory_frac, self.min_period_s,
                              self.max_period_s, self.swing_frac, self.min_swing_s, self.rel_threshold,
                              self.k_duration, self.duration_cap_s, self.k_quiet, self.period_min_s,
@@ -180,7 +191,9 @@ class StepSegmenter:
         self._pi = np.array([self._w, self._n_ctx, self._n_lvl, self._n_long], dtype=np.int64)
         self._t_hist = np.zeros(0, dtype=np.float64)  # input times awaiting the filter delay
         self._win = np.zeros((0, 3))  # last w-1 filtered samples
-        self._bt = np.zeros(0)  # per filtered sample (global index b0 + j): time [s]
+        # per filtered sample (index b0 + j; indices count the samples, except that a long decided quiet
+        # stretch counts as its ends plus one sample, see _collapse_quiet): time [s] ...
+        self._bt = np.zeros(0)
         self._bm = np.zeros(0)  # ... and |a| [m/s^2]
         self._fs = np.array([np.inf, np.inf, 0.0, 0.0, 0.0])
         self._run = np.zeros(9)
@@ -190,6 +203,7 @@ class StepSegmenter:
         self._per = np.zeros(_N_PER)
         self._ist = np.zeros(5, dtype=np.int64)  # count, b0, n_events, n_await, n_periods
         self._flushed = False
+        self._compact = True  # collapse long decided quiet stretches (False: the reference, for tests)
 
     @property
     def latency_s(self) -> float:
@@ -278,7 +292,46 @@ class StepSegmenter:
         if cut > 0:
             self._bt, self._bm = self._bt[cut:], self._bm[cut:]
             self._ist[1] = b0 + cut
+        self._collapse_quiet()
         return self._events(ev, n_ev) if n_ev else []
+
+    def _collapse_quiet(self) -> None:
+        """Bound the buffer during a long quiet stretch (standing) without changing any event.
+
+        The trim above keeps every sample from an open quiet stretch's first one (it may still become a
+        candidate). Once the stretch has competed (``run[8]``) and nothing is waiting (no candidate, none
+        pending), the kernel reads the samples of its middle only through one maximum: the swing test of the next
+        stance after it (``_k_emax`` from the previous stance's end to that stance, which spans the whole
+        stretch when the stretch itself was not selected). Every other access lies before ``g0`` (the stretch's
+        start, its context and the stored stance indices) or within ``self._tail`` samples of the newest one
+        (the stretch's end, and the next stance's impacts, level look-back and step features). So the samples
+        ``[g0, count - tail)`` are replaced by one holding their largest ``|a|``, and the indices after them
+        (the sample count, the stretch's last index) move down by the number removed; the trim's first cut
+        after the stretch ends lies beyond that sample (``tail`` covers its look-back), so from then on the
+        buffer is what it would have been.
+
+        Samples kept: ``b0 .. g0`` (the level and context look-back before the stretch and its first
+        ``long_stance_s``, ~2.5 s) + 1 + ``tail`` (~4.7 s): 184 at 25 Hz, 1447 at 200 Hz with the default
+        parameters, whatever the time stood (the buffer of a walk holds up to ~175 / ~1400). A state stored
+        before the stretches were collapsed restores as it is and is collapsed at the next :meth:`feed`.
+        """
+        run, last, ist = self._run, self._last, self._ist
+        if not self._compact or run[0] <= 0.0 or run[8] <= 0.0 or ist[3] or self._pend[0] > 0.0:
+            return
+        count, b0 = int(ist[0]), int(ist[1])
+        g0 = int(run[1]) + 1  # after every index the state refers to (none refers to the stretch's middle)
+        if last[0] > 0.0:
+            g0 = max(g0, int(last[3]) + 1, int(last[4]) + 1, int(last[5]) + 1)
+        g1 = count - self._tail
+        if g1 - g0 < 2:
+            return
+        p0, p1 = g0 - b0, g1 - b0
+        bm, bt = self._bm, self._bt
+        self._bm = np.concatenate([bm[:p0], [bm[p0:p1].max()], bm[p1:]])
+        self._bt = np.concatenate([bt[:p0], [bt[p1 - 1]], bt[p1:]])  # never read (only the maximum is)
+        shift = g1 - g0 - 1
+        ist[0] = count - shift
+        run[2] -= shift
 
     # -- state ---------------------------------------------------------------------------------------------
     _PARAMS = ("rate_hz", "window_s", "stance_threshold", "swing_min", "refractory_frac", "min_period_s",
@@ -327,6 +380,7 @@ class StepSegmenter:
 # Events rows: [t_s, period_s, f_s, acc_mean, acc_max, acc_min, mx, my, mz, after_rest, index]
 _AW_MAX = 64
 _N_PER = 9
+_REST_STANCE_S = 0.25  # nominal stance added to the swing time of the first step after a rest [s] (_k_confirm)
 
 
 @njit(cache=True)
@@ -393,7 +447,7 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
             swing_t = onset - last_end
         else:
             swing_t = pf[3]
-        period = max(pf[3], min(swing_t, pf[4]) + 0.25)  # nominal stance after a rest
+        period = max(pf[3], min(swing_t, pf[4]) + _REST_STANCE_S)  # nominal stance after a rest
     else:
         per[ist[4] % _N_PER] = period
         ist[4] += 1

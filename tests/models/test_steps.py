@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +117,145 @@ def test_state_of_the_earlier_segmenter_restores_as_a_fresh_detector() -> None:
     seg = StepSegmenter.from_state(loads(dumps(old)))
     t, acc = synthetic_foot(25.0, strides=6)
     assert len(seg.feed(t, acc)) == 6 and seg.min_period_s == 0.4
+
+
+# -- long quiet stretches (standing): bounded memory, the same events --------------------------------------------
+def _event_key(events: list) -> list[str]:
+    """Events as text, bit for bit (repr of every field; NaN compares equal to NaN)."""
+    return [repr(dataclasses.astuple(e)) for e in events]
+
+
+def _reference(rate: float, t: np.ndarray, acc: np.ndarray) -> list:
+    """Events of the segmenter that keeps every sample of a quiet stretch (one piece, then flushed)."""
+    ref = StepSegmenter(rate)
+    ref._compact = False
+    return ref.feed(t, acc) + ref.flush()
+
+
+def _collapsed(seg: StepSegmenter, n_in: int) -> int:
+    """Samples a segmenter fed ``n_in`` samples (and flushed) has collapsed: its sample index is behind by them."""
+    return n_in + seg._delay + seg._w + seg._n_ctx + 1 - int(seg._ist[0])
+
+
+def _pieces(rate: float, kinds: list[tuple[str, float, float]], seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Specific force [m/s^2] from segments ``(kind, duration [s], size)``: ``stride`` (a swing, size = period),
+    ``still`` (the foot at rest, tilted; size = spike height [m/s^2] of one sample in its middle, 0: none) and
+    ``wobble`` (a shuffle that breaks a quiet stretch without a swing; size = amplitude [m/s^2])."""
+    rng = np.random.default_rng(seed)
+    parts: list[np.ndarray] = []
+    tilt = 0.1
+    for kind, dur, size in kinds:
+        n = max(1, int(round(dur * rate)))
+        ph = np.arange(n) / n
+        a = np.tile([G0 * np.sin(tilt), 0.0, -G0 * np.cos(tilt)], (n, 1))
+        if kind == "stride":
+            ang = 0.8 * np.sin(np.pi * ph)
+            a[:, 0] = -G0 * np.sin(ang) + 12.0 * np.sin(2 * np.pi * ph)
+            a[:, 2] = -G0 * np.cos(ang) - 8.0 * np.sin(np.pi * ph) ** 2
+            tilt = float(rng.uniform(-0.3, 0.3))
+        elif kind == "wobble":
+            a[:, 1] += size * np.sin(np.pi * ph)
+        elif size:
+            a[n // 2, 2] -= size
+        parts.append(a)
+    acc = np.concatenate(parts)
+    acc += rng.normal(scale=0.05, size=acc.shape)
+    return np.arange(acc.shape[0]) / rate, acc
+
+
+_SEGMENTS = st.one_of(
+    st.tuples(st.just("stride"), st.floats(0.6, 1.5), st.just(0.0)).map(lambda s: (s[0], s[1], s[1])),
+    st.tuples(st.just("still"), st.floats(0.05, 25.0), st.sampled_from([0.0, 0.0, 2.0, 6.0, 12.0])),
+    st.tuples(st.just("wobble"), st.floats(0.04, 0.6), st.floats(0.5, 4.0)),
+)
+
+
+@settings(max_examples=30, deadline=None)
+@given(rate=st.sampled_from([25.0, 200.0]), kinds=st.lists(_SEGMENTS, min_size=2, max_size=14),
+       cuts=st.lists(st.floats(0.0, 1.0), max_size=12), restore=st.booleans(), seed=st.integers(0, 3))
+def test_collapsed_quiet_stretches_give_the_same_events(rate: float, kinds: list, cuts: list[float], restore: bool,
+                                                        seed: int) -> None:
+    """Stands of up to 25 s (collapsed after ~7 s) between strides, shuffles and one-sample spikes (the maximum
+    the collapsed samples keep), a stand right after a stance (its stretch loses the competition, so the next
+    stance's swing test spans the collapsed samples), cut anywhere (inside stands too), with state round trips:
+    every event identical, field by field, to the segmenter that keeps every sample, fed in one piece."""
+    kinds = [("stride", 1.1, 1.1), ("still", 0.5, 0.0)] + kinds + [("still", 9.0, 0.0)]
+    t, acc = _pieces(rate, kinds, seed)
+    ref = _reference(rate, t, acc)
+    seg = StepSegmenter(rate)
+    got = []
+    bounds = [0, *sorted({int(c * t.size) for c in cuts} | set(range(0, t.size, int(7.3 * rate)))), t.size]
+    for i, j in zip(bounds[:-1], bounds[1:]):
+        if restore:
+            seg = StepSegmenter.from_state(loads(dumps(seg.get_state())))
+        got += seg.feed(t[i:j], acc[i:j])
+    got += seg.flush()
+    assert _collapsed(seg, t.size) > 0  # the last stand (9 s) at least
+    assert _event_key(got) == _event_key(ref)
+
+
+def test_a_stand_right_after_a_stance_gives_the_same_events() -> None:
+    """The stand's quiet stretch starts within the swing rule of the stance before it (a shuffle between
+    them), so it is not selected; the next step's swing test spans the collapsed samples (a spike among them)."""
+    rate = 200.0
+    kinds = [("stride", 1.1, 1.1), ("still", 0.3, 0.0)] * 4 + [("wobble", 0.1, 6.0), ("still", 30.0, 12.0)] + \
+        [("stride", 1.1, 1.1), ("still", 0.3, 0.0)] * 4 + [("still", 3.0, 0.0)]
+    t, acc = _pieces(rate, kinds, 1)
+    ref = _reference(rate, t, acc)
+    seg = StepSegmenter(rate)
+    got: list = []
+    unselected_collapsed = False
+    for i in range(0, t.size, 200):
+        got += seg.feed(t[i:i + 200], acc[i:i + 200])
+        run, last = seg._run, seg._last
+        if run[0] > 0 and run[8] > 0 and last[3] < run[1] and run[4] > seg._bt.size:
+            unselected_collapsed = True  # the stretch lost the competition and its samples were collapsed
+    got += seg.flush()
+    assert unselected_collapsed
+    assert len(ref) >= 8 and _event_key(got) == _event_key(ref)
+
+
+@pytest.mark.parametrize("rate", [25.0, 200.0])
+def test_state_is_bounded_while_standing(rate: float) -> None:
+    """Walk, stand 60 min (25 Hz; 12 min at 200 Hz), walk, in 1-s pieces: the state after 10 min of standing
+    and 1 min before the stand ends are the same size (7.5 kB at 25 Hz, 29 kB at 200 Hz), and the events are
+    those of the segmenter that keeps every sample, also across a state round trip inside the stand."""
+    stand_min = 60.0 if rate == 25.0 else 12.0
+    walk = [("stride", 1.1, 1.1)] * 10
+    t, acc = _pieces(rate, walk + [("still", 60.0 * stand_min, 0.0)] + walk + [("still", 3.0, 0.0)], 2)
+    ref = _reference(rate, t, acc)
+    n1 = int(rate)
+    start = int(round(11.0 * rate))  # the stand starts after the 10 strides [samples]
+    marks = {start + int(600 * rate): 0, start + int((stand_min - 1.0) * 60 * rate): 0}
+    seg = StepSegmenter(rate)
+    got: list = []
+    for i in range(0, t.size, n1):
+        got += seg.feed(t[i:i + n1], acc[i:i + n1])
+        if i + n1 in marks:
+            marks[i + n1] = len(dumps(seg.get_state()))
+        if i + n1 == start + int(1800 * rate):
+            seg = StepSegmenter.from_state(loads(dumps(seg.get_state())))
+    got += seg.flush()
+    assert _event_key(got) == _event_key(ref) and len(got) == 20
+    small, large = marks.values()
+    assert abs(large - small) < 100, marks
+    assert 0 < large < (10_000 if rate == 25.0 else 40_000), marks
+
+
+def test_a_state_stored_uncollapsed_mid_stand_restores_and_collapses() -> None:
+    """A state written mid-stand by the segmenter that kept every sample (what sessions stored before) restores,
+    is collapsed at the next feed, and gives the same events."""
+    rate = 25.0
+    walk = [("stride", 1.1, 1.1)] * 6
+    t, acc = _pieces(rate, walk + [("still", 600.0, 0.0)] + walk + [("still", 3.0, 0.0)], 3)
+    ref = _reference(rate, t, acc)
+    old = StepSegmenter(rate)
+    old._compact = False
+    k = int(300 * rate)
+    got = old.feed(t[:k], acc[:k])
+    assert old._bt.size > 290 * rate
+    seg = StepSegmenter.from_state(loads(dumps(old.get_state())))
+    got += seg.feed(t[k:k + 25], acc[k:k + 25])
+    assert seg._bt.size < 200
+    got += seg.feed(t[k + 25:], acc[k + 25:]) + seg.flush()
+    assert _event_key(got) == _event_key(ref) and len(got) == 12
