@@ -1,4 +1,4 @@
-"""``pednav bench speed|engine|load``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
+"""``pednav bench speed|engine|load|state``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
 
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         ("speed", "per-sample cost of each engine mode on real data vs ahrs Madgwick updateIMU"),
         ("engine", "CPU per batch of the server's engine helper (restore, feed, serialise) on real data"),
         ("load", "many simulated devices against one server worker: latency percentiles, lost batches"),
+        ("state", "engine state size and CPU per batch against the time a person stands"),
     ):
         try:
             module = importlib.import_module(f"clients.benchmarks.{name}")

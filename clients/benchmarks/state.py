@@ -1,19 +1,15 @@
-"""Engine state size and CPU per batch against standing time (a measurement, not a test).
+"""``pednav bench state``: engine state size and CPU per batch against standing time.
 
 Streams the synthetic scenario walk 60 s / stand ``--stand-min`` minutes / walk 60 s through an engine the way
 ``energy.device.replay`` does (the device obeys the engine's sensor configuration), and after every batch
 records the thread CPU time of ``Engine.feed``, of ``Engine.to_bytes`` (the server stores the state after every
-batch) and the size of the state and of its parts. Prints one JSON document.
-
-Run from the project root::
-
-    PEDNAV_DATA=... .venv/bin/python -m tests.energy.stand_growth --mode pdr --batch auto --stand-min 60
+batch) and the size of the state and of its parts. A state that grows with the time a person stands would be
+written, whole, after every upload.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from typing import Any
 
@@ -23,6 +19,8 @@ from clients.synth import Scenario, Segment, synthesize
 from energy import codec
 from energy.device import DeviceEmulator
 from energy.engine import Engine
+
+__all__ = ["add_arguments", "run", "measure"]
 
 WALK_S = 60.0  # walking before and after the stand [s]
 MARKS_MIN = (1.0, 10.0, 60.0)  # standing times at which the state is reported [min]
@@ -56,7 +54,20 @@ def parts(state: dict[str, Any]) -> dict[str, int]:
     return out
 
 
-def run(mode: str, batch_s: float | None, stand_min: float, seed: int = 0) -> dict[str, Any]:
+def measure(mode: str, batch_s: float | None, stand_min: float, seed: int = 0) -> dict[str, Any]:
+    """State size at 1, 10 and 60 min of standing (those reached) and per-batch CPU [ms] per phase.
+
+    Parameters
+    ----------
+    mode : {"zupt", "pdr", "auto"}
+        Engine mode.
+    batch_s : float or None
+        Upload length [s]; None: as long as the engine's sensor configuration asks.
+    stand_min : float
+        Length of the stand [min].
+    seed : int
+        Synthesiser seed.
+    """
     rec = synthesize(scenario(stand_min), seed=seed)
     segs = rec.truth.extra["segments"]
     t_stand0 = min(t0 for t0, _, lab in segs if lab == "stand" and t0 > 5.0)  # start of the long stand [s]
@@ -106,16 +117,14 @@ def run(mode: str, batch_s: float | None, stand_min: float, seed: int = 0) -> di
                     "stand_after_first_min": cpu(stand)}}
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="pdr")
-    p.add_argument("--batch", default="auto", help="batch length [s], or 'auto': what the engine asks for")
-    p.add_argument("--stand-min", type=float, default=60.0)
-    p.add_argument("--seed", type=int, default=0)
-    a = p.parse_args()
-    batch_s = None if a.batch == "auto" else float(a.batch)
-    print(json.dumps(run(a.mode, batch_s, a.stand_min, a.seed), indent=1))
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="pdr", help="engine mode")
+    parser.add_argument("--batch", default="auto", help="upload length [s], or 'auto': what the engine asks for")
+    parser.add_argument("--stand-min", type=float, default=60.0, help="length of the stand [min]")
+    parser.add_argument("--seed", type=int, default=0, help="synthesiser seed")
 
 
-if __name__ == "__main__":
-    main()
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Entry point of ``pednav bench state``."""
+    batch_s = None if args.batch == "auto" else float(args.batch)
+    return measure(args.mode, batch_s, args.stand_min, args.seed)
