@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from models.batch import BatchError, SensorBatch
 
@@ -86,3 +88,24 @@ def test_unit_checks_use_the_median_norm_and_the_peak() -> None:
 def test_unit_checks_skip_streams_with_fewer_than_ten_samples() -> None:
     SensorBatch(**_walk(9, acc=1.0, gyr=100.0, mag=0.4)).validate()
     SensorBatch().validate()
+
+
+@given(st.lists(st.integers(0, 50), min_size=0, max_size=40), st.one_of(st.none(), st.integers(-5, 55)),
+       st.one_of(st.none(), st.integers(-5, 55)), st.booleans())
+def test_time_slice_keeps_exactly_the_samples_in_the_interval(ts, t0, t1, shuffle) -> None:
+    """Sorted streams are cut by binary search, others by a mask: both give ``t0 <= t < t1``, in order, copied."""
+    t = np.array(sorted(ts) if not shuffle else ts, dtype=np.int64)
+    v = np.column_stack([t, t, t]).astype(np.float64)
+    b = SensorBatch(acc_t_ns=t, acc=v, mag_t_ns=t[::2].copy(), mag=v[::2].copy())
+    out = b.time_slice(t0, t1)
+    for name in ("acc", "mag"):
+        tt, vv = b.stream(name)
+        m = np.ones(tt.size, dtype=bool)
+        if t0 is not None:
+            m &= tt >= t0
+        if t1 is not None:
+            m &= tt < t1
+        ot, ov = out.stream(name)
+        np.testing.assert_array_equal(ot, tt[m])
+        np.testing.assert_array_equal(ov, vv[m])
+        assert not np.shares_memory(ot, tt) or ot.size == 0
