@@ -38,11 +38,15 @@ import numpy as np
 
 from models.steps import G0
 
-__all__ = ["MODELS", "FORM", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
+__all__ = ["MODELS", "FORM", "MAX_PAIRS", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
            "StepLengthCalibrator"]
 
 MODELS: tuple[str, ...] = ("eq15", "eq15_run", "weinberg", "height_freq")
 FORM = "eq15-abar"  # regressor form the stored fits were made with (states without it: eq. 15 on the peak)
+# Calibration pairs kept per behaviour (the newest): 10x the ~30 strides of a 40-m initialisation (L0), enough
+# for the per-band fits of two or three walking patterns, and it bounds the state and the profile (~12 kB per
+# behaviour); a sliding window also follows a gait that changes slowly over weeks of use.
+MAX_PAIRS = 300
 
 
 @dataclass(frozen=True)
@@ -217,10 +221,15 @@ class StepLengthCalibrator:
         A band's model is fitted with the behaviour's pooled fit as prior mean and ``band_prior_scale`` times
         the generic prior standard deviations (hierarchical shrinkage: a band with few, nearly collinear
         steps stays close to the pooled model instead of extrapolating on its own). ``inf`` = independent.
+    max_pairs : int
+        Calibration pairs kept per behaviour, the newest (``MAX_PAIRS``): every ZUPT-KF stride adds one, and
+        the pairs live in the engine state the server stores after every upload and in the profile a user
+        carries from session to session (unbounded, 25 kB per hour of ZUPT-KF walking).
     """
 
     def __init__(self, model: str = "eq15", band_hz: float = 0.2, min_pairs: int = 8, height_m: float = 1.75,
-                 sigma_floor: float = 0.03, band_prior_scale: float = 0.5, run_model: str = "eq15") -> None:
+                 sigma_floor: float = 0.03, band_prior_scale: float = 0.5, run_model: str = "eq15",
+                 max_pairs: int = MAX_PAIRS) -> None:
         if model not in MODELS or run_model not in ("eq15", "eq15_run"):
             raise ValueError(f"unknown step-length model {model!r}/{run_model!r}; expected one of {MODELS}")
         self.model = model
@@ -230,6 +239,9 @@ class StepLengthCalibrator:
         self.height_m = float(height_m)
         self.sigma_floor = float(sigma_floor)
         self.band_prior_scale = float(band_prior_scale)
+        self.max_pairs = int(max_pairs)
+        if self.max_pairs < self.min_pairs:
+            raise ValueError(f"max_pairs ({self.max_pairs}) must be at least min_pairs ({self.min_pairs})")
         self._pairs: dict[str, list[list[float]]] = {}  # behaviour -> [[f, mean, max, min, d_kf], ...]
         self._fits: dict[str, dict] = {}  # key -> {"coef": [...], "sigma_d": s, "n": n}
 
@@ -245,7 +257,21 @@ class StepLengthCalibrator:
         """Record one calibration pair: features of a step and the ZUPT-KF distance of that step [m]."""
         if not (np.isfinite(d_kf) and np.isfinite(x.f_s)):
             return
-        self._pairs.setdefault(behaviour, []).append([x.f_s, x.acc_mean, x.acc_max, x.acc_min, float(d_kf)])
+        pairs = self._pairs.setdefault(behaviour, [])
+        pairs.append([x.f_s, x.acc_mean, x.acc_max, x.acc_min, float(d_kf)])
+        self._bound(behaviour)
+
+    def _bound(self, behaviour: str) -> None:
+        """Drop a behaviour's oldest pairs beyond ``max_pairs``; its pooled fit's ``n`` (the pairs it used are
+        the first ``n``) counts only those kept."""
+        pairs = self._pairs.get(behaviour, [])
+        extra = len(pairs) - self.max_pairs
+        if extra <= 0:
+            return
+        del pairs[:extra]
+        e = self._fits.get(behaviour)
+        if e is not None:
+            e["n"] = max(int(e["n"]) - extra, 0)
 
     def n_pairs(self, behaviour: str) -> int:
         """Calibration pairs gathered for a behaviour."""
@@ -291,8 +317,8 @@ class StepLengthCalibrator:
         """
         e = self._fits.get(behaviour)
         pairs = self._pairs.get(behaviour, [])
-        if e is None or not pairs:
-            return None
+        if e is None or not pairs or int(e["n"]) <= 0:
+            return None  # not fitted, or every pair the fit used has since been dropped (max_pairs)
         f = [q[0] for q in pairs[: int(e["n"])]]
         lo, hi = min(f), max(f)
         return lo - 0.5 * lo * lo * period_res_s, hi + 0.5 * hi * hi * period_res_s
@@ -351,6 +377,7 @@ class StepLengthCalibrator:
         """Plain-data state (this is the per-user calibration profile content)."""
         return {"model": self.model, "run_model": self.run_model, "form": FORM, "band_hz": self.band_hz, "min_pairs": self.min_pairs,
                 "height_m": self.height_m, "sigma_floor": self.sigma_floor, "band_prior_scale": self.band_prior_scale,
+                "max_pairs": self.max_pairs,
                 "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
                 "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                          for k, v in self._fits.items()}}
@@ -361,10 +388,13 @@ class StepLengthCalibrator:
         obj = cls(d["model"], float(d["band_hz"]), int(d["min_pairs"]), float(d["height_m"]),
                   float(d["sigma_floor"]),
                   float(d.get("band_prior_scale", math.inf)),  # older profiles: independent bands
-                  str(d.get("run_model", "eq15_run")))  # older profiles: 004's running form
+                  str(d.get("run_model", "eq15_run")),  # older profiles: 004's running form
+                  int(d.get("max_pairs", MAX_PAIRS)))
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
         obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
                      for k, v in d["fits"].items()}
+        for b in list(obj._pairs):  # profiles stored before the bound
+            obj._bound(b)
         if d.get("form") != FORM:
             obj.refit_stale()
         return obj

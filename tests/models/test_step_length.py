@@ -238,3 +238,32 @@ def test_cadence_range_is_that_of_the_fitted_pairs_widened_by_half_a_resolution_
     assert cal.cadence_range("walk")[1] == pytest.approx(1.0)
     r = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
     assert r.cadence_range("walk") == cal.cadence_range("walk")
+
+
+def test_pairs_are_bounded_to_the_newest_and_the_fit_keeps_counting_its_own() -> None:
+    """Every ZUPT-KF stride adds a pair; the newest ``max_pairs`` are kept (the state and the profile stayed
+    bounded), and the pooled fit's ``n`` still counts the kept pairs it used (cadence_range, refits)."""
+    rng = np.random.default_rng(7)
+    cal = StepLengthCalibrator(max_pairs=20)
+    slow = _features(rng, 15, 0.7, 0.8)
+    for x in slow:
+        cal.add("walk", x, 1.2)
+    cal.fit("walk")
+    fast = _features(rng, 10, 1.1, 1.2)
+    for x in fast:
+        cal.add("walk", x, 1.5)
+    assert cal.n_pairs("walk") == 20  # 25 added
+    kept = [x.f_s for x in slow[5:]]  # the 5 oldest slow pairs are gone
+    assert cal.cadence_range("walk") == pytest.approx((min(kept), max(kept)))
+    for x in _features(rng, 10, 1.1, 1.2):
+        cal.add("walk", x, 1.5)
+    assert cal.cadence_range("walk") is None  # no pair the fit used is left
+    cal.fit("walk")
+    assert cal.cadence_range("walk")[0] >= 1.1 and cal.n_pairs("walk") == 20
+    stored = cal.get_state()
+    stored["pairs"]["walk"] = [[0.75, 13.0, 40.0, 10.0, 1.2]] * 30 + stored["pairs"]["walk"]  # an older profile
+    del stored["max_pairs"]
+    back = StepLengthCalibrator.from_state(loads(dumps(stored)))
+    assert back.max_pairs == 300 and back.n_pairs("walk") == 50
+    with pytest.raises(ValueError, match="max_pairs"):
+        StepLengthCalibrator(max_pairs=4)
