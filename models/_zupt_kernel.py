@@ -569,6 +569,43 @@ def _hdr(x, P, dx, fs, par):
 
 
 @njit(cache=True)
+def _mech_step(x, P, wx, wy, wz, fb, dt, par):
+    """One strapdown step (004 eq. 1) over ``dt`` [s]: attitude by the exact exponential map of the rotation
+    vector ``(wx, wy, wz)`` [rad, body, bias removed], velocity and position [NED] by the specific force ``fb``
+    [m/s^2, body, bias removed] rotated with the mean of the DCMs at both ends; covariance predicted (004 eq.
+    7-8) with the scale-factor term. Returns the body-to-NED DCM at the end of the step."""
+    g = par[_GRAV]
+    q = x[0:4].copy()
+    C0 = quat_dcm_s(q)
+    if par[_FO] > 0:
+        dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
+    else:
+        dq = quat_exp_s(wx, wy, wz)
+    q = quat_mul_s(q, dq)
+    nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    q /= nq
+    C1 = quat_dcm_s(q)
+    Cm = 0.5 * (C0 + C1)
+    fn = Cm @ fb
+    vn0 = x[4:7].copy()
+    x[0:4] = q
+    x[4] += fn[0] * dt
+    x[5] += fn[1] * dt
+    x[6] += (fn[2] + g) * dt
+    for a in range(3):
+        x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+    if dt > 0:
+        cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
+        if par[_GSS] > 0:
+            # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
+            qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
+            P[6, 6] += qs
+            P[7, 7] += qs
+            P[8, 8] += qs
+    return C1
+
+
+@njit(cache=True)
 def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_head, o_zupt, o_stat, st_out):
     """Process samples ``i0..`` of a buffer; returns ``(next_index, n_stances)``.
 
@@ -698,8 +735,6 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                 i += 1
                 continue
         # ---- strapdown mechanisation (004 eq. 1) with exact exponential-map attitude update ----
-        q = x[0:4].copy()
-        C0 = quat_dcm_s(q)
         # rate and specific force over (t[i-1], t[i]]: this sample's, or the mean of both ends (trapezoid)
         ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
         if par[_GDEL] > 0.0:
@@ -712,35 +747,12 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         wx = (0.5 * (w_i[0] + w_p[0]) - x[13]) * dt
         wy = (0.5 * (w_i[1] + w_p[1]) - x[14]) * dt
         wz = (0.5 * (w_i[2] + w_p[2]) - x[15]) * dt
-        if par[_FO] > 0:
-            dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
-        else:
-            dq = quat_exp_s(wx, wy, wz)
-        q = quat_mul_s(q, dq)
-        nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-        q /= nq
-        C1 = quat_dcm_s(q)
         fb = np.array([
             0.5 * (acc[i, 0] + acc[ip, 0]) - x[10], 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11],
             0.5 * (acc[i, 2] + acc[ip, 2]) - x[12],
         ])
-        Cm = 0.5 * (C0 + C1)
-        fn = Cm @ fb
-        vn0 = x[4:7].copy()
-        x[0:4] = q
-        x[4] += fn[0] * dt
-        x[5] += fn[1] * dt
-        x[6] += (fn[2] + g) * dt
-        for a in range(3):
-            x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+        C1 = _mech_step(x, P, wx, wy, wz, fb, dt, par)
         if dt > 0:
-            cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
-            if par[_GSS] > 0:
-                # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
-                qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
-                P[6, 6] += qs
-                P[7, 7] += qs
-                P[8, 8] += qs
             if par[_GSS_SAT] > 0.0:
                 # range clipping: a sample at the largest |rate| seen so far (above any plausible range floor)
                 # may have lost rotation; the missed angle is mostly pitch/roll of the swinging foot, so the
