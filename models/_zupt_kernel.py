@@ -89,6 +89,9 @@ PAR = {
             "gyr_sat_min",  # [rad/s] ... but only above this (below it no gyro range is plausible)
             "gyr_sat_sigma",  # [rad/s] 1-sigma rate a clipped sample may have missed (tilt variance, 0 = off)
             "gyr_delay_s",  # [s] the gyro output lags the accelerometer's by this (read the gyro this much later)
+            "align_swing_rate",  # [rad/s] |w| this large before the initial rest: mid-walk start, align on a stance
+            "align_stance_min_s",  # [s] shortest walking stance a mid-walk start aligns on
+            "p0_bg_walk",  # [rad/s] initial gyro-bias sigma of a mid-walk start (no rest to estimate it from)
         )
     )
 }
@@ -123,6 +126,8 @@ FS = {
             "dom_valid",
             "t_first",  # time of the first sample [s]
             "gyr_peak",  # largest single-axis |rate| seen so far [rad/s] (the sensor's range once it clips)
+            "moved",  # 1: the foot swung before the initial rest (mid-walk start): align on the next stance
+            "t_align",  # time the initial alignment was made [s]
         )
     )
 }
@@ -194,6 +199,11 @@ _GSM = PAR["gyr_sat_min"]
 _GSS_SAT = PAR["gyr_sat_sigma"]
 _F_GPEAK = FS["gyr_peak"]
 _GDEL = PAR["gyr_delay_s"]
+_ASW = PAR["align_swing_rate"]
+_ASMIN = PAR["align_stance_min_s"]
+_P0BGW = PAR["p0_bg_walk"]
+_F_MOVED = FS["moved"]
+_F_TALIGN = FS["t_align"]
 
 
 @njit(cache=True)
@@ -437,8 +447,12 @@ def _heading_row(C):
 
 
 @njit(cache=True)
-def _align(x, P, fs, par, has_mag, dur):
-    """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD)."""
+def _align(x, P, fs, par, has_mag, dur, rest):
+    """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD).
+
+    ``rest`` False: the samples are a walking stance (mid-walk start), whose mean rate is the foot's residual
+    roll-over rather than the gyro bias; the bias then starts at zero.
+    """
     n = fs[11]
     fb = np.array([fs[2] / n, fs[3] / n, fs[4] / n])
     down_b = -fb  # at rest the accelerometer reads -g_n (up)
@@ -464,14 +478,14 @@ def _align(x, P, fs, par, has_mag, dur):
     x[0:4] = q
     x[4:10] = 0.0
     x[10:13] = 0.0
-    use_b = dur / (dur + par[_BSHR]) if par[_BREST] > 0 else 0.0
+    use_b = dur / (dur + par[_BSHR]) if (par[_BREST] > 0 and rest) else 0.0
     x[13] = use_b * fs[5] / n
     x[14] = use_b * fs[6] / n
     x[15] = use_b * fs[7] / n
     P[:, :] = 0.0
     for k in range(3):
         P[9 + k, 9 + k] = par[_P0BA] ** 2
-        P[12 + k, 12 + k] = par[_P0BG] ** 2
+        P[12 + k, 12 + k] = par[_P0BG] ** 2 if rest else par[_P0BGW] ** 2
     P[6, 6] = par[_P0T] ** 2
     P[7, 7] = par[_P0T] ** 2
     P[8, 8] = par[_P0Y] ** 2
@@ -687,7 +701,10 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             # ---- waiting for the initial rest: accumulate, align when it is long enough ----
             if not ist[3]:
                 fs[_F_TFIRST] = t[i]
-            if t[i] - fs[_F_TFIRST] < par[_ATO]:
+            if par[_ASW] > 0 and fs[_F_MOVED] == 0:
+                if gyr[i, 0] ** 2 + gyr[i, 1] ** 2 + gyr[i, 2] ** 2 >= par[_ASW] ** 2:
+                    fs[_F_MOVED] = 1.0  # the foot swings: the recording started mid-walk
+            if t[i] - fs[_F_TFIRST] < par[_ATO] and fs[_F_MOVED] == 0:
                 zv = T < par[_AGAM]
             o_zupt[k] = zv
             if zv:
@@ -702,11 +719,15 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                         fs[8 + a] += mag[i, a]
                     fs[12] += 1
             dur = t[i] - fs[13] if fs[11] > 0 else 0.0
-            ready = fs[11] >= 3 and ((not zv and dur >= par[_AMIN]) or (zv and dur >= par[_AMAX]))
+            amin = par[_AMIN] if fs[_F_MOVED] == 0 else par[_ASMIN]
+            ready = fs[11] >= 3 and ((not zv and dur >= amin) or (zv and dur >= par[_AMAX]))
             if not zv and not ready:
                 fs[2:13] = 0.0
             if ready:
-                _align(x, P, fs, par, par[_MAGON] > 0, dur)
+                # a mid-walk start aligns on the adaptive detector's first stance after the swing (001 eq. 1-5
+                # on a quasi-still foot): nothing of the walk is waited out, its gyro mean is no bias estimate
+                _align(x, P, fs, par, par[_MAGON] > 0, dur, fs[_F_MOVED] == 0)
+                fs[_F_TALIGN] = t[i]
                 ist[0] = 1
                 ist[1] = 1
                 ist[5] = 1

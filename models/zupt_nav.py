@@ -48,6 +48,12 @@ class ZuptConfig:
     at least ``align_min_s`` and at most ``align_max_s`` [s]; initial tilt/heading sigmas ``p0_tilt``,
     ``p0_yaw`` [rad], bias sigmas ``p0_ba`` [m/s^2], ``p0_bg`` [rad/s]; with ``bias_from_rest`` the gyro
     bias starts at the rest's mean rate times ``d / (d + bias_shrink_s)`` (d = rest duration [s]).
+    Mid-walk start: a rate of at least ``align_swing_rate`` [rad/s] before that rest (a swinging foot; every
+    dev recording's initial rest stays below 0.15 rad/s, a walking swing reaches 3-10 rad/s) means there is no
+    rest to wait for: the first stance of the adaptive detector lasting ``align_stance_min_s`` [s] aligns roll
+    and pitch (same equations on the quasi-still foot), heading from the field with ``mag_on``, else 0 (the
+    heading of a frame without a compass is arbitrary); the gyro bias starts at 0 with sigma ``p0_bg_walk``
+    [rad/s] (a stance's mean rate is the foot's roll-over, not the bias). The strides before it are lost.
     Gyro range clipping: once a sample's largest single-axis |rate| is at least ``gyr_sat_min`` [rad/s] and
     within ``gyr_sat_frac`` of the largest |rate| seen so far (a clipped gyro sits at its range, e.g. 8.7 rad/s
     = 500 deg/s on the gdin MicroStrain), the rotation it missed is unknown: the tilt variance grows by
@@ -120,6 +126,9 @@ class ZuptConfig:
     gyr_sat_min: float = 4.0
     gyr_sat_sigma: float = 5.0
     gyr_delay_s: float = 0.005
+    align_swing_rate: float = 2.0
+    align_stance_min_s: float = 0.02
+    p0_bg_walk: float = 2e-3
 
     def to_array(self) -> np.ndarray:
         """Parameter vector in the kernel's layout (:data:`models._zupt_kernel.PAR`)."""
@@ -143,6 +152,9 @@ class ZuptConfig:
             raise ValueError("ZuptConfig.gyr_delay_s: must be within 0..0.1 s (the gyro lagging the accelerometer)")
         if not 0.0 < self.gyr_sat_frac <= 1.0:
             raise ValueError("ZuptConfig.gyr_sat_frac: must be in (0, 1]")
+        for name in ("align_swing_rate", "align_stance_min_s", "p0_bg_walk"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"ZuptConfig.{name}: must be >= 0")
         if self.gamma_min > self.gamma_max:
             raise ValueError("ZuptConfig.gamma_min: must not exceed gamma_max")
 
@@ -315,6 +327,17 @@ class ZuptNavigator:
     @property
     def in_stance(self) -> bool:
         return bool(self._is[_k.IS["in_stance"]])
+
+    @property
+    def aligned_at_s(self) -> float:
+        """Time of the initial alignment [s] (end of the rest or of the first stance of a mid-walk start);
+        NaN before it."""
+        return float(self._fs[_k.FS["t_align"]]) if self.initialised else math.nan
+
+    @property
+    def mid_walk_start(self) -> bool:
+        """The foot was swinging before any rest: the alignment waits for (or was made on) a walking stance."""
+        return bool(self._fs[_k.FS["moved"]])
 
     # ---- processing -----------------------------------------------------------------------------------
     def process(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
