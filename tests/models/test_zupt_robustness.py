@@ -1,9 +1,12 @@
-"""ZUPT-KF on recordings that start mid-walk: real recordings changed in memory.
+"""ZUPT-KF on recordings that start mid-walk or have gaps: real recordings changed in memory.
 
 - Mid-walk start: a recording cut in the middle of the first stride's swing (no standing at its start). The
   navigator must align on the first stance of the walk (not wait ``align_timeout_s`` for a rest) and navigate
   from there as well as from a rest.
-- It keeps the navigator's contract: chunk invariance to 1e-9 m and the state round trip.
+- Gaps: samples removed (a phone or BLE link dropping packets). A gap up to ``gap_max_s`` is bridged (rate and
+  specific force linear across it, the missed motion as covariance for the next ZUPT); a longer one holds the
+  position and re-levels at the next stance, so no long wrong stride is integrated.
+- Both keep the navigator's contract: chunk invariance to 1e-9 m and the state round trip.
 """
 
 from __future__ import annotations
@@ -54,6 +57,12 @@ def _mid_swing(t: np.ndarray, gyr: np.ndarray) -> int:
     """Index 0.25 s after the foot first turns faster than 1 rad/s: the middle of the first stride's swing."""
     i0 = int(np.argmax(np.linalg.norm(gyr, axis=1) > 1.0))
     return i0 + int(round(0.25 / float(np.median(np.diff(t)))))
+
+
+def _with_gaps(t: np.ndarray, dur_s: float, every_s: float = 10.0) -> np.ndarray:
+    """Samples kept when ``dur_s`` [s] of data are lost every ``every_s`` [s] (the first loss at every_s / 2)."""
+    ph = t % every_s
+    return ~((ph >= every_s / 2) & (ph < every_s / 2 + dur_s))
 
 
 def _at(out: NavOutput, tq: np.ndarray) -> np.ndarray:
@@ -145,6 +154,76 @@ def test_mid_walk_start_chunk_invariance_and_state_round_trip(vicon_dir: Path) -
     assert [s.t_end_s for s in out.stances] == [s.t_end_s for s in ref.stances]
     # restored while waiting for the first stance (the swing already seen) and just after it
     for cut in (k_align // 2, k_align - 2, k_align + 40):
+        a = ZuptNavigator()
+        head = a.process(t[:cut], acc[:cut], gyr[:cut])
+        b = ZuptNavigator.from_state(a.get_state())
+        rest = NavOutput.concatenate([b.process(t[cut:], acc[cut:], gyr[cut:]), b.flush()])
+        np.testing.assert_array_equal(NavOutput.concatenate([head, rest]).pos, ref.pos)
+
+
+# ------------------------------------------------------------------------------------------------------- gaps
+@pytest.mark.parametrize("dur_s", [0.1, 0.2])
+def test_vicon_short_gaps_are_bridged_not_integrated_as_one_step(vicon_dir: Path, dur_s: float) -> None:
+    t, acc, gyr, gt = _vicon(vicon_dir, VICON_WALK)
+    base = _armse(ZuptNavigator().run(t, acc, gyr).pos, gt)
+    keep = _with_gaps(t, dur_s)
+    nav = ZuptNavigator()
+    out = nav.run(t[keep], acc[keep], gyr[keep])
+    err = _armse(_at(out, t), gt)
+    assert err <= 2.0 * base + 0.04, f"ARMSE {err:.3f} m with {dur_s}-s gaps, {base:.3f} m without"
+    n_gaps = int(np.sum(np.diff(t[keep]) > 2 * dur_s / 3))
+    assert n_gaps >= 3 and nav.gaps == (n_gaps, 0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,dur_s", [("exp31", 0.2), ("exp36", 0.1), ("exp41", 0.1)])
+def test_gdin_short_gaps_are_bridged_not_integrated_as_one_step(gdin_dir: Path, name: str, dur_s: float) -> None:
+    t, acc, gyr, t_st, gcp = _gdin(gdin_dir, name)
+    base = _stride_error(ZuptNavigator().run(t, acc, gyr), t_st, gcp)
+    keep = _with_gaps(t, dur_s)
+    nav = ZuptNavigator()
+    out = nav.run(t[keep], acc[keep], gyr[keep])
+    err = _stride_error(out, t_st, gcp)
+    assert err <= base + 0.15, f"stride error {err:.2f} m with {dur_s}-s gaps, {base:.2f} m without"
+    assert nav.gaps[0] >= 3
+
+
+@pytest.mark.parametrize("dur_s", [0.6, 1.0])
+def test_a_gap_longer_than_a_swing_restarts_at_the_next_stance(vicon_dir: Path, dur_s: float) -> None:
+    t, acc, gyr, gt = _vicon(vicon_dir, VICON_WALK)
+    keep = _with_gaps(t, dur_s)
+    nav = ZuptNavigator()
+    out = nav.run(t[keep], acc[keep], gyr[keep])
+    n_gaps = int(np.sum(np.diff(t[keep]) > dur_s / 2))
+    # no long wrong stride: every stance-to-stance step within the longest true one between two stances
+    ref = ZuptNavigator().run(t, acc, gyr)
+    longest = max(s.step_length for s in ref.stances)
+    steps = [s.step_length for s in out.stances]
+    assert max(steps) <= longest + 0.1, f"a {max(steps):.2f}-m step (longest without gaps {longest:.2f} m)"
+    # the foot is held through the gap: the output does not move until the next stance
+    for g in np.flatnonzero(np.diff(t[keep]) > dur_s / 2):
+        t0, t1 = t[keep][g], t[keep][g + 1]
+        nxt = next(s for s in out.stances if s.t_end_s > t1)
+        held = (out.t_s >= t0) & (out.t_s < nxt.t_start_s)
+        assert np.ptp(out.pos[held, :2], axis=0).max() < 1e-12
+    assert nav.gaps == (0, n_gaps)
+
+
+@pytest.mark.parametrize("dur_s", [0.1, 1.0])
+def test_gaps_chunk_invariance_and_state_round_trip(vicon_dir: Path, dur_s: float) -> None:
+    t, acc, gyr, _ = _vicon(vicon_dir, VICON_WALK)
+    keep = _with_gaps(t, dur_s)
+    t, acc, gyr = t[keep], acc[keep], gyr[keep]
+    gaps = np.flatnonzero(np.diff(t) > dur_s / 2) + 1  # first sample after each gap
+    ref = ZuptNavigator().run(t, acc, gyr)
+    extra = [int(g) + d for g in gaps for d in (-1, 0, 1, 2)]
+    out = _chunked(t, acc, gyr, _cuts(t.size, 40, 7, extra))
+    np.testing.assert_allclose(out.pos, ref.pos, atol=1e-9, rtol=0)
+    assert [s.t_end_s for s in out.stances] == [s.t_end_s for s in ref.stances]
+    g0 = int(gaps[0])
+    nxt = next(s for s in ref.stances if s.t_start_s > t[g0])
+    mid = (g0 + int(np.searchsorted(t, nxt.t_start_s))) // 2  # between the gap and the next stance
+    for cut in (g0, g0 + 1, mid):
         a = ZuptNavigator()
         head = a.process(t[:cut], acc[:cut], gyr[:cut])
         b = ZuptNavigator.from_state(a.get_state())
