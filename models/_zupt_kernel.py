@@ -89,6 +89,14 @@ PAR = {
             "gyr_sat_min",  # [rad/s] ... but only above this (below it no gyro range is plausible)
             "gyr_sat_sigma",  # [rad/s] 1-sigma rate a clipped sample may have missed (tilt variance, 0 = off)
             "gyr_delay_s",  # [s] the gyro output lags the accelerometer's by this (read the gyro this much later)
+            "align_swing_rate",  # [rad/s] |w| this large before the initial rest: mid-walk start, align on a stance
+            "align_stance_min_s",  # [s] shortest walking stance a mid-walk start aligns on
+            "p0_bg_walk",  # [rad/s] initial gyro-bias sigma of a mid-walk start (no rest to estimate it from)
+            "gap_factor",  # an interval longer than this times the nominal one is a gap in the data (0 = off)
+            "gap_acc_sigma",  # [m/s^2] per axis: specific force a linear interpolation over a gap misses
+            "gap_gyr_sigma",  # [rad/s] per axis: tilt rate a linear interpolation over a gap misses
+            "gap_yaw_sigma",  # [rad/s] heading rate it misses (unobservable by ZUPT; lets the heading aids act)
+            "gap_max_s",  # [s] a longer gap is not bridged: hold, re-level at the next stance
         )
     )
 }
@@ -123,6 +131,14 @@ FS = {
             "dom_valid",
             "t_first",  # time of the first sample [s]
             "gyr_peak",  # largest single-axis |rate| seen so far [rad/s] (the sensor's range once it clips)
+            "moved",  # 1: the foot swung before the initial rest (mid-walk start): align on the next stance
+            "t_align",  # time the initial alignment was made [s]
+            "coast",  # 1: after a gap longer than gap_max_s, position held until the next stance re-levels
+            "n_bridged",  # gaps bridged by interpolation
+            "n_coasted",  # gaps held through (longer than gap_max_s)
+            "dt_n",  # intervals pushed into the ring below
+            "dtr0", "dtr1", "dtr2", "dtr3", "dtr4", "dtr5", "dtr6", "dtr7", "dtr8",  # latest intervals [s]
+            "dt_min",  # smallest of them [s]
         )
     )
 }
@@ -194,6 +210,23 @@ _GSM = PAR["gyr_sat_min"]
 _GSS_SAT = PAR["gyr_sat_sigma"]
 _F_GPEAK = FS["gyr_peak"]
 _GDEL = PAR["gyr_delay_s"]
+_ASW = PAR["align_swing_rate"]
+_ASMIN = PAR["align_stance_min_s"]
+_P0BGW = PAR["p0_bg_walk"]
+_F_MOVED = FS["moved"]
+_F_TALIGN = FS["t_align"]
+_GAPF = PAR["gap_factor"]
+_GAPA = PAR["gap_acc_sigma"]
+_GAPW = PAR["gap_gyr_sigma"]
+_GAPY = PAR["gap_yaw_sigma"]
+_GAPM = PAR["gap_max_s"]
+_F_COAST = FS["coast"]
+_F_NBR = FS["n_bridged"]
+_F_NCO = FS["n_coasted"]
+_F_DTN = FS["dt_n"]
+_F_DTR = FS["dtr0"]
+_F_DTMIN = FS["dt_min"]
+_N_DTR = 9
 
 
 @njit(cache=True)
@@ -453,8 +486,12 @@ def _heading_row(C):
 
 
 @njit(cache=True)
-def _align(x, P, fs, par, has_mag, dur):
-    """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD)."""
+def _align(x, P, fs, par, has_mag, dur, rest):
+    """Initial alignment from the mean rest specific force (+ field) (001 eq. 1-5, any mounting, via TRIAD).
+
+    ``rest`` False: the samples are a walking stance (mid-walk start), whose mean rate is the foot's residual
+    roll-over rather than the gyro bias; the bias then starts at zero.
+    """
     n = fs[11]
     fb = np.array([fs[2] / n, fs[3] / n, fs[4] / n])
     down_b = -fb  # at rest the accelerometer reads -g_n (up)
@@ -480,14 +517,14 @@ def _align(x, P, fs, par, has_mag, dur):
     x[0:4] = q
     x[4:10] = 0.0
     x[10:13] = 0.0
-    use_b = dur / (dur + par[_BSHR]) if par[_BREST] > 0 else 0.0
+    use_b = dur / (dur + par[_BSHR]) if (par[_BREST] > 0 and rest) else 0.0
     x[13] = use_b * fs[5] / n
     x[14] = use_b * fs[6] / n
     x[15] = use_b * fs[7] / n
     P[:, :] = 0.0
     for k in range(3):
         P[9 + k, 9 + k] = par[_P0BA] ** 2
-        P[12 + k, 12 + k] = par[_P0BG] ** 2
+        P[12 + k, 12 + k] = par[_P0BG] ** 2 if rest else par[_P0BGW] ** 2
     P[6, 6] = par[_P0T] ** 2
     P[7, 7] = par[_P0T] ** 2
     P[8, 8] = par[_P0Y] ** 2
@@ -585,6 +622,114 @@ def _hdr(x, P, dx, fs, par):
 
 
 @njit(cache=True)
+def _mech_step(x, P, wx, wy, wz, fb, dt, par):
+    """One strapdown step (004 eq. 1) over ``dt`` [s]: attitude by the exact exponential map of the rotation
+    vector ``(wx, wy, wz)`` [rad, body, bias removed], velocity and position [NED] by the specific force ``fb``
+    [m/s^2, body, bias removed] rotated with the mean of the DCMs at both ends; covariance predicted (004 eq.
+    7-8) with the scale-factor term. Returns the body-to-NED DCM at the end of the step."""
+    g = par[_GRAV]
+    q = x[0:4].copy()
+    C0 = quat_dcm_s(q)
+    if par[_FO] > 0:
+        dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
+    else:
+        dq = quat_exp_s(wx, wy, wz)
+    q = quat_mul_s(q, dq)
+    nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    q /= nq
+    C1 = quat_dcm_s(q)
+    Cm = 0.5 * (C0 + C1)
+    fn = Cm @ fb
+    vn0 = x[4:7].copy()
+    x[0:4] = q
+    x[4] += fn[0] * dt
+    x[5] += fn[1] * dt
+    x[6] += (fn[2] + g) * dt
+    for a in range(3):
+        x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+    if dt > 0:
+        cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
+        if par[_GSS] > 0:
+            # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
+            qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
+            P[6, 6] += qs
+            P[7, 7] += qs
+            P[8, 8] += qs
+    return C1
+
+
+@njit(cache=True, inline="always")
+def _nominal_dt(fs, dt, factor):
+    """Nominal sampling interval [s] for the gap test ``dt > factor * nominal``: the median of the latest
+    intervals (robust to jitter and to the gaps themselves); then ``dt`` joins them. Returns 0 while fewer
+    than 3 intervals have been seen.
+
+    The median is only worked out when ``dt`` exceeds ``factor`` times the smallest of them (otherwise it is
+    no gap whatever the median, and the smallest is returned); the smallest is kept up to date as intervals
+    come and go, so the common case costs a few comparisons.
+    """
+    n = int(fs[_F_DTN])
+    m = n if n < _N_DTR else _N_DTR
+    lo = fs[_F_DTMIN]
+    med = 0.0
+    if m >= 3:
+        med = lo
+        if dt > factor * lo:
+            buf = fs[_F_DTR : _F_DTR + m].copy()
+            buf.sort()
+            med = buf[m // 2]
+    j = n % _N_DTR
+    out = fs[_F_DTR + j]
+    fs[_F_DTR + j] = dt
+    fs[_F_DTN] = n + 1
+    if n == 0 or dt <= lo:
+        fs[_F_DTMIN] = dt
+    elif n >= _N_DTR and out <= lo:
+        # the smallest left the window: find the new one
+        lo = fs[_F_DTR]
+        for k in range(1, _N_DTR):
+            if fs[_F_DTR + k] < lo:
+                lo = fs[_F_DTR + k]
+        fs[_F_DTMIN] = lo
+    return med
+
+
+@njit(cache=True)
+def _heading_of(x):
+    """Heading of the body x axis [rad] of the nominal state's attitude quaternion (atan2(C21, C11))."""
+    return math.atan2(2 * (x[1] * x[2] + x[0] * x[3]), 1 - 2 * (x[2] ** 2 + x[3] ** 2))
+
+
+@njit(cache=True)
+def _relevel(x, f_mean):
+    """Roll and pitch from a still foot's mean specific force ``f_mean`` [m/s^2, body] (001 eq. 1-3): the
+    attitude is turned by the smallest rotation (about a horizontal axis) that makes the specific force point
+    up, as a ZUPT-KF tilt correction (004 eq. 12 with no heading part) would; the heading is not touched.
+
+    After a long gap the attitude is wrong by what the gyroscope did not see, mostly a rotation about the
+    foot's pitch axis: that axis is horizontal, so this rotation undoes it without turning the heading.
+    Keeping the azimuth of a body axis instead (TRIAD with the old x axis) failed where x was near vertical
+    in the swing: 30 deg of heading after one 0.5-s gap.
+    """
+    nf = math.sqrt(f_mean @ f_mean)
+    if nf == 0.0:
+        return
+    u = quat_dcm_s(x[0:4]) @ (f_mean / nf)  # measured specific force direction in NED (should be up: 0, 0, -1)
+    # axis u x (0, 0, -1) = (-u1, u0, 0), angle between u and up
+    ax0 = -u[1]
+    ax1 = u[0]
+    s_ = math.sqrt(ax0 * ax0 + ax1 * ax1)
+    if s_ < 1e-12:
+        return
+    ang = math.atan2(s_, -u[2])
+    dq = quat_exp_s(ax0 / s_ * ang, ax1 / s_ * ang, 0.0)
+    q = quat_mul_s(dq, x[0:4].copy())
+    nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    for k in range(4):
+        x[k] = q[k] / nq
+
+
+@njit(cache=True)
 def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_head, o_zupt, o_stat, st_out):
     """Process samples ``i0..`` of a buffer; returns ``(next_index, n_stances)``.
 
@@ -624,9 +769,19 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                     T = v
                 j += 1
         # ---- gait-intensity adaptive threshold with hysteresis (002 eq. 3, adapted) ----
-        dt = t[i] - fs[1] if ist[3] else 0.0
+        dt_raw = t[i] - fs[1] if ist[3] else 0.0
+        dt = dt_raw
         if dt > par[_MAXDT]:
             dt = par[_MAXDT]
+        # ---- gaps in the data: an interval much longer than the nominal one (median of the latest) ----
+        gap = 0  # 1: bridge it by interpolation, 2: too long to bridge (hold, re-level at the next stance)
+        dt_nom = dt_raw
+        if ist[3] and par[_GAPF] > 0:
+            med = _nominal_dt(fs, dt_raw, par[_GAPF])
+            if med > 0.0:
+                dt_nom = med
+                if dt_raw > par[_GAPF] * med:
+                    gap = 2 if dt_raw > par[_GAPM] else 1
         decay = math.exp(-dt / par[_ITAU]) if par[_ITAU] > 0 else 0.0
         if par[_IMODE] == 2:
             # decaying peak of the specific-force magnitude [m/s^2]: heel-strike / push-off intensity
@@ -662,11 +817,72 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         o_stat[k] = T
         o_zupt[k] = zv
         has_m = not (math.isnan(mag[i, 0]) or math.isnan(mag[i, 1]) or math.isnan(mag[i, 2]))
+        if gap == 2 and ist[0]:
+            # ---- a gap longer than gap_max_s: the foot may have taken a stride in it. Rather than integrate a
+            # long wrong stride, hold the position, forget the velocity and re-level at the next stance ----
+            if fs[_F_COAST] == 0:
+                fs[_F_NCO] += 1
+            fs[_F_COAST] = 1.0
+            fs[2:13] = 0.0
+            x[4:7] = 0.0
+            ist[1] = 0  # a stance cut by the gap is merged into the one after it
+            fs[31] = 0.0  # a new straight segment starts (heuristic drift reduction)
+        if fs[_F_COAST] > 0 and ist[0]:
+            # ---- coasting: attitude follows the gyro, position held; the next stance re-levels roll/pitch
+            # from its mean specific force (001 eq. 1-3), the heading is kept ----
+            if gap != 2 and dt > 0:
+                w_i = _gyr_at(t, gyr, t[i] + par[_GDEL]) if par[_GDEL] > 0.0 else gyr[i].copy()
+                dq = quat_exp_s((w_i[0] - x[13]) * dt, (w_i[1] - x[14]) * dt, (w_i[2] - x[15]) * dt)
+                q = quat_mul_s(x[0:4].copy(), dq)
+                x[0:4] = q / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+            if zv:
+                if fs[11] == 0:
+                    fs[13] = t[i]
+                for a in range(3):
+                    fs[2 + a] += acc[i, a]
+                fs[11] += 1
+            dur = t[i] - fs[13] if fs[11] > 0 else 0.0
+            ready = fs[11] >= 3 and ((not zv and dur >= par[_MINST]) or (zv and dur >= par[_AMAX]))
+            if not zv and not ready:
+                fs[2:13] = 0.0
+            if ready:
+                _relevel(x, np.array([fs[2] / fs[11], fs[3] / fs[11], fs[4] / fs[11]]))
+                x[4:7] = 0.0
+                P[0:9, :] = 0.0
+                P[:, 0:9] = 0.0
+                for a in range(3):
+                    P[a, a] = 1e-6
+                    P[3 + a, 3 + a] = 1e-4
+                P[6, 6] = par[_P0T] ** 2
+                P[7, 7] = par[_P0T] ** 2
+                P[8, 8] = par[_P0Y] ** 2
+                ist[1] = 1
+                fs[28] = fs[11]
+                fs[19:23] = 0.0
+                fs[14] = _heading_of(x)
+                fs[2:13] = 0.0
+                fs[_F_COAST] = 0.0
+            if fs[_F_COAST] > 0 or zv:
+                fs[1] = t[i]
+                o_pos[k, 0] = x[7]
+                o_pos[k, 1] = x[8]
+                o_pos[k, 2] = x[9]
+                o_vel[k, :] = 0.0
+                o_head[k] = _heading_of(x)
+                o_zupt[k] = zv
+                ist[2] += 1
+                i += 1
+                continue
+            dt = 0.0  # re-levelled at the toe-off sample: the stance ends here, nothing to integrate
+            gap = 0
         if not ist[0]:
             # ---- waiting for the initial rest: accumulate, align when it is long enough ----
             if not ist[3]:
                 fs[_F_TFIRST] = t[i]
-            if t[i] - fs[_F_TFIRST] < par[_ATO]:
+            if par[_ASW] > 0 and fs[_F_MOVED] == 0:
+                if gyr[i, 0] ** 2 + gyr[i, 1] ** 2 + gyr[i, 2] ** 2 >= par[_ASW] ** 2:
+                    fs[_F_MOVED] = 1.0  # the foot swings: the recording started mid-walk
+            if t[i] - fs[_F_TFIRST] < par[_ATO] and fs[_F_MOVED] == 0:
                 zv = T < par[_AGAM]
             o_zupt[k] = zv
             if zv:
@@ -681,11 +897,15 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                         fs[8 + a] += mag[i, a]
                     fs[12] += 1
             dur = t[i] - fs[13] if fs[11] > 0 else 0.0
-            ready = fs[11] >= 3 and ((not zv and dur >= par[_AMIN]) or (zv and dur >= par[_AMAX]))
+            amin = par[_AMIN] if fs[_F_MOVED] == 0 else par[_ASMIN]
+            ready = fs[11] >= 3 and ((not zv and dur >= amin) or (zv and dur >= par[_AMAX]))
             if not zv and not ready:
                 fs[2:13] = 0.0
             if ready:
-                _align(x, P, fs, par, par[_MAGON] > 0, dur)
+                # a mid-walk start aligns on the adaptive detector's first stance after the swing (001 eq. 1-5
+                # on a quasi-still foot): nothing of the walk is waited out, its gyro mean is no bias estimate
+                _align(x, P, fs, par, par[_MAGON] > 0, dur, fs[_F_MOVED] == 0)
+                fs[_F_TALIGN] = t[i]
                 ist[0] = 1
                 ist[1] = 1
                 ist[5] = 1
@@ -714,49 +934,67 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                 i += 1
                 continue
         # ---- strapdown mechanisation (004 eq. 1) with exact exponential-map attitude update ----
-        q = x[0:4].copy()
-        C0 = quat_dcm_s(q)
-        # rate and specific force over (t[i-1], t[i]]: this sample's, or the mean of both ends (trapezoid)
-        ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
-        if par[_GDEL] > 0.0:
-            # inter-sensor latency: the rate that belongs with this specific force is read gyr_delay_s later
-            w_i = _gyr_at(t, gyr, t[i] + par[_GDEL])
-            w_p = _gyr_at(t, gyr, t[ip] + par[_GDEL])
+        if gap == 1 and i > 0:
+            # a gap: integrate it in steps of the nominal interval, rate and specific force linear between the
+            # samples on either side (not one long rectangle with the last sample's values); what the line
+            # misses becomes velocity and tilt variance, so the next ZUPT (004 eq. 9) takes the error out of
+            # velocity and, through the covariance built up since the gap, out of position and tilt
+            fs[_F_NBR] += 1
+            n_sub = int(dt_raw / dt_nom + 0.5)
+            if n_sub < 2:
+                n_sub = 2
+            if n_sub > 1000:
+                n_sub = 1000
+            h = dt_raw / n_sub
+            t_p = fs[1]
+            C1 = quat_dcm_s(x[0:4])
+            for sub in range(1, n_sub + 1):
+                u = sub / n_sub
+                if par[_GDEL] > 0.0:
+                    w_s = _gyr_at(t, gyr, t_p + sub * h + par[_GDEL])
+                else:
+                    w_s = (1.0 - u) * gyr[i - 1] + u * gyr[i]
+                fb = (1.0 - u) * acc[i - 1] + u * acc[i] - x[10:13]
+                wx = (w_s[0] - x[13]) * h
+                wy = (w_s[1] - x[14]) * h
+                wz = (w_s[2] - x[15]) * h
+                C1 = _mech_step(x, P, wx, wy, wz, fb, h, par)
+            if not (ist[1] and zv):
+                # the foot was not on the ground throughout: what the line missed, per axis, is taken as a
+                # constant specific-force error e (sigma gap_acc_sigma) over the missed time m = dt - dt_nom:
+                # dv = e m, dp = e m^2 / 2 (so P_vv += s^2, P_pv += s^2 m / 2, P_pp += s^2 m^2 / 4, s = sigma m),
+                # and a rotation error of gap_gyr_sigma * m (tilt) and gap_yaw_sigma * m (heading)
+                miss = dt_raw - dt_nom
+                qv = (par[_GAPA] * miss) ** 2
+                qt = (par[_GAPW] * miss) ** 2
+                for a in range(3):
+                    P[3 + a, 3 + a] += qv
+                    P[a, 3 + a] += 0.5 * miss * qv
+                    P[3 + a, a] += 0.5 * miss * qv
+                    P[a, a] += 0.25 * miss * miss * qv
+                P[6, 6] += qt
+                P[7, 7] += qt
+                P[8, 8] += (par[_GAPY] * miss) ** 2
+            dt = dt_raw
         else:
-            w_i = gyr[i]
-            w_p = gyr[ip]
-        wx = (0.5 * (w_i[0] + w_p[0]) - x[13]) * dt
-        wy = (0.5 * (w_i[1] + w_p[1]) - x[14]) * dt
-        wz = (0.5 * (w_i[2] + w_p[2]) - x[15]) * dt
-        if par[_FO] > 0:
-            dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
-        else:
-            dq = quat_exp_s(wx, wy, wz)
-        q = quat_mul_s(q, dq)
-        nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-        q /= nq
-        C1 = quat_dcm_s(q)
-        fb = np.array([
-            0.5 * (acc[i, 0] + acc[ip, 0]) - x[10], 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11],
-            0.5 * (acc[i, 2] + acc[ip, 2]) - x[12],
-        ])
-        Cm = 0.5 * (C0 + C1)
-        fn = Cm @ fb
-        vn0 = x[4:7].copy()
-        x[0:4] = q
-        x[4] += fn[0] * dt
-        x[5] += fn[1] * dt
-        x[6] += (fn[2] + g) * dt
-        for a in range(3):
-            x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+            # rate and specific force over (t[i-1], t[i]]: this sample's, or the mean of both ends (trapezoid)
+            ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
+            if par[_GDEL] > 0.0:
+                # inter-sensor latency: the rate that belongs with this specific force is read gyr_delay_s later
+                w_i = _gyr_at(t, gyr, t[i] + par[_GDEL])
+                w_p = _gyr_at(t, gyr, t[ip] + par[_GDEL])
+            else:
+                w_i = gyr[i]
+                w_p = gyr[ip]
+            wx = (0.5 * (w_i[0] + w_p[0]) - x[13]) * dt
+            wy = (0.5 * (w_i[1] + w_p[1]) - x[14]) * dt
+            wz = (0.5 * (w_i[2] + w_p[2]) - x[15]) * dt
+            fb = np.array([
+                0.5 * (acc[i, 0] + acc[ip, 0]) - x[10], 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11],
+                0.5 * (acc[i, 2] + acc[ip, 2]) - x[12],
+            ])
+            C1 = _mech_step(x, P, wx, wy, wz, fb, dt, par)
         if dt > 0:
-            cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
-            if par[_GSS] > 0:
-                # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
-                qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
-                P[6, 6] += qs
-                P[7, 7] += qs
-                P[8, 8] += qs
             if par[_GSS_SAT] > 0.0:
                 # range clipping: a sample at the largest |rate| seen so far (above any plausible range floor)
                 # may have lost rotation; the missed angle is mostly pitch/roll of the swinging foot, so the

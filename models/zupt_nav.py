@@ -48,6 +48,12 @@ class ZuptConfig:
     at least ``align_min_s`` and at most ``align_max_s`` [s]; initial tilt/heading sigmas ``p0_tilt``,
     ``p0_yaw`` [rad], bias sigmas ``p0_ba`` [m/s^2], ``p0_bg`` [rad/s]; with ``bias_from_rest`` the gyro
     bias starts at the rest's mean rate times ``d / (d + bias_shrink_s)`` (d = rest duration [s]).
+    Mid-walk start: a rate of at least ``align_swing_rate`` [rad/s] before that rest (a swinging foot; every
+    dev recording's initial rest stays below 0.15 rad/s, a walking swing reaches 3-10 rad/s) means there is no
+    rest to wait for: the first stance of the adaptive detector lasting ``align_stance_min_s`` [s] aligns roll
+    and pitch (same equations on the quasi-still foot), heading from the field with ``mag_on``, else 0 (the
+    heading of a frame without a compass is arbitrary); the gyro bias starts at 0 with sigma ``p0_bg_walk``
+    [rad/s] (a stance's mean rate is the foot's roll-over, not the bias). The strides before it are lost.
     Gyro range clipping: once a sample's largest single-axis |rate| is at least ``gyr_sat_min`` [rad/s] and
     within ``gyr_sat_frac`` of the largest |rate| seen so far (a clipped gyro sits at its range, e.g. 8.7 rad/s
     = 500 deg/s on the gdin MicroStrain), the rotation it missed is unknown: the tilt variance grows by
@@ -62,8 +68,16 @@ class ZuptConfig:
     walks (-0.5 % at 0 ms on both: the foot "climbs"); with 5 ms the strides are no longer systematically
     short (gdin median distance error 1.9 -> 0.7 %). A sensor without such a lag would then read strides
     about 1 % long: set 0 for it.
-    Timing: intervals longer than ``max_dt`` [s] are integrated as ``max_dt``; stances shorter than
-    ``min_stance_s`` [s] get ZUPTs but are not reported. ``first_order`` (comparison only) replaces the
+    Gaps in the data: an interval longer than ``gap_factor`` times the nominal one (the median of the latest
+    9; 0 = off) up to ``gap_max_s`` [s] is integrated in steps of the nominal interval with rate and specific
+    force linear between the samples on either side, and what that line misses (per axis ``gap_acc_sigma``
+    [m/s^2], ``gap_gyr_sigma`` (tilt) and ``gap_yaw_sigma`` (heading) [rad/s], times the missed time) becomes
+    covariance, so the next ZUPT takes the error out of velocity, position and tilt (defaults: the RMS error
+    of linear interpolation over 0.05-0.3 s of real walking and running, 8.5 m/s^2 and 1-2.7 rad/s in 3-D).
+    A longer gap may hold a whole stride: the position is held, the velocity dropped and the next stance
+    re-levels roll and pitch (heading kept), so that stride is missing rather than long and wrong.
+    Other intervals longer than ``max_dt`` [s] (a very low rate) are integrated as ``max_dt``; stances shorter
+    than ``min_stance_s`` [s] get ZUPTs but are not reported. ``first_order`` (comparison only) replaces the
     exponential-map attitude update by I + [w x] dt.
     """
 
@@ -120,6 +134,14 @@ class ZuptConfig:
     gyr_sat_min: float = 4.0
     gyr_sat_sigma: float = 5.0
     gyr_delay_s: float = 0.005
+    align_swing_rate: float = 2.0
+    align_stance_min_s: float = 0.02
+    p0_bg_walk: float = 2e-3
+    gap_factor: float = 2.5
+    gap_acc_sigma: float = 5.0
+    gap_gyr_sigma: float = 1.0
+    gap_yaw_sigma: float = 0.5
+    gap_max_s: float = 0.35
 
     def to_array(self) -> np.ndarray:
         """Parameter vector in the kernel's layout (:data:`models._zupt_kernel.PAR`)."""
@@ -143,6 +165,12 @@ class ZuptConfig:
             raise ValueError("ZuptConfig.gyr_delay_s: must be within 0..0.1 s (the gyro lagging the accelerometer)")
         if not 0.0 < self.gyr_sat_frac <= 1.0:
             raise ValueError("ZuptConfig.gyr_sat_frac: must be in (0, 1]")
+        if self.gap_factor != 0.0 and self.gap_factor <= 1.0:
+            raise ValueError("ZuptConfig.gap_factor: must be 0 (off) or > 1 (times the nominal sampling interval)")
+        for name in ("align_swing_rate", "align_stance_min_s", "p0_bg_walk", "gap_acc_sigma", "gap_gyr_sigma",
+                     "gap_yaw_sigma", "gap_max_s"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"ZuptConfig.{name}: must be >= 0")
         if self.gamma_min > self.gamma_max:
             raise ValueError("ZuptConfig.gamma_min: must not exceed gamma_max")
 
@@ -315,6 +343,22 @@ class ZuptNavigator:
     @property
     def in_stance(self) -> bool:
         return bool(self._is[_k.IS["in_stance"]])
+
+    @property
+    def aligned_at_s(self) -> float:
+        """Time of the initial alignment [s] (end of the rest or of the first stance of a mid-walk start);
+        NaN before it."""
+        return float(self._fs[_k.FS["t_align"]]) if self.initialised else math.nan
+
+    @property
+    def mid_walk_start(self) -> bool:
+        """The foot was swinging before any rest: the alignment waits for (or was made on) a walking stance."""
+        return bool(self._fs[_k.FS["moved"]])
+
+    @property
+    def gaps(self) -> tuple[int, int]:
+        """Gaps in the data so far: ``(bridged, held)`` (up to and beyond ``gap_max_s``)."""
+        return int(self._fs[_k.FS["n_bridged"]]), int(self._fs[_k.FS["n_coasted"]])
 
     # ---- processing -----------------------------------------------------------------------------------
     def process(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
