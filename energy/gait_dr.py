@@ -31,7 +31,10 @@ __all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S"]
 
 PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
 SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
-_MAG_KEEP_S = 2.0  # low-rate field samples kept (>> the segmenter's look-ahead) [s]
+_MAG_KEEP_S = 4.0  # low-rate field samples kept [s]: a swing (<= _SWING_MAX_S) before an event emitted up to
+# SEGMENTER_LATENCY_S after its onset, whatever the batch cuts
+_SWING_MAX_S = 2.0  # swing field samples are taken from at most this long before a stance onset [s]
+_SWING_SAMPLES = 8  # field samples kept per swing for the magnetometer calibration (evenly spread)
 _G0 = 9.80665  # standard gravity [m/s^2] (the step segmentation's quietness statistic)
 _MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
@@ -175,6 +178,9 @@ class GaitPipeline:
         self._mag_a = np.zeros((0, 3))  # low-rate specific force at the same samples as _mag_v [m/s^2]
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
+        self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
+        self._window_end = -math.inf  # last sample time of the previous stance's field window [s]
+        self._cal_last = -1  # index of the last step event whose stance joined a compass calibration
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
         self.t_in = -math.inf  # newest input sample time [s]
         self.has_mag = False  # the device has sent magnetometer samples in this session
@@ -210,14 +216,35 @@ class GaitPipeline:
         live = {e.index for e in self.queue}
         self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
         self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
+        self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
 
     def _queue_event(self, e: StepEvent) -> None:
-        """A new step event joins the queue with the stance field and specific force of its stillest window."""
+        """A new step event joins the queue with the stance field and specific force of its stillest window,
+        and the field samples of the swing since the previous stance's window (:meth:`_swing_field`)."""
         self.queue.append(e)
         fa = self._stance_field(e.t_s)
         self.stance_mag[e.index] = None if fa is None else fa[1]
         if fa is not None and np.all(np.isfinite(fa[0])):  # (restored states carry no specific force: NaN)
             self.stance_acc[e.index] = fa[0]
+            sw = self._swing_field(e.t_s)
+            if sw is not None:
+                self.stance_swing[e.index] = sw
+        self._window_end = -math.inf if fa is None else fa[2]
+
+    def _swing_field(self, t_s: float) -> np.ndarray | None:
+        """Up to ``_SWING_SAMPLES`` low-rate field samples [uT] (body), evenly spread over the swing between the
+        previous stance's field window and this stance's onset ``t_s`` [s]; None when there was no such window
+        within ``_SWING_MAX_S`` or the magnetometer paused in between. For the magnitude constraint of the
+        compass calibration (:meth:`models.compass.MagCalibrator.add_swing`)."""
+        t0 = self._window_end
+        if not t_s - t0 <= _SWING_MAX_S:
+            return None
+        m = (self._mag_t > t0 + 1e-6) & (self._mag_t < t_s - 1e-6)
+        idx = np.flatnonzero(m)
+        if idx.size < 2 or np.any(np.diff(np.r_[t0, self._mag_t[idx], t_s]) > 1.5 / self.rate_hz):
+            return None
+        keep = np.unique(np.round(np.linspace(0, idx.size - 1, min(idx.size, _SWING_SAMPLES))).astype(int))
+        return self._mag_v[idx[keep]].copy()
 
     def flush(self) -> None:
         """End of the session: the step events the filters and the segmenter's look-ahead still hold."""
@@ -321,18 +348,25 @@ class GaitPipeline:
             if self.mag.ready and not self.mag_placed:
                 self._check_place(acc_st, m)
             clean = self.mag.ready and not self.mag.disturbed(acc_st, m)
+            if clean and self.mag_placed:
+                self.mag.observe_dip(acc_st, m)  # a loaded compass's tilt offset in this session
             if self.mag.ready and not self.mag_anchored and clean:
                 self._anchor_compass(float(st.heading), acc_st, m)
+            # the swing before this stance joins with it when the previous stance joined too (its field is then
+            # the Earth's at both ends, as far as the gate can tell)
+            swing = self.stance_swing.get(e.index) if self._cal_last == e.index - 1 else None
             if self.own_mag is not None:
                 # a loaded compass is not refitted with this session's stances (its stances' headings are in the
                 # frame of the session that fitted them, and its field may be another place's): they go to this
                 # session's own fit, which supersedes it once ready (_fit_compass)
-                self.own_mag.add(acc_st, m, float(st.heading))
+                self.own_mag.add(acc_st, m, float(st.heading), swing)
+                self._cal_last = e.index
             elif clean or not self.mag.trusted:
                 # once the compass is trusted, a stance whose field fails the disturbance test is not the Earth's
                 # field: it would pull m_n and the hard iron (and the compass's agreement measure) towards the
                 # steel. An untrusted calibration (indoors) cannot tell; it keeps averaging every stance.
-                self.mag.add(acc_st, m, float(st.heading))
+                self.mag.add(acc_st, m, float(st.heading), swing)
+                self._cal_last = e.index
             if self.mag.ready:
                 self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m))
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
@@ -516,6 +550,7 @@ class GaitPipeline:
                 # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
                 # frame (its field azimuth is in the earlier session's) and its gate checked against this place
                 self.own_mag = self.mag if self.own_mag is None else self.own_mag
+                loaded.start_session()  # its axis alignment holds another power-on's accelerometer tilt offset
                 self._use_compass(loaded, loaded=True)
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
@@ -557,6 +592,8 @@ class GaitPipeline:
                 if not self.mag_placed:
                     self._check_place(acc_st, m)
                 clean = not self.mag.disturbed(acc_st, m)
+                if clean and self.mag_placed:
+                    self.mag.observe_dip(acc_st, m)  # a loaded compass's tilt offset in this session
                 if not self.mag_anchored and clean:
                     self._anchor_compass(self.heading, acc_st, m)
                 if self.mag_anchored:
@@ -628,6 +665,8 @@ class GaitPipeline:
             "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
+            "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
+            "window_end": self._window_end, "cal_last": self._cal_last,
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
@@ -656,6 +695,9 @@ class GaitPipeline:
         obj._mag_a = np.asarray(d.get("mag_a", np.full((obj._mag_t.size, 3), np.nan)), dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d.get("stance_acc", [])}
+        obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d.get("stance_swing", [])}
+        obj._window_end = float(d.get("window_end", -math.inf))
+        obj._cal_last = int(d.get("cal_last", -1))
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
         obj._mag_fit_n = int(d["mag_fit_n"])
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
