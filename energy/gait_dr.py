@@ -483,7 +483,22 @@ class GaitPipeline:
 
     def calibration_state(self) -> dict[str, Any]:
         """What a profile keeps of this session's calibration (opaque ``step_model`` of the profile)."""
-        return {"calibrator": self.cal.get_state(), "compass": self.mag.get_state()}
+        return {"calibrator": self.cal.get_state(), "compass": self.compass_state()}
+
+    def compass_state(self) -> dict[str, Any]:
+        """The compass calibration to hand on in a profile: the one in use, fitted on every stance it holds.
+
+        The compass in use is refitted only when its stances have grown by a tenth (:meth:`_fit_compass`), so its
+        last fit can leave out the latest stances; a copy is refitted here, so what the engine does in this
+        session does not depend on when a profile is asked for. A compass loaded from a profile is handed on as
+        it came (this session's stances are in its own fit)."""
+        if self.own_mag is not None or not self.mag.ready or self.mag.n_stances <= self._mag_fit_n:
+            return self.mag.get_state()
+        cal = MagCalibrator.from_state(self.mag.get_state())
+        cal.fit()
+        # never a worse one than in use: the latest stances can include steel that passed the disturbance gate
+        # (mixed-day seed 1007: its last 7 stances took the refit's agreement with the ZUPT-KF to 7.5 deg RMS)
+        return cal.get_state() if cal.ready and (cal.trusted or not self.mag.trusted) else self.mag.get_state()
 
     def step_length(self, e: StepEvent, behaviour: str) -> tuple[float, float]:
         """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15).
@@ -550,6 +565,10 @@ class GaitPipeline:
                 # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
                 # frame (its field azimuth is in the earlier session's) and its gate checked against this place
                 self.own_mag = self.mag if self.own_mag is None else self.own_mag
+                if self.own_mag.n_swing == 0:
+                    # the swings' field magnitudes tell the sensor's hard and soft iron whatever the session's frame,
+                    # place or tilt offset: this session's own fit starts with them (its stances are its own)
+                    self.own_mag.add_swing(np.asarray(loaded.swing_samples()))
                 loaded.start_session()  # its axis alignment holds another power-on's accelerometer tilt offset
                 self._use_compass(loaded, loaded=True)
         kf = self.kf2[b]
