@@ -50,6 +50,7 @@ _DIP_STANCES = 300  # latest stances whose dip estimates a session's tilt offset
 _SESSION_TILT_STD = math.radians(0.8)  # prior of a session's tilt offset against the fitting session's [rad]:
 # the change of the accelerometer's turn-on offset between two power-ons (10 mg each, the synthesiser's
 # assumption for the LSM9DS1 after a static calibration: sqrt(2) x 0.57 deg)
+_FREEZE_WEIGHTS = 8  # MagCalibrator._fit_joint re-weights (Huber, robust scales) in its first iterations only
 _DIP_NOISE = math.sin(math.radians(0.1))  # floor of that fit's robust scale: the stillest stance's tilt noise
 # (0.08 deg walking, synthetic mixed day, gait_dr.GaitPipeline._stance_field)
 
@@ -309,6 +310,8 @@ class MagCalibrator:
         self.session_tilt = np.eye(3)  # this session's tilt offset (loaded calibrations, observe_dip)
         self.session_on = False  # observe_dip estimates session_tilt (a calibration from an earlier session)
         self._dips: list[list[float]] = []  # [k (3), sin(dip), down (3)] of this session's clean stances
+        self._dip_seen = 0  # stances observe_dip has taken in this session
+        self._dip_fit_at = 0  # ... at its last fit
         self.residual_std = float("nan")
         self.heading_rms = float("nan")  # RMS of compass - ZUPT-KF heading over the calibration stances [rad]
         self.max_heading_rms = float(max_heading_rms)
@@ -423,6 +426,7 @@ class MagCalibrator:
         self.session_tilt = np.eye(3)  # fitted on this session's stances: their tilt is the fit's
         self.session_on = False
         self._dips = []
+        self._dip_seen = self._dip_fit_at = 0
         self.ready = bool(np.all(np.isfinite(self.m_n)) and np.linalg.norm(self.m_n[:2]) > 1.0)
         if not self.ready:
             return False
@@ -441,7 +445,7 @@ class MagCalibrator:
         d = [self.heading(r[:3], r[3:6]) - r[6] for r in rows]
         return math.sqrt(float(np.mean(np.square(np.angle(np.exp(1j * np.asarray(d)))))))
 
-    def _fit_joint(self, rows: np.ndarray, swing: np.ndarray, iterations: int = 60) -> None:
+    def _fit_joint(self, rows: np.ndarray, swing: np.ndarray, iterations: int = 30) -> None:
         """Stances and swings together: robust Gauss-Newton from the linear stance fit.
 
         Unknowns: the field m_n [uT] (navigation frame), c = W b [uT], the soft iron W = I + E (E symmetric,
@@ -473,7 +477,8 @@ class MagCalibrator:
         (synthetic mixed day, 0.7 deg offset: up to 1.5 deg); the stance-only fit had absorbed it in a wrong
         horizontal hard iron. The result is stored as ``w = A W`` and ``b = W^-1 c``, so :meth:`calibrate`
         gives the field in the accelerometer's axes. Steps that raise the robust cost are halved (up to 6 times);
-        iterations stop once a step is below 1e-9 (uT, rad).
+        the robust weights are re-estimated in the first ``_FREEZE_WEIGHTS`` iterations, and the iterations stop
+        once a step is below 1e-9 (uT, rad).
         """
         n, k = rows.shape[0], swing.shape[0]
         soft = True
@@ -512,16 +517,20 @@ class MagCalibrator:
         s_lin = self.residual_std
         for it in range(iterations):
             r_st, r_sw, rv, sh = residuals(mn, c, rot, e)
-            rn = np.linalg.norm(r_st, axis=1)
-            # the stances' scale may not grow past the linear fit's: with more unknowns the stances fit at
-            # least as well, and a scale re-estimated freely let the fit give the stances up for swings fitted
-            # by a far-off flat ellipsoid (gdin indoor walks: hard iron 10^5-10^6 uT, stance residuals 50-200 uT)
-            s_st = min(max(1.4826 * float(np.median(rn)) / math.sqrt(3.0) * 1.2, 0.5), s_lin)
-            u = rn / (s_st * math.sqrt(3.0))
-            w_st = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
-            s_sw = max(1.4826 * float(np.median(np.abs(r_sw))), 0.1)
-            u = np.abs(r_sw) / s_sw
-            w_sw = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+            if it < _FREEZE_WEIGHTS:
+                # robust scales and Huber weights from the current residuals, then kept: re-weighting converges
+                # only linearly (0.7 per iteration: 58 iterations, 0.3 s CPU in a mixed day of 1 s), Gauss-Newton
+                # on fixed weights in a few
+                rn = np.linalg.norm(r_st, axis=1)
+                # the stances' scale may not grow past the linear fit's: with more unknowns the stances fit at
+                # least as well, and a scale re-estimated freely let the fit give the stances up for swings fitted
+                # by a far-off flat ellipsoid (gdin indoor walks: hard iron 10^5-10^6 uT, residuals 50-200 uT)
+                s_st = min(max(1.4826 * float(np.median(rn)) / math.sqrt(3.0) * 1.2, 0.5), s_lin)
+                u = rn / (s_st * math.sqrt(3.0))
+                w_st = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+                s_sw = max(1.4826 * float(np.median(np.abs(r_sw))), 0.1)
+                u = np.abs(r_sw) / s_sw
+                w_sw = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
             if it == iterations - 1:
                 break
             car = c_i @ rot
@@ -542,7 +551,7 @@ class MagCalibrator:
             h = (ja * wa[:, None]).T @ ja + (j_sw * wb[:, None]).T @ j_sw + np.diag(lam)
             g = -(ja * wa[:, None]).T @ r_st.reshape(-1) - (j_sw * wb[:, None]).T @ r_sw - lam * theta
             d = np.linalg.solve(h, g)
-            if float(np.max(np.abs(d))) < 1e-9:
+            if it >= _FREEZE_WEIGHTS and float(np.max(np.abs(d))) < 1e-9:
                 # converged: stopping here, not after a fixed count, makes the result depend smoothly on the data
                 # (the ZUPT-KF headings differ in the last bit between batch cuts; the engine must not)
                 break
@@ -577,6 +586,7 @@ class MagCalibrator:
         self.session_tilt = np.eye(3)
         self.w = self.w_fit.copy()
         self._dips = []
+        self._dip_seen = self._dip_fit_at = 0
 
     def observe_dip(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
         """A stance whose field passed the disturbance test, in any mode (no heading needed): the dip invariant.
@@ -603,7 +613,12 @@ class MagCalibrator:
         g = -f / nf  # down, body frame
         self._dips.append([*(np.cross(g, m) / nm).tolist(), float(m @ g) / nm, *g.tolist()])
         del self._dips[:-_DIP_STANCES]
-        self._fit_session_tilt()
+        self._dip_seen += 1
+        if self._dip_seen - self._dip_fit_at >= max(1, len(self._dips) // 10):
+            # refitted when a tenth of the stances is new (a fit of 300 stances costs ~0.4 ms: at every Gait-DR
+            # stance that was as much again as all the rest of Gait-DR's computation)
+            self._dip_fit_at = self._dip_seen
+            self._fit_session_tilt()
 
     def _fit_session_tilt(self) -> None:
         """Robust least squares of :meth:`observe_dip`'s model; sets :attr:`session_tilt` and :attr:`w`.
@@ -714,7 +729,8 @@ class MagCalibrator:
                 "b": self.b.copy(), "w": self.w.copy(), "residual_std": self.residual_std, "ready": self.ready,
                 "heading_rms": self.heading_rms, "swing_std": self.swing_std, "w_fit": self.w_fit.copy(),
                 "session_tilt": self.session_tilt.copy(), "session_on": self.session_on,
-                "dips": np.asarray(self._dips, dtype=np.float64).reshape(-1, 7)}
+                "dips": np.asarray(self._dips, dtype=np.float64).reshape(-1, 7),
+                "dip_counts": [self._dip_seen, self._dip_fit_at]}
 
     @classmethod
     def from_state(cls, d: dict) -> MagCalibrator:
@@ -734,6 +750,7 @@ class MagCalibrator:
         obj.session_tilt = np.asarray(d.get("session_tilt", np.eye(3)), dtype=np.float64).reshape(3, 3).copy()
         obj.session_on = bool(d.get("session_on", False))
         obj._dips = np.asarray(d.get("dips", np.zeros((0, 7))), dtype=np.float64).reshape(-1, 7).tolist()
+        obj._dip_seen, obj._dip_fit_at = (int(x) for x in d.get("dip_counts", [len(obj._dips), len(obj._dips)]))
         obj.heading_rms = float(d.get("heading_rms", math.nan))  # unknown in states stored before it existed
         obj._rows = np.asarray(d["rows"], dtype=np.float64).reshape(-1, 7).tolist()
         obj.m_n = np.asarray(d["m_n"], dtype=np.float64).copy()
