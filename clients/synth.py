@@ -12,7 +12,9 @@ integration of the noise-free signals reproduces the truth:
   body z axis (pointing down out of the sole) reads ``-g``; body angular rate from the ZYX Euler rates;
   magnetic field ``m_b = C_n^b (m_n + d_n(t))`` with an Earth field ``m_n`` and disturbances ``d_n`` near steel.
 - sensor errors from 002 Table 3 (LSM9DS1, Allan variance): white noise densities, bias instability as a
-  first-order Gauss-Markov process, plus a constant turn-on bias; deterministic from the seed.
+  first-order Gauss-Markov process, plus a constant turn-on bias; deterministic from the seed. The magnetometer
+  can also carry the device's hard and soft iron (``m = S m_b + b``, fixed per device, not drawn from the seed:
+  :data:`LSM9DS1_SHOE`); the default :data:`LSM9DS1` has none.
 
 Body frame of the foot sensor: x forward along the foot, y right, z down (through the sole), like the
 University of Toronto recordings. Attitude ``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)``.
@@ -35,6 +37,7 @@ __all__ = [
     "Scenario",
     "SensorErrors",
     "LSM9DS1",
+    "LSM9DS1_SHOE",
     "scenario_names",
     "get_scenario",
     "synthesize",
@@ -132,6 +135,13 @@ class SensorErrors:
         Constant bias drawn once per recording [m/s^2], [rad/s].
     bias_tau_s : float
         Correlation time of the bias process [s].
+    mag_hard_iron_ut : tuple of 3 float
+        Magnetometer hard iron b [uT], body frame: a constant field added to every reading (the sensor's own
+        offset plus magnetised parts of the device and the shoe). A property of the device, the same every
+        day, so it is given here rather than drawn from the seed.
+    mag_soft_iron : tuple of 9 float
+        Soft-iron matrix S (row-major, dimensionless) applied to the field before the hard iron:
+        ``m = S m_b + b``. Identity = none.
     """
 
     acc_noise_density: float
@@ -142,6 +152,14 @@ class SensorErrors:
     acc_turn_on_bias: float
     gyr_turn_on_bias: float
     bias_tau_s: float = 100.0
+    mag_hard_iron_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_soft_iron: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+    @property
+    def has_iron(self) -> bool:
+        """The magnetometer has hard or soft iron (False: readings are the body field plus noise)."""
+        return any(v != 0.0 for v in self.mag_hard_iron_ut) or tuple(self.mag_soft_iron) != (1.0, 0.0, 0.0, 0.0, 1.0,
+                                                                                              0.0, 0.0, 0.0, 1.0)
 
 
 # 002 Table 3 (LSM9DS1, Allan variance): acc noise 226 ug/sqrt(Hz), gyro 0.017 deg/s/sqrt(Hz), bias instability
@@ -157,6 +175,26 @@ LSM9DS1 = SensorErrors(
     gyr_bias_instability=8.63 * DEG / 3600.0,
     acc_turn_on_bias=0.01 * G,
     gyr_turn_on_bias=0.5 * DEG,
+)
+
+# The same part on a shoe, with the magnetometer errors a field calibration has to remove (one device: fixed, the
+# same every day). Hard iron: the LSM9DS1 leaves it to the user (offset registers OFFSET_X/Y/Z_REG_M, default 0,
+# "to compensate environmental effects": datasheet DocID025715 section 8.1-8.3); two parts turned through all
+# attitudes on the ST community forum ("Min (always zero) value from LSM9DS1 magnetometer looks suspicious", 2020;
+# min/max per axis in mG) were centred at (13, 9, -14) uT and (9, 25, -69) uT: tens of uT per axis, as large as
+# the Earth's field. We take b = (14, -22, 35) uT (|b| 44 uT, within that range; an assumption for one device).
+# Soft iron: a few per cent of scale difference and cross-coupling (assumption, typical of consumer parts beside
+# a battery and PCB traces): S symmetric, diagonal 1.04/0.97/1.00, off-diagonals 0.02/-0.015/0.01.
+LSM9DS1_SHOE = SensorErrors(
+    acc_noise_density=LSM9DS1.acc_noise_density,
+    gyr_noise_density=LSM9DS1.gyr_noise_density,
+    mag_noise_rms=LSM9DS1.mag_noise_rms,
+    acc_bias_instability=LSM9DS1.acc_bias_instability,
+    gyr_bias_instability=LSM9DS1.gyr_bias_instability,
+    acc_turn_on_bias=LSM9DS1.acc_turn_on_bias,
+    gyr_turn_on_bias=LSM9DS1.gyr_turn_on_bias,
+    mag_hard_iron_ut=(14.0, -22.0, 35.0),
+    mag_soft_iron=(1.04, 0.02, -0.015, 0.02, 0.97, 0.01, -0.015, 0.01, 1.00),
 )
 
 EARTH_FIELD_UT = np.array([22.0, 1.5, 42.0])  # NED [uT]: ~47 uT, inclination ~62 deg (mid-latitude Europe)
@@ -449,6 +487,9 @@ def synthesize(
     f_meas += rng.standard_normal((n, 3)) * errors.acc_noise_density * np.sqrt(rate_hz)
     w_meas = w_b + bias_process(errors.gyr_bias_instability, errors.gyr_turn_on_bias)
     w_meas += rng.standard_normal((n, 3)) * errors.gyr_noise_density * np.sqrt(rate_hz)
+    if errors.has_iron:  # m = S m_b + b (device hard/soft iron; no random draw, so other outputs are unchanged)
+        s_iron = np.asarray(errors.mag_soft_iron, dtype=np.float64).reshape(3, 3)
+        m_b = m_b @ s_iron.T + np.asarray(errors.mag_hard_iron_ut, dtype=np.float64)
     m_meas = m_b + rng.standard_normal((n, 3)) * errors.mag_noise_rms
 
     t_ns = np.round(t * 1e9).astype(np.int64)
@@ -477,6 +518,8 @@ def synthesize(
             "segments": labels,
             "steel_intervals": steel,
             "seed": seed,
+            "mag_hard_iron_ut": np.asarray(errors.mag_hard_iron_ut, dtype=np.float64),
+            "mag_soft_iron": np.asarray(errors.mag_soft_iron, dtype=np.float64).reshape(3, 3),
         },
     )
     meta = RecordingMeta(

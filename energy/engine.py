@@ -353,8 +353,21 @@ class Engine:
         return self._sched.sensor_config()
 
     def profile_dict(self) -> dict[str, Any]:
-        """The (possibly updated) per-user calibration profile, JSON-serialisable."""
-        return self._sched.profile.to_dict()
+        """The (possibly updated) per-user calibration profile, JSON-serialisable.
+
+        The compass calibration belongs to the sensor, not to a behaviour: every calibrated behaviour hands on
+        the compass as it is now (:meth:`energy.gait_dr.GaitPipeline.compass_state`), not as it was when that
+        behaviour's initialisation ended. A walk calibrated 70 s into the synthetic mixed day stored a compass
+        fitted on its first 20 stances, all heading 0-90 deg; a returning user loading it erred by 3-5 deg on
+        the other headings."""
+        d = self._sched.profile.to_dict()
+        gait = self._gait
+        if gait is not None and gait.has_mag and gait.mag.ready:
+            compass = gait.compass_state()
+            for cal in d["behaviours"].values():
+                if cal.get("calibrated") and isinstance(cal.get("step_model"), dict):
+                    cal["step_model"]["compass"] = compass
+        return d
 
     def feed(self, batch: SensorBatch) -> Update:
         """Consume one batch; see the module docstring.

@@ -31,8 +31,11 @@ __all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S"]
 
 PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
 SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
-_MAG_WINDOW_S = 0.12  # field averaged over this quiet window before a stance onset [s]
-_MAG_KEEP_S = 2.0  # low-rate field samples kept (>> the segmenter's look-ahead) [s]
+_MAG_KEEP_S = 4.0  # low-rate field samples kept [s]: a swing (<= _SWING_MAX_S) before an event emitted up to
+# SEGMENTER_LATENCY_S after its onset, whatever the batch cuts
+_SWING_MAX_S = 2.0  # swing field samples are taken from at most this long before a stance onset [s]
+_SWING_SAMPLES = 8  # field samples kept per swing for the magnetometer calibration (evenly spread)
+_G0 = 9.80665  # standard gravity [m/s^2] (the step segmentation's quietness statistic)
 _MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
 _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step model
@@ -180,7 +183,12 @@ class GaitPipeline:
         self.queue: list[StepEvent] = []
         self._mag_t = np.zeros(0)
         self._mag_v = np.zeros((0, 3))
+        self._mag_a = np.zeros((0, 3))  # low-rate specific force at the same samples as _mag_v [m/s^2]
         self.stance_mag: dict[int, np.ndarray | None] = {}
+        self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
+        self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
+        self._window_end = -math.inf  # last sample time of the previous stance's field window [s]
+        self._cal_last = -1  # index of the last step event whose stance joined a compass calibration
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
         self.t_in = -math.inf  # newest input sample time [s]
         self.has_mag = False  # the device has sent magnetometer samples in this session
@@ -213,16 +221,46 @@ class GaitPipeline:
         if valid.any():
             self._mag_t = np.concatenate([self._mag_t, lt[valid]])
             self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
+            self._mag_a = np.concatenate([self._mag_a, lx[valid, :3]])
         for e in self._seg.feed(lt, lx[:, :3]):
-            self.queue.append(e)
-            self.stance_mag[e.index] = self._mag_before(e.t_s)
+            self._queue_event(e)
         # the field of the last _MAG_KEEP_S (_mag_t increases: one slice, the rows of t >= the start)
         cut = int(self._mag_t.searchsorted(lt[-1] - _MAG_KEEP_S, "left"))
         if cut:
-            self._mag_t, self._mag_v = self._mag_t[cut:], self._mag_v[cut:]
-        if self.stance_mag:
+            self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
+        if self.stance_mag or self.stance_acc or self.stance_swing:
             live = {e.index for e in self.queue}
             self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
+            self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
+            self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
+
+    def _queue_event(self, e: StepEvent) -> None:
+        """A new step event joins the queue with the stance field and specific force of its stillest window,
+        and the field samples of the swing since the previous stance's window (:meth:`_swing_field`)."""
+        self.queue.append(e)
+        fa = self._stance_field(e.t_s)
+        self.stance_mag[e.index] = None if fa is None else fa[1]
+        if fa is not None and np.all(np.isfinite(fa[0])):  # (restored states carry no specific force: NaN)
+            self.stance_acc[e.index] = fa[0]
+            sw = self._swing_field(e.t_s)
+            if sw is not None:
+                self.stance_swing[e.index] = sw
+        self._window_end = -math.inf if fa is None else fa[2]
+
+    def _swing_field(self, t_s: float) -> np.ndarray | None:
+        """Up to ``_SWING_SAMPLES`` low-rate field samples [uT] (body), evenly spread over the swing between the
+        previous stance's field window and this stance's onset ``t_s`` [s]; None when there was no such window
+        within ``_SWING_MAX_S`` or the magnetometer paused in between. For the magnitude constraint of the
+        compass calibration (:meth:`models.compass.MagCalibrator.add_swing`)."""
+        t0 = self._window_end
+        if not t_s - t0 <= _SWING_MAX_S:
+            return None
+        m = (self._mag_t > t0 + 1e-6) & (self._mag_t < t_s - 1e-6)
+        idx = np.flatnonzero(m)
+        if idx.size < 2 or np.any(np.diff(np.r_[t0, self._mag_t[idx], t_s]) > 1.5 / self.rate_hz):
+            return None
+        keep = np.unique(np.round(np.linspace(0, idx.size - 1, min(idx.size, _SWING_SAMPLES))).astype(int))
+        return self._mag_v[idx[keep]].copy()
 
     def flush(self) -> None:
         """End of the session: the step events the filters and the segmenter's look-ahead still hold."""
@@ -235,8 +273,7 @@ class GaitPipeline:
                 self._append_low(fs[keep], fx[keep])
                 low.last_t = float(fs[keep][-1])
         for e in self._seg.flush():
-            self.queue.append(e)
-            self.stance_mag[e.index] = self._mag_before(e.t_s)
+            self._queue_event(e)
         self.t_in = math.inf
 
     @property
@@ -244,18 +281,59 @@ class GaitPipeline:
         """Every step event with a stance onset before this time [s] is in :attr:`queue` (or was taken)."""
         return self.t_in - SEGMENTER_LATENCY_S
 
-    def _mag_before(self, t_s: float) -> np.ndarray | None:
-        """Mean field over the quiet window ending at a stance onset [uT]; None without magnetometer.
+    def _stance_field(self, t_s: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """Mean low-rate specific force [m/s^2] and field [uT] (body) over the stance's stillest window.
 
-        ``_mag_t`` increases strictly, so the window is one slice (the rows a mask
-        ``(t >= t_s - window) & (t <= t_s)`` selects, in the same order: the same mean, bit for bit)."""
-        i0 = int(self._mag_t.searchsorted(t_s - _MAG_WINDOW_S, "left"))
-        i1 = int(self._mag_t.searchsorted(t_s, "right"))
-        # .mean(axis=0) is add.reduce / count: the same without numpy's generic mean wrapper
-        return np.add.reduce(self._mag_v[i0:i1], axis=0) / (i1 - i0) if i1 > i0 else None
+        Windows of the step segmentation's ``window_s`` (:class:`models.steps.StepSegmenter`) start at the onset
+        ``t_s`` [s] and move on one sample at a time while the foot stays quiet (the segmenter's quietness
+        statistic, vector variance plus the squared departure of the mean magnitude from g, below its stance
+        threshold) and the window ends within ``context_s`` of the onset's quiet window (always received when
+        the event is emitted, so the choice does not depend on batch cuts); the quietest one is taken. Both
+        means come from the same samples, so the compass's tilt is the attitude the field was measured in.
+
+        Before, the field was the mean over the 0.12 s *before* the onset (the end of the swing: the foot
+        pitched -1.9 deg on average and still rotating; synthetic mixed day, seed 1000) and the tilt the
+        segmenter's 8-Hz-FIR-filtered specific force over the first quiet window after it (heel-strike
+        accelerations smeared in: pitch std 1.35 deg on stances that are exactly level). That tilt error grew
+        with the tilt (slope 0.53), which the hard-iron fit took for a vertical hard iron of 15-17 uT, and its
+        mean (+1.6 deg) for a horizontal one of 1.7 uT (b = [1.77, -0.09, 14.8] uT fitted, none there). The
+        first quiet window right after the heel strike still carries the decimation filter's ringing (pitch
+        error std 1.0 deg while walking); the stillest window in the stance, 0.08 deg.
+        Returns (specific force, field, time of the window's last sample [s]); None without magnetometer
+        samples at the onset.
+        """
+        seg = self._seg
+        n = seg._w
+        dt = 1.0 / self.rate_hz
+        hi = t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6
+        idx = np.flatnonzero((self._mag_t >= t_s - 1e-6) & (self._mag_t <= hi))
+        if idx.size == 0 or self._mag_t[idx[0]] > t_s + 0.5 * dt:
+            return None  # no field at the onset (magnetometer off): not one from later in the stride
+        gaps = np.flatnonzero(np.diff(self._mag_t[idx]) > 1.5 * dt)
+        if gaps.size:
+            idx = idx[: gaps[0] + 1]  # only the samples that follow the onset without a gap
+        best, best_q = idx[:n], math.inf
+        a_all = self._mag_a[idx]
+        for k in range(max(idx.size - n + 1, 1)):
+            a = a_all[k:k + n]
+            mu = a.mean(axis=0)
+            mu2 = float(mu @ mu)
+            q = math.sqrt(max(float(np.mean(np.sum(a * a, axis=1))) - mu2, 0.0) + (math.sqrt(mu2) - _G0) ** 2)
+            if k and q >= seg.stance_threshold:
+                break  # the foot moves again: the stance is over
+            if q < best_q:
+                best, best_q = idx[k:k + n], q
+        return self._mag_a[best].mean(axis=0), self._mag_v[best].mean(axis=0), float(self._mag_t[best[-1]])
 
     def mag_at(self, e: StepEvent) -> np.ndarray | None:
+        """Mean field [uT] (body) over the stance's quiet window; None without magnetometer."""
         return self.stance_mag.get(e.index)
+
+    def acc_at(self, e: StepEvent) -> np.ndarray:
+        """Mean specific force [m/s^2] (body) over the same samples as :meth:`mag_at`: the compass's tilt.
+        The event's own (filtered) stance force where none was kept (states stored before it existed)."""
+        a = self.stance_acc.get(e.index)
+        return np.asarray(e.acc_stance, dtype=np.float64) if a is None else a
 
     # ------------------------------------------------------------------ pairing with ZUPT-KF stances
     def take_pair(self, t_start_s: float) -> StepEvent | None:
@@ -282,22 +360,29 @@ class GaitPipeline:
         """
         m = self.mag_at(e)
         if m is not None:
-            acc_st = np.asarray(e.acc_stance)
+            acc_st = self.acc_at(e)
             if self.mag.ready and not self.mag_placed:
                 self._check_place(acc_st, m)
             clean = self.mag.ready and not self.mag.disturbed(acc_st, m)
+            if clean and self.mag_placed:
+                self.mag.observe_dip(acc_st, m)  # a loaded compass's tilt offset in this session
             if self.mag.ready and not self.mag_anchored and clean:
                 self._anchor_compass(float(st.heading), acc_st, m)
+            # the swing before this stance joins with it when the previous stance joined too (its field is then
+            # the Earth's at both ends, as far as the gate can tell)
+            swing = self.stance_swing.get(e.index) if self._cal_last == e.index - 1 else None
             if self.own_mag is not None:
                 # a loaded compass is not refitted with this session's stances (its stances' headings are in the
                 # frame of the session that fitted them, and its field may be another place's): they go to this
                 # session's own fit, which supersedes it once ready (_fit_compass)
-                self.own_mag.add(acc_st, m, float(st.heading))
+                self.own_mag.add(acc_st, m, float(st.heading), swing)
+                self._cal_last = e.index
             elif clean or not self.mag.trusted:
                 # once the compass is trusted, a stance whose field fails the disturbance test is not the Earth's
                 # field: it would pull m_n and the hard iron (and the compass's agreement measure) towards the
                 # steel. An untrusted calibration (indoors) cannot tell; it keeps averaging every stance.
-                self.mag.add(acc_st, m, float(st.heading))
+                self.mag.add(acc_st, m, float(st.heading), swing)
+                self._cal_last = e.index
             if self.mag.ready:
                 self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m))
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
@@ -414,7 +499,22 @@ class GaitPipeline:
 
     def calibration_state(self) -> dict[str, Any]:
         """What a profile keeps of this session's calibration (opaque ``step_model`` of the profile)."""
-        return {"calibrator": self.cal.get_state(), "compass": self.mag.get_state()}
+        return {"calibrator": self.cal.get_state(), "compass": self.compass_state()}
+
+    def compass_state(self) -> dict[str, Any]:
+        """The compass calibration to hand on in a profile: the one in use, fitted on every stance it holds.
+
+        The compass in use is refitted only when its stances have grown by a tenth (:meth:`_fit_compass`), so its
+        last fit can leave out the latest stances; a copy is refitted here, so what the engine does in this
+        session does not depend on when a profile is asked for. A compass loaded from a profile is handed on as
+        it came (this session's stances are in its own fit)."""
+        if self.own_mag is not None or not self.mag.ready or self.mag.n_stances <= self._mag_fit_n:
+            return self.mag.get_state()
+        cal = MagCalibrator.from_state(self.mag.get_state())
+        cal.fit()
+        # never a worse one than in use: the latest stances can include steel that passed the disturbance gate
+        # (mixed-day seed 1007: its last 7 stances took the refit's agreement with the ZUPT-KF to 7.5 deg RMS)
+        return cal.get_state() if cal.ready and (cal.trusted or not self.mag.trusted) else self.mag.get_state()
 
     def step_length(self, e: StepEvent, behaviour: str) -> tuple[float, float]:
         """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15).
@@ -481,6 +581,11 @@ class GaitPipeline:
                 # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
                 # frame (its field azimuth is in the earlier session's) and its gate checked against this place
                 self.own_mag = self.mag if self.own_mag is None else self.own_mag
+                if self.own_mag.n_swing == 0:
+                    # the swings' field magnitudes tell the sensor's hard and soft iron whatever the session's frame,
+                    # place or tilt offset: this session's own fit starts with them (its stances are its own)
+                    self.own_mag.add_swing(np.asarray(loaded.swing_samples()))
+                loaded.start_session()  # its axis alignment holds another power-on's accelerometer tilt offset
                 self._use_compass(loaded, loaded=True)
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
@@ -516,16 +621,14 @@ class GaitPipeline:
             b = _behaviour(label_at(e.t_s))
             d, _ = self.step_length(e, b)
             m = self.mag_at(e)
-            acc_st = np.asarray(e.acc_stance)
+            acc_st = self.acc_at(e)
             source = "none"
-            shape = (0.0, 0.0)
             if m is not None and self.mag.ready:
                 if not self.mag_placed:
                     self._check_place(acc_st, m)
-                # = not self.mag.disturbed(acc_st, m) (ready here); the field's shape depends on the hard/soft
-                # iron only, which neither the place check nor the anchoring changes: computed once
-                shape = self.mag.field_shape(acc_st, m)
-                clean = not self.mag.shape_disturbed(*shape)
+                clean = not self.mag.disturbed(acc_st, m)
+                if clean and self.mag_placed:
+                    self.mag.observe_dip(acc_st, m)  # a loaded compass's tilt offset in this session
                 if not self.mag_anchored and clean:
                     self._anchor_compass(self.heading, acc_st, m)
                 if self.mag_anchored:
@@ -536,7 +639,7 @@ class GaitPipeline:
                 self.follower.forget()
             else:
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
-                                                  *shape, self.mag.trusted)
+                                                  *self.mag.field_shape(acc_st, m), self.mag.trusted)
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
@@ -568,7 +671,7 @@ class GaitPipeline:
             return None
         e = min(near, key=lambda q: abs(q.t_s - t_start_s))
         m = self.mag_at(e)
-        acc = np.asarray(e.acc_stance)
+        acc = self.acc_at(e)
         if m is None or cal.disturbed(acc, m):
             return None
         turn = self.follower.turn_since(cal.heading(acc, m), *cal.field_shape(acc, m))
@@ -580,7 +683,7 @@ class GaitPipeline:
     def field_clean(self, e: StepEvent) -> bool:
         """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""
         m = self.mag_at(e)
-        return m is not None and self.mag.ready and not self.mag.disturbed(np.asarray(e.acc_stance), m)
+        return m is not None and self.mag.ready and not self.mag.disturbed(self.acc_at(e), m)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
@@ -594,8 +697,11 @@ class GaitPipeline:
             "mag": self.mag.get_state(),
             "dr": None if self.dr is None else self.dr.get_state(),
             "queue": [_event_row(e) for e in self.queue],
-            "mag_t": self._mag_t, "mag_v": self._mag_v,
+            "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
+            "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
+            "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
+            "window_end": self._window_end, "cal_last": self._cal_last,
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
@@ -619,7 +725,14 @@ class GaitPipeline:
         obj.queue = [_event_from_row(q) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
+        # states stored before the tilt was taken from the field's own samples: no specific force kept (NaN rows,
+        # never inside a new stance's window once 2 s have passed) and the events' own tilt for queued stances
+        obj._mag_a = np.asarray(d.get("mag_a", np.full((obj._mag_t.size, 3), np.nan)), dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
+        obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d.get("stance_acc", [])}
+        obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d.get("stance_swing", [])}
+        obj._window_end = float(d.get("window_end", -math.inf))
+        obj._cal_last = int(d.get("cal_last", -1))
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
         obj._mag_fit_n = int(d["mag_fit_n"])
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}

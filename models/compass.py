@@ -12,10 +12,22 @@ declination, no offset between the two).
 Stances are nearly level, so the stance data cannot tell the hard iron along the body's vertical axis from
 the field's vertical component (on gdin the unconstrained fit split the same ~35 uT between them anywhere
 from -52/+83 uT); the wrong split then turns every stance-to-stance pitch change into a heading error
-(``sin(pitch) * error`` enters the horizontal field). A zero-mean prior on the vertical hard iron
-(``vertical_hard_iron_std``) fixes that direction; the horizontal hard iron stays free (weak prior).
-The soft-iron scale is fixed (trace E = 0): a common scale of W and m_n is unobservable and does not affect
-the heading (without it the fit could shrink W and m_n towards zero).
+(``sin(pitch) * error`` enters the horizontal field). Worse, the accelerometer's tilt is noisier than the
+stances' real tilt differences (synthetic stances are exactly level), and a fit that puts the whole vertical
+field into the hard iron makes the compass blind to tilt errors, so least squares drifts there: 35-40 uT of
+"hard iron" on a sensor with none, which real stances (slopes, stairs, a re-mounted sensor) would turn into
+heading errors of ``tan(dip)`` times their tilt change. Only a zero-mean prior on the vertical hard iron
+(``vertical_hard_iron_std``) fixes that direction in the linear fit. What observes it is the swing: the foot
+pitches by tens of degrees between stances, and the field's magnitude does not depend on the attitude, so
+``|W (m_k - b)| = |m_n|`` at the swing's samples (the attitude-free constraint of ellipsoid calibration) holds
+the hard iron in all three axes. A trusted calibration with swing samples is refined by a joint robust fit of
+stances and swings (:meth:`MagCalibrator._fit_joint`) that also fits the soft iron the swings make observable
+and the rotation between the magnetometer's axes and the accelerometer's tilt (the accelerometer's offset tilts
+every stance). That offset changes from one power-on to the next; a calibration loaded from an earlier session
+re-estimates it from this session's stances through the dip, which must not depend on the heading
+(:meth:`MagCalibrator.observe_dip`). The linear fit's soft-iron scale is fixed (trace E = 0): a common scale of
+W and m_n is unobservable and does not affect the heading (without it the fit could shrink W and m_n towards
+zero).
 
 A stance is magnetically disturbed when the calibrated field's magnitude or dip differs from m_n by more
 than a tolerance (the magnitude/inclination test of 002 eq. 4-5 applied to the calibrated field).
@@ -29,9 +41,18 @@ import math
 import numpy as np
 
 from models.heading_deviation import wrap_angle
-from models.rotations import euler_to_dcm
+from models.rotations import euler_to_dcm, rotvec_to_dcm, skew
 
 __all__ = ["tilt_from_acc", "level_heading", "follow_compass", "CompassFollower", "MagCalibrator"]
+
+_SWING_KEEP = 2000  # latest swing field samples kept (about 250 strides; a profile carries them to later days)
+_DIP_STANCES = 300  # latest stances whose dip estimates a session's tilt offset (MagCalibrator.observe_dip)
+_SESSION_TILT_STD = math.radians(0.8)  # prior of a session's tilt offset against the fitting session's [rad]:
+# the change of the accelerometer's turn-on offset between two power-ons (10 mg each, the synthesiser's
+# assumption for the LSM9DS1 after a static calibration: sqrt(2) x 0.57 deg)
+_FREEZE_WEIGHTS = 8  # MagCalibrator._fit_joint re-weights (Huber, robust scales) in its first iterations only
+_DIP_NOISE = math.sin(math.radians(0.1))  # floor of that fit's robust scale: the stillest stance's tilt noise
+# (0.08 deg walking, synthetic mixed day, gait_dr.GaitPipeline._stance_field)
 
 
 def tilt_from_acc(acc: np.ndarray) -> tuple[float, float]:
@@ -225,6 +246,29 @@ class CompassFollower:
         return obj
 
 
+def _soft_matrix(e: np.ndarray) -> np.ndarray:
+    """W = I + E from (e_h, e01, e02, e12): E symmetric with diagonal (e_h, -e_h, 0)
+    (:meth:`MagCalibrator._fit_joint`)."""
+    return np.eye(3) + np.array([[e[0], e[1], e[2]], [e[1], -e[0], e[3]], [e[2], e[3], 0.0]])
+
+
+def _soft_map(m: np.ndarray) -> np.ndarray:
+    """``E m`` as a linear map of (e_h, e01, e02, e12) for :func:`_soft_matrix`: shape (N, 3, 4)."""
+    m = np.asarray(m, dtype=np.float64).reshape(-1, 3)
+    z = np.zeros(m.shape[0])
+    return np.stack([np.stack([m[:, 0], m[:, 1], m[:, 2], z], -1),
+                     np.stack([-m[:, 1], m[:, 0], z, m[:, 2]], -1),
+                     np.stack([z, z, m[:, 0], m[:, 1]], -1)], -2)
+
+
+def _rot_vec(r: np.ndarray) -> np.ndarray:
+    """Rotation vector [rad] of a rotation matrix (small to moderate angles)."""
+    ang = math.acos(max(-1.0, min(1.0, (float(np.trace(r)) - 1.0) / 2.0)))
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]) / 2.0
+    sn = math.sin(ang)
+    return v * (ang / sn) if sn > 1e-12 else v
+
+
 class MagCalibrator:
     """Online hard/soft-iron calibration against the ZUPT-KF attitude, and the compass it enables.
 
@@ -245,18 +289,28 @@ class MagCalibrator:
         Ridge prior standard deviation of the soft-iron elements E (dimensionless).
     hard_iron_std, vertical_hard_iron_std : float
         Zero-mean prior standard deviations of the hard iron along the body x/y axes and the body z axis
-        [uT] (z: the direction level stances cannot observe; see the module docstring).
+        [uT] (z: the direction level stances cannot observe; see the module docstring). ``hard_iron_std``:
+        real parts carry tens of uT per axis (two LSM9DS1: up to 69 uT; ``clients.synth.LSM9DS1_SHOE``), and
+        the part's most sensitive range ends at 400 uT; 100 uT is weak against the data, strong against a
+        far-off ellipsoid.
     max_heading_rms : float
         Largest RMS disagreement [rad] between the compass and the ZUPT-KF heading on the calibration stances
         for which the compass counts as :attr:`trusted`. Measured (whole walks): 1.8 deg on the synthetic clean
         field, 10-33 deg on every gdin indoor recording, where Gait-DR on the compass drifted 3-22 % of the
         distance in loop closure against 0.1-0.8 % with the gyroscope.
+    min_swing : int
+        Swing field samples (:meth:`add_swing`) needed before they join the fit (:meth:`_fit_joint`): a few
+        times its 9-14 unknowns.
+    alignment_std : float
+        Zero-mean prior standard deviation [rad] of the rotation between the magnetometer's axes and the
+        accelerometer's stance tilt (:meth:`_fit_joint`).
     """
 
     def __init__(self, soft_iron: bool = False, min_stances: int = 15, min_heading_spread: float = math.radians(60.0),
                  mag_tol: float = 0.12, dip_tol: float = math.radians(8.0), soft_iron_std: float = 0.1,
-                 hard_iron_std: float = 1000.0, vertical_hard_iron_std: float = 10.0,
-                 max_heading_rms: float = math.radians(5.0)) -> None:
+                 hard_iron_std: float = 100.0, vertical_hard_iron_std: float = 10.0,
+                 max_heading_rms: float = math.radians(5.0), min_swing: int = 40,
+                 alignment_std: float = math.radians(5.0)) -> None:
         self.soft_iron = bool(soft_iron)
         self.min_stances = int(min_stances)
         self.min_heading_spread = float(min_heading_spread)
@@ -266,20 +320,57 @@ class MagCalibrator:
         self.hard_iron_std = float(hard_iron_std)
         self.vertical_hard_iron_std = float(vertical_hard_iron_std)
         self._rows: list[list[float]] = []  # [ax, ay, az, mx, my, mz, heading]
+        self._swing: list[list[float]] = []  # [mx, my, mz] field samples of the swings between stances [uT]
         self.m_n = np.full(3, np.nan)
         self.b = np.zeros(3)
-        self.w = np.eye(3)
+        self.w = np.eye(3)  # in use: session_tilt @ w_fit
+        self.w_fit = np.eye(3)  # as fitted (soft iron and axis alignment)
+        self.session_tilt = np.eye(3)  # this session's tilt offset (loaded calibrations, observe_dip)
+        self.session_on = False  # observe_dip estimates session_tilt (a calibration from an earlier session)
+        self._dips: list[list[float]] = []  # [k (3), sin(dip), down (3)] of this session's clean stances
+        self._dip_seen = 0  # stances observe_dip has taken in this session
+        self._dip_fit_at = 0  # ... at its last fit
         self.residual_std = float("nan")
         self.heading_rms = float("nan")  # RMS of compass - ZUPT-KF heading over the calibration stances [rad]
         self.max_heading_rms = float(max_heading_rms)
+        self.min_swing = int(min_swing)
+        self.alignment_std = float(alignment_std)
+        self.swing_std = float("nan")  # robust scale of the swings' field-magnitude residuals [uT]
         self.ready = False
 
-    def add(self, acc_stance: np.ndarray, mag_stance: np.ndarray, heading_kf: float) -> None:
-        """Record one stance: mean specific force [m/s^2], mean field [uT] (body), ZUPT-KF heading [rad]."""
+    def add(self, acc_stance: np.ndarray, mag_stance: np.ndarray, heading_kf: float,
+            swing: np.ndarray | None = None) -> None:
+        """Record one stance: mean specific force [m/s^2], mean field [uT] (body), ZUPT-KF heading [rad], and
+        optionally field samples [uT] (body, shape (k, 3)) of the swing that led to it (:meth:`add_swing`)."""
         a = np.asarray(acc_stance, dtype=np.float64).reshape(3)
         m = np.asarray(mag_stance, dtype=np.float64).reshape(3)
         if np.all(np.isfinite(a)) and np.all(np.isfinite(m)) and math.isfinite(heading_kf):
             self._rows.append([*a.tolist(), *m.tolist(), float(heading_kf)])
+            if swing is not None:
+                self.add_swing(swing)
+
+    def add_swing(self, mag: np.ndarray) -> None:
+        """Record field samples [uT] (body, shape (k, 3)) taken while the foot swung between two stances.
+
+        The foot pitches by tens of degrees in a swing, and the field's magnitude does not depend on the
+        attitude: ``|W (m - b)| = |m_n|`` at every sample (the attitude-free ellipsoid constraint of
+        magnetometer calibration) is what tells the hard iron along the stance's vertical from the Earth's
+        vertical field, which level stances cannot (module docstring). No attitude is needed, so the samples
+        come from the low-rate stream whether or not the gyroscope is on.
+        """
+        m = np.asarray(mag, dtype=np.float64).reshape(-1, 3)
+        m = m[np.all(np.isfinite(m), axis=1)]
+        self._swing.extend(m.tolist())
+        del self._swing[:-_SWING_KEEP]
+
+    def swing_samples(self) -> np.ndarray:
+        """The recorded swing field samples [uT], body frame, shape (k, 3)."""
+        return np.asarray(self._swing, dtype=np.float64).reshape(-1, 3)
+
+    @property
+    def n_swing(self) -> int:
+        """Swing field samples recorded so far."""
+        return len(self._swing)
 
     @property
     def n_stances(self) -> int:
@@ -315,7 +406,11 @@ class MagCalibrator:
         return a, y
 
     def fit(self) -> bool:
-        """Fit the calibration from the recorded stances; returns :attr:`ready`."""
+        """Fit the calibration from the recorded stances (and swings); returns :attr:`ready`.
+
+        First the linear stance model (module docstring) by Huber-weighted least squares; then, with
+        ``min_swing`` swing samples or more, :meth:`_fit_joint` refines it with the swings' field magnitudes.
+        """
         rows = np.asarray(self._rows, dtype=np.float64).reshape(-1, 7)
         if rows.shape[0] < self.min_stances:
             return self.ready
@@ -352,11 +447,155 @@ class MagCalibrator:
             self.b = x[3:6]
             self.w = np.eye(3)
         self.residual_std = s
+        self.w_fit = self.w.copy()
+        self.session_tilt = np.eye(3)  # fitted on this session's stances: their tilt is the fit's
+        self.session_on = False
+        self._dips = []
+        self._dip_seen = self._dip_fit_at = 0
         self.ready = bool(np.all(np.isfinite(self.m_n)) and np.linalg.norm(self.m_n[:2]) > 1.0)
-        if self.ready:
-            d = [h - r[6] for h, r in zip(self._headings(rows), rows.tolist())]
-            self.heading_rms = math.sqrt(float(np.mean(np.square(np.angle(np.exp(1j * np.asarray(d)))))))
+        if not self.ready:
+            return False
+        self.heading_rms = self._heading_rms(rows)
+        if self.trusted and len(self._swing) >= self.min_swing:
+            # only where the Earth-field model holds at the stances (a trusted compass): indoors (every gdin
+            # walk, 10-33 deg RMS) the field's magnitude changed by 6-7 uT along a stride and the extra unknowns
+            # chased the disturbances (axis alignment turned by up to 24 deg)
+            self._fit_joint(rows, np.asarray(self._swing, dtype=np.float64).reshape(-1, 3))
+            self.w_fit = self.w.copy()
+            self.heading_rms = self._heading_rms(rows)
         return self.ready
+
+    def _heading_rms(self, rows: np.ndarray) -> float:
+        """RMS [rad] of compass minus ZUPT-KF heading over stance rows ``[acc, mag, heading]``."""
+        d = [self.heading(r[:3], r[3:6]) - r[6] for r in rows]
+        return math.sqrt(float(np.mean(np.square(np.angle(np.exp(1j * np.asarray(d)))))))
+
+    def _fit_joint(self, rows: np.ndarray, swing: np.ndarray, iterations: int = 30) -> None:
+        """Stances and swings together: robust Gauss-Newton from the linear stance fit.
+
+        Unknowns: the field m_n [uT] (navigation frame), c = W b [uT], the soft iron W = I + E (E symmetric,
+        diagonal (e_h, -e_h, 0): the two horizontal axes' scales differ, their mean is the vertical's; fitted
+        whatever ``soft_iron`` says, which is about the linear stance model: the swings make it observable) and the rotation A [rad] from the magnetometer's axes to the axes in which the
+        accelerometer measures the stance tilt. Residuals, each group Huber-weighted with its own robust scale:
+
+        - stance i: ``C_i A (W m_i - c) - m_n`` (3 components), C_i from the accelerometer tilt and the ZUPT-KF
+          heading (as in the linear model);
+        - swing sample k: ``|W m_k - c| - |m_n|`` (the field magnitude does not depend on the attitude).
+
+        Priors (zero mean): c ``hard_iron_std`` on every axis (the swings observe all three; the tighter
+        ``vertical_hard_iron_std`` only stands in for them in the stance-only fit), E ``soft_iron_std``, A
+        ``alignment_std``. What the motion cannot tell apart is not fitted: a common scale of W and m_n (it does
+        not change the heading), and the horizontal axes' mean scale against the vertical one. Stances turn
+        the foot about the vertical and swings pitch it by +-25 deg, hardly roll it; a short pitch arc fits
+        an ellipse with other axis ratios about another centre nearly as well as the circle, so that scale
+        traded against the vertical hard iron: with a trace-free E the fit shrank W along the vertical
+        towards 0 (hard iron 10^4-10^5 uT), with W's (z, z) element fixed and e00, e11 free it settled at
+        horizontal scales 0.80/0.76 and 13 uT of vertical hard iron on a sensor with neither (synthetic mixed
+        day, seeds 6 and 1007: compass errors of 5-7 deg). Sensitivity differences between axes of a few per
+        cent (the synthetic device's 1.04/0.97/1.00) are the horizontal ratio e_h, which the yaw turns observe.
+
+        A holds what turns the compass when the hard iron is right but the tilt is not: the accelerometer's
+        zero-g offset tilts the stance's gravity direction (LSM9DS1 typical +-90 mg, up to 5 deg, datasheet
+        DocID025715 Table 3) and the two sensors' axes are not exactly parallel (the alignment step of the
+        MAG.I.C.AL. calibration that 002 Section I applies before MAGINAV). Without it a right hard iron left
+        the accelerometer's tilt offset in the compass, as a heading error of up to ``tan(dip) * offset``
+        (synthetic mixed day, 0.7 deg offset: up to 1.5 deg); the stance-only fit had absorbed it in a wrong
+        horizontal hard iron. The result is stored as ``w = A W`` and ``b = W^-1 c``, so :meth:`calibrate`
+        gives the field in the accelerometer's axes. Steps that raise the robust cost are halved (up to 6 times);
+        the robust weights are re-estimated in the first ``_FREEZE_WEIGHTS`` iterations, and the iterations stop
+        once a step is below 1e-9 (uT, rad).
+        """
+        n, k = rows.shape[0], swing.shape[0]
+        soft = True
+        p = 9 + (4 if soft else 0)
+        i_c, i_a, i_e = slice(3, 6), slice(6, 9), slice(9, 13)
+        c_i = euler_to_dcm(*(np.array([tilt_from_acc(r[:3]) for r in rows]).T), rows[:, 6])  # (n, 3, 3)
+        m_i = rows[:, 3:6]
+        em_i, em_k = _soft_map(m_i), _soft_map(swing)  # (n, 3, 4), (k, 3, 4): E m as a linear map of e
+        lam = np.zeros(p)
+        lam[i_c] = 1.0 / self.hard_iron_std**2
+        lam[i_a] = 1.0 / self.alignment_std**2
+        if soft:
+            lam[i_e] = 1.0 / self.soft_iron_std**2
+
+        def residuals(mn: np.ndarray, c: np.ndarray, rot: np.ndarray, e: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            w_mat = _soft_matrix(e)
+            rv = (m_i @ w_mat.T - c) @ rot.T  # stance field in the accelerometer's axes
+            sv = swing @ w_mat.T - c
+            ns = np.linalg.norm(sv, axis=1)
+            return np.einsum("nij,nj->ni", c_i, rv) - mn, ns - float(np.linalg.norm(mn)), rv, sv / ns[:, None]
+
+        def cost(r_st: np.ndarray, r_sw: np.ndarray, theta: np.ndarray) -> float:
+            return (float(np.sum(np.repeat(w_st, 3) * r_st.reshape(-1) ** 2)) / s_st**2
+                    + float(np.sum(w_sw * r_sw**2)) / s_sw**2 + float(np.sum(lam * theta**2)))
+
+        def params(c: np.ndarray, rot: np.ndarray, e: np.ndarray) -> np.ndarray:
+            theta = np.zeros(p)
+            theta[i_c] = c
+            theta[i_a] = _rot_vec(rot)
+            if soft:
+                theta[i_e] = e
+            return theta
+
+        mn, c, rot, e = self.m_n.astype(np.float64).copy(), self.w @ self.b, np.eye(3), np.zeros(4)
+        s_lin = self.residual_std
+        for it in range(iterations):
+            r_st, r_sw, rv, sh = residuals(mn, c, rot, e)
+            if it < _FREEZE_WEIGHTS:
+                # robust scales and Huber weights from the current residuals, then kept: re-weighting converges
+                # only linearly (0.7 per iteration: 58 iterations, 0.3 s CPU in a mixed day of 1 s), Gauss-Newton
+                # on fixed weights in a few
+                rn = np.linalg.norm(r_st, axis=1)
+                # the stances' scale may not grow past the linear fit's: with more unknowns the stances fit at
+                # least as well, and a scale re-estimated freely let the fit give the stances up for swings fitted
+                # by a far-off flat ellipsoid (gdin indoor walks: hard iron 10^5-10^6 uT, residuals 50-200 uT)
+                s_st = min(max(1.4826 * float(np.median(rn)) / math.sqrt(3.0) * 1.2, 0.5), s_lin)
+                u = rn / (s_st * math.sqrt(3.0))
+                w_st = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+                s_sw = max(1.4826 * float(np.median(np.abs(r_sw))), 0.1)
+                u = np.abs(r_sw) / s_sw
+                w_sw = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+            if it == iterations - 1:
+                break
+            car = c_i @ rot
+            j_st = np.zeros((n, 3, p))
+            j_st[:, :, 0:3] = -np.eye(3)
+            j_st[:, :, i_c] = -car
+            j_st[:, :, i_a] = -np.einsum("nij,njk->nik", c_i, skew(rv))  # left perturbation of the rotation
+            j_sw = np.zeros((k, p))
+            j_sw[:, 0:3] = -mn / float(np.linalg.norm(mn))
+            j_sw[:, i_c] = -sh
+            if soft:
+                j_st[:, :, i_e] = np.einsum("nij,njk->nik", car, em_i)
+                j_sw[:, i_e] = np.einsum("kj,kjl->kl", sh, em_k)
+            ja = j_st.reshape(3 * n, p)
+            wa = np.repeat(w_st, 3) / s_st**2
+            wb = w_sw / s_sw**2
+            theta = params(c, rot, e)
+            h = (ja * wa[:, None]).T @ ja + (j_sw * wb[:, None]).T @ j_sw + np.diag(lam)
+            g = -(ja * wa[:, None]).T @ r_st.reshape(-1) - (j_sw * wb[:, None]).T @ r_sw - lam * theta
+            d = np.linalg.solve(h, g)
+            if it >= _FREEZE_WEIGHTS and float(np.max(np.abs(d))) < 1e-9:
+                # converged: stopping here, not after a fixed count, makes the result depend smoothly on the data
+                # (the ZUPT-KF headings differ in the last bit between batch cuts; the engine must not)
+                break
+            c0 = cost(r_st, r_sw, theta)
+            for _ in range(7):
+                trial = (mn + d[0:3], c + d[i_c], rotvec_to_dcm(d[i_a]) @ rot, e + d[i_e] if soft else e)
+                tr_st, tr_sw, _, _ = residuals(*trial)
+                if cost(tr_st, tr_sw, params(*trial[1:])) <= c0 * (1.0 + 1e-9):
+                    mn, c, rot, e = trial
+                    break
+                d = d / 2.0
+        w_mat = _soft_matrix(e)
+        if not (np.all(np.isfinite(mn)) and np.all(np.isfinite(c)) and np.all(np.isfinite(w_mat))):
+            return  # keep the linear stance fit
+        self.m_n = mn
+        self.b = np.linalg.solve(w_mat, c)
+        self.w = rot @ w_mat
+        self.residual_std = s_st
+        self.swing_std = s_sw
 
     @property
     def trusted(self) -> bool:
@@ -364,6 +603,76 @@ class MagCalibrator:
         ``max_heading_rms`` (RMS): the compass can stand in for the gyroscope. Unknown agreement (a
         calibration stored before it was measured) counts as agreement."""
         return self.ready and not self.heading_rms > self.max_heading_rms
+
+    def start_session(self) -> None:
+        """This calibration was fitted in an earlier session (a profile's): from now on :meth:`observe_dip`
+        estimates this session's tilt offset (:attr:`session_tilt`) from this session's stances."""
+        self.session_on = True
+        self.session_tilt = np.eye(3)
+        self.w = self.w_fit.copy()
+        self._dips = []
+        self._dip_seen = self._dip_fit_at = 0
+
+    def observe_dip(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
+        """A stance whose field passed the disturbance test, in any mode (no heading needed): the dip invariant.
+
+        The angle between the field and gravity does not depend on the attitude: with the calibration right,
+        ``sin(dip) = m . g_down / |m|`` is the same at every stance. The accelerometer's tilt, however, is
+        offset by its zero-g offset, which changes from one power-on to the next (the synthesiser draws a 10-mg
+        turn-on bias per recording: 0.6 deg), so a calibration whose axis alignment was fitted on another day's
+        stances turns the compass by up to ``tan(dip)`` times the change (mixed day, returning user: 2.3 deg,
+        compass errors of +3 / -5 deg by heading). A tilt offset delta [rad] (body axes) changes the measured
+        ``sin(dip)`` by ``delta . (g_down x m) / |m|``, a direction that turns with the foot's heading, so
+        after turns the stances tell delta (least squares on ``sin(dip) = s0 + delta . k``, robust, with a
+        zero-mean prior of the change of the offset between two power-ons, ``_SESSION_TILT_STD``); :attr:`session_tilt` then rotates the calibrated field back onto
+        the accelerometer's axes. Only for calibrations from an earlier session (:meth:`start_session`).
+        """
+        if not (self.session_on and self.trusted):
+            return  # an untrusted compass (indoors) is only averaged; its dips are the disturbances'
+
+        m = self.w_fit @ (np.asarray(mag_stance, dtype=np.float64).reshape(3) - self.b)
+        f = np.asarray(acc_stance, dtype=np.float64).reshape(3)
+        nm, nf = float(np.linalg.norm(m)), float(np.linalg.norm(f))
+        if not (nm > 0.0 and nf > 0.0 and math.isfinite(nm + nf)):
+            return
+        g = -f / nf  # down, body frame
+        self._dips.append([*(np.cross(g, m) / nm).tolist(), float(m @ g) / nm, *g.tolist()])
+        del self._dips[:-_DIP_STANCES]
+        self._dip_seen += 1
+        if self._dip_seen - self._dip_fit_at >= max(1, len(self._dips) // 10):
+            # refitted when a tenth of the stances is new (a fit of 300 stances costs ~0.4 ms: at every Gait-DR
+            # stance that was as much again as all the rest of Gait-DR's computation)
+            self._dip_fit_at = self._dip_seen
+            self._fit_session_tilt()
+
+    def _fit_session_tilt(self) -> None:
+        """Robust least squares of :meth:`observe_dip`'s model; sets :attr:`session_tilt` and :attr:`w`.
+
+        Only the two tilt components (about the axes perpendicular to the stances' mean vertical) are fitted:
+        the third, about the vertical, would turn the heading and does not change the dip (left free, it took
+        noise for a 4.9-deg heading offset; synthetic mixed day, seed 7).
+        """
+        d = np.asarray(self._dips, dtype=np.float64).reshape(-1, 7)
+        g = d[:, 4:7].mean(axis=0)
+        g /= np.linalg.norm(g)
+        u1 = np.cross(g, [1.0, 0.0, 0.0] if abs(g[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u1 /= np.linalg.norm(u1)
+        u2 = np.cross(g, u1)
+        a = np.c_[np.ones(d.shape[0]), d[:, :3] @ u1, d[:, :3] @ u2]
+        y = d[:, 3]
+        lam = np.array([1e-6, 1.0 / _SESSION_TILT_STD**2, 1.0 / _SESSION_TILT_STD**2])
+        wts = np.ones(d.shape[0])
+        s = math.sin(math.radians(1.0))
+        x = np.zeros(3)
+        for _ in range(5):
+            wr = wts / s**2
+            x = np.linalg.solve((a * wr[:, None]).T @ a + np.diag(lam), (a * wr[:, None]).T @ y)
+            r = np.abs(y - a @ x)
+            s = max(1.4826 * float(np.median(r)), _DIP_NOISE)
+            u = r / s
+            wts = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
+        self.session_tilt = rotvec_to_dcm(x[1] * u1 + x[2] * u2)
+        self.w = self.session_tilt @ self.w_fit
 
     def calibrate(self, mag: np.ndarray) -> np.ndarray:
         """Calibrated field W (m - b) [uT], body frame."""
@@ -435,29 +744,18 @@ class MagCalibrator:
         psi = math.atan2(float(self.m_n[1]), float(self.m_n[0])) - alpha
         return math.atan2(math.sin(psi), math.cos(psi))
 
-    def _headings(self, rows: np.ndarray) -> list[float]:
-        """:meth:`heading` of every stance row ``[acc(3), mag(3), ...]`` (same operations, bit for bit, with the
-        calibration read once instead of once per stance)."""
-        az = math.atan2(float(self.m_n[1]), float(self.m_n[0]))
-        b = self.b.tolist()
-        w0, w1, w2 = self.w.tolist()
-        out = []
-        for r in rows.tolist():
-            d = [r[3] - b[0], r[4] - b[1], r[5] - b[2]]
-            m = [w0[0] * d[0] + w0[1] * d[1] + w0[2] * d[2],
-                 w1[0] * d[0] + w1[1] * d[1] + w1[2] * d[2],
-                 w2[0] * d[0] + w2[1] * d[1] + w2[2] * d[2]]
-            psi = az - _level_heading(r, m)
-            out.append(math.atan2(math.sin(psi), math.cos(psi)))
-        return out
-
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
         return {"params": [self.soft_iron, self.min_stances, self.min_heading_spread, self.mag_tol, self.dip_tol,
-                           self.soft_iron_std, self.hard_iron_std, self.vertical_hard_iron_std, self.max_heading_rms],
+                           self.soft_iron_std, self.hard_iron_std, self.vertical_hard_iron_std, self.max_heading_rms,
+                           self.min_swing, self.alignment_std],
                 "rows": np.asarray(self._rows, dtype=np.float64).reshape(-1, 7), "m_n": self.m_n.copy(),
+                "swing": np.asarray(self._swing, dtype=np.float64).reshape(-1, 3),
                 "b": self.b.copy(), "w": self.w.copy(), "residual_std": self.residual_std, "ready": self.ready,
-                "heading_rms": self.heading_rms}
+                "heading_rms": self.heading_rms, "swing_std": self.swing_std, "w_fit": self.w_fit.copy(),
+                "session_tilt": self.session_tilt.copy(), "session_on": self.session_on,
+                "dips": np.asarray(self._dips, dtype=np.float64).reshape(-1, 7),
+                "dip_counts": [self._dip_seen, self._dip_fit_at]}
 
     @classmethod
     def from_state(cls, d: dict) -> MagCalibrator:
@@ -470,11 +768,20 @@ class MagCalibrator:
             obj.hard_iron_std = obj.vertical_hard_iron_std = math.inf
         if len(p) > 8:
             obj.max_heading_rms = float(p[8])
+        if len(p) > 10:
+            obj.min_swing, obj.alignment_std = int(p[9]), float(p[10])
+        obj._swing = np.asarray(d.get("swing", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3).tolist()
+        obj.swing_std = float(d.get("swing_std", math.nan))
+        obj.session_tilt = np.asarray(d.get("session_tilt", np.eye(3)), dtype=np.float64).reshape(3, 3).copy()
+        obj.session_on = bool(d.get("session_on", False))
+        obj._dips = np.asarray(d.get("dips", np.zeros((0, 7))), dtype=np.float64).reshape(-1, 7).tolist()
+        obj._dip_seen, obj._dip_fit_at = (int(x) for x in d.get("dip_counts", [len(obj._dips), len(obj._dips)]))
         obj.heading_rms = float(d.get("heading_rms", math.nan))  # unknown in states stored before it existed
         obj._rows = np.asarray(d["rows"], dtype=np.float64).reshape(-1, 7).tolist()
         obj.m_n = np.asarray(d["m_n"], dtype=np.float64).copy()
         obj.b = np.asarray(d["b"], dtype=np.float64).copy()
         obj.w = np.asarray(d["w"], dtype=np.float64).reshape(3, 3).copy()
+        obj.w_fit = np.asarray(d.get("w_fit", obj.w), dtype=np.float64).reshape(3, 3).copy()
         obj.residual_std = float(d["residual_std"])
         obj.ready = bool(d["ready"])
         return obj

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from clients.recording import Recording
-from clients.synth import LSM9DS1, Scenario, Segment, SensorErrors, scenario_names, synthesize
+from clients.synth import EARTH_FIELD_UT, LSM9DS1, LSM9DS1_SHOE, Scenario, Segment, SensorErrors, scenario_names, synthesize
 
 G = 9.80665
 ZERO_ERRORS = SensorErrors(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -44,6 +46,24 @@ def test_deterministic_from_seed(seed):
     np.testing.assert_array_equal(a.batch.gyr, b.batch.gyr)
     np.testing.assert_array_equal(a.truth.positions, b.truth.positions)
     assert not np.array_equal(a.batch.acc[: len(c.batch)][:1000], c.batch.acc[:1000])
+
+
+def test_magnetometer_iron_is_the_devices():
+    """Hard/soft iron: m = S m_b + b exactly, the same on every day (not drawn from the seed), and nothing else
+    of the recording changes (the default device has none, so existing scenarios are bit for bit as before)."""
+    clean = dataclasses.replace(ZERO_ERRORS)
+    iron = dataclasses.replace(ZERO_ERRORS, mag_hard_iron_ut=LSM9DS1_SHOE.mag_hard_iron_ut,
+                               mag_soft_iron=LSM9DS1_SHOE.mag_soft_iron)
+    assert iron.has_iron and not clean.has_iron and not LSM9DS1.has_iron and LSM9DS1_SHOE.has_iron
+    a, b = synthesize("walk", seed=3, errors=clean), synthesize("walk", seed=3, errors=iron)
+    s = np.asarray(LSM9DS1_SHOE.mag_soft_iron).reshape(3, 3)
+    np.testing.assert_allclose(b.batch.mag, a.batch.mag @ s.T + np.asarray(LSM9DS1_SHOE.mag_hard_iron_ut), atol=1e-12)
+    np.testing.assert_array_equal(a.batch.acc, b.batch.acc)
+    np.testing.assert_array_equal(a.batch.gyr, b.batch.gyr)
+    np.testing.assert_allclose(np.linalg.norm(a.batch.mag, axis=1), np.linalg.norm(EARTH_FIELD_UT), rtol=1e-12)
+    c, d = synthesize("walk", seed=4, errors=LSM9DS1_SHOE), synthesize("walk", seed=4)
+    np.testing.assert_array_equal(c.batch.acc, d.batch.acc)  # same random draws with and without iron
+    np.testing.assert_array_equal(c.truth.extra["mag_hard_iron_ut"], LSM9DS1_SHOE.mag_hard_iron_ut)
 
 
 def test_stance_is_at_rest():
