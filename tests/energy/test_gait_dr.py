@@ -213,7 +213,7 @@ def test_compass_from_another_place_is_replaced_by_the_sessions_own_fit() -> Non
     assert gp.mag.field_reference()[0] == pytest.approx(float(np.linalg.norm(ELSEWHERE)), rel=0.03)
     acc, mag = _field_stance(rng, -2.0, place=ELSEWHERE)
     assert gp.mag.heading(acc, mag) == pytest.approx(-2.0, abs=math.radians(2.0))
-    assert gp.calibration_state()["compass"]["rows"].shape[0] == k + 1  # what the profile hands on next
+    assert gp.compass_state()["rows"].shape[0] == k + 1  # what the profile hands on next (Engine.profile_dict)
 
 
 def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() -> None:

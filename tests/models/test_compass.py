@@ -413,3 +413,53 @@ def test_a_loaded_calibration_re_estimates_this_sessions_tilt_offset() -> None:
     assert np.array_equal(back.w, loaded.w) and back.session_on
     fitted.observe_dip(*_stance(rng, 0.3, B_SHOE, np.linalg.inv(S_SHOE)))  # its own session: nothing to estimate
     assert np.array_equal(fitted.session_tilt, np.eye(3))
+
+
+def test_a_few_disturbed_stances_do_not_untrust_a_compass_a_spread_everywhere_does() -> None:
+    """Trust is the robust scale of the disagreement with the ZUPT-KF (and the RMS within twice the limit):
+    two steel stances among 18 that passed the gate took the RMS of a 15-stance fit over 5 deg; indoors every
+    stance disagrees (gdin: robust 5.2-23.6 deg)."""
+    rng = np.random.default_rng(31)
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, 18):
+        cal.add(*_stance(rng, yaw, np.zeros(3), np.eye(3)), float(yaw))
+    for yaw in (0.4, 2.0):  # steel: a local field the disturbance gate may not see
+        acc, mag = _stance(rng, yaw, np.zeros(3), np.eye(3))
+        cal.add(acc, mag + np.array([9.0, -7.0, 0.0]), yaw)
+    assert cal.fit()
+    assert cal.heading_rms > cal.max_heading_rms  # the plain RMS alone would untrust it
+    assert cal.heading_scale < cal.max_heading_rms and cal.trusted
+    back = MagCalibrator.from_state(loads(dumps(cal.get_state())))
+    assert back.trusted and back.heading_scale == cal.heading_scale
+
+
+def test_a_trusted_calibration_is_not_replaced_by_an_untrusted_refit() -> None:
+    rng = np.random.default_rng(32)
+    cal = _calibrated(rng, n=16)
+    assert cal.trusted
+    b0 = cal.b.copy()
+    for yaw in rng.uniform(-math.pi, math.pi, 12):  # a building's local fields at every new stance
+        acc, mag = _stance(rng, yaw, np.zeros(3), np.eye(3))
+        cal.add(acc, mag + rng.normal(scale=25.0, size=3) * np.array([1.0, 1.0, 0.0]), float(yaw))
+    trial = MagCalibrator.from_state(cal.get_state())
+    trial.fit()
+    assert not trial.trusted  # fit() would have taken it
+    assert cal.refit() and cal.trusted and np.array_equal(cal.b, b0)  # refit() keeps the one in use
+    assert cal.n_stances == 28  # the stances stay recorded
+
+
+def test_stances_are_bounded_to_the_newest_and_refits_count_all() -> None:
+    from models.compass import _ROWS_KEEP
+
+    rng = np.random.default_rng(33)
+    cal = MagCalibrator()
+    for yaw in rng.uniform(-math.pi, math.pi, _ROWS_KEEP + 25):
+        cal.add(*_stance(rng, yaw, np.zeros(3), np.eye(3)), float(yaw))
+    assert cal.n_stances == _ROWS_KEEP and cal.n_added == _ROWS_KEEP + 25
+    state = cal.get_state()
+    back = MagCalibrator.from_state(loads(dumps(state)))
+    assert back.n_added == _ROWS_KEEP + 25
+    del state["added"]
+    state["rows"] = np.vstack([state["rows"], state["rows"][:40]])  # a state stored before the bound
+    old = MagCalibrator.from_state(state)
+    assert old.n_stances == _ROWS_KEEP and old.n_added == _ROWS_KEEP + 40
