@@ -21,7 +21,7 @@ from energy import codec
 from energy.config import EngineConfig
 from energy.gait_dr import PAIR_TOL_S, GaitPipeline
 from energy.profile import BehaviourCalibration, Profile
-from energy.scheduler import Scheduler
+from energy.scheduler import SLEEP_AFTER_S, Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.attitude import align_at_rest
 from models.batch import BatchError, SensorBatch
@@ -39,6 +39,7 @@ _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
 _STATE_VERSION = 2
 _GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
 _GYRO_OFF_S = 0.075  # ... so does a shorter one with accelerometer rows inside it (below the 80-ms turn-on time)
+_GYRO_OFF_NS = int(_GYRO_OFF_S * 1e9)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
 _STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
@@ -336,6 +337,7 @@ class Engine:
         # a segment the device started on its own (wake-on-motion) from a still foot: its samples before the
         # first stance are integrated back from that stance to place the first, partial stride
         self._moved = False  # Gait-DR placed a step since the last ZUPT-KF segment ended
+        self._step_s = -math.inf  # time of Gait-DR's latest step [s]
         self._lead: tuple | None = None  # collected samples (t, acc, gyr) of such a segment before its stance
         self._lead_d: np.ndarray | None = None  # their displacement, segment start -> still foot [m NED]
         self._rest_p = np.zeros(3)  # the ZUPT-KF's position at a segment's still foot (its frame) [m NED]
@@ -380,6 +382,12 @@ class Engine:
         """
         batch.validate()
         t_acc, acc = batch.acc_t_ns, batch.acc
+        # a gyroscope the device woke by itself (wake-on-motion) and still runs at the batch's end: the scheduler
+        # leaves it to the device while the labels it decides on still say "stand" (Scheduler.gyro_wanted)
+        g_t = batch.gyr_t_ns
+        self._sched.device_gyro_awake = bool(
+            self._sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
+            and int(g_t[-1]) >= int(t_acc[-1]) - _GYRO_OFF_NS)
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")
         self._gyr.push(*batch.stream("gyr"))
@@ -494,9 +502,11 @@ class Engine:
                 self._seg_t = t_b
                 self._await_rest = nav.initialised  # a restart waits for the foot to be still
                 # a segment that starts while the person is (still) known to stand, with no step since the last
-                # segment: the device woke the gyroscope on the first motion (wake-on-motion); the host turns it
-                # on only for a behaviour it has recognised, i.e. mid-walk, where Gait-DR places the first step
-                own = nav.initialised and not self._moved and self._labels.at(t_b) == "stand"
+                # segment or none for longer than the device's inactivity time: the device woke the gyroscope on
+                # the first motion (wake-on-motion); the host turns it on only for a behaviour it has recognised,
+                # i.e. mid-walk, where Gait-DR places the first step
+                own = (nav.initialised and self._labels.at(t_b) == "stand"
+                       and (not self._moved or t_b - self._step_s > SLEEP_AFTER_S))
                 empty = np.zeros((0, 3))
                 self._lead = (np.zeros(0), empty, empty) if own else None
                 self._lead_d = None
@@ -824,6 +834,8 @@ class Engine:
             return []
         steps = gait.reckon(before_s, self._labels.at)
         self._moved = self._moved or bool(steps)
+        if steps:
+            self._step_s = float(steps[-1][0].t_s)
         for step, e, source in steps:
             self._apply_labels(step.t_s, events)
             t_ns = self._ns(step.t_s)
@@ -931,6 +943,7 @@ class Engine:
             "pre_rot": self._pre_rot,
             "pre_t": self._pre_t,
             "moved": self._moved,
+            "step_s": self._step_s,
             "lead": None if self._lead is None else list(self._lead),
             "lead_d": self._lead_d,
             "rest_p": self._rest_p,
@@ -977,6 +990,7 @@ class Engine:
         obj._pre_rot = np.asarray(d.get("pre_rot", np.zeros(3)), dtype=float).reshape(3)  # absent in older states
         obj._pre_t = float(d.get("pre_t", math.nan))
         obj._moved = bool(d.get("moved", False))  # absent in states stored before wake-on-motion
+        obj._step_s = float(d.get("step_s", -math.inf))  # absent in states stored before stands within Gait-DR woke it
         lead = d.get("lead")
         obj._lead = None if lead is None else (np.asarray(lead[0], dtype=float), np.asarray(lead[1], dtype=float).reshape(-1, 3),
                                                np.asarray(lead[2], dtype=float).reshape(-1, 3))

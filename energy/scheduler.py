@@ -74,6 +74,7 @@ class Scheduler:
         self.assist_active = False  # gyroscope carries the heading through a magnetic disturbance
         self.failed: set[str] = set()  # behaviours whose examination failed in this session
         self.zupt_aligned = False  # the ZUPT-KF has levelled on a still foot once in this session
+        self.device_gyro_awake = False  # the device woke the gyroscope itself (wake-on-motion) and it still runs
         self.step_t_s = 0.0  # time of the latest Gait-DR step [s]
         self.exam_misses = 0  # strides of the running examination outside 3 sigma_d so far
         self.exam_strides = 0  # strides of the running examination so far
@@ -300,7 +301,11 @@ class Scheduler:
         if self.mode == "zupt":
             return True
         if self.mode == "auto" and self.behaviour == "stand" and self._gait_dr_can_start():
-            return False
+            # the gyroscope is left to the device (wake-on-motion) while a motion may follow that Gait-DR has no
+            # model for, and while the device has it awake: "stand" is the label of data up to a second and a
+            # half old, and a gyroscope woken by a foot that already walks was switched off (gdin
+            # leave-one-out exp43: Gait-DR placed 9 running strides with one held heading, stride error 10.9 m)
+            return self._unmodelled_motion() or self.device_gyro_awake
         if not self.nav_ready:
             return True
         if self.working == "zupt" or (self.mode == "auto" and not self.compass_ready):
@@ -334,6 +339,11 @@ class Scheduler:
         return self.nav_ready or (self.zupt_aligned and any(self._resumable(b) and b not in self.deviation_pending
                                                             for b in _MOVING))
 
+    def _unmodelled_motion(self) -> bool:
+        """A moving behaviour Gait-DR has no model for (never calibrated, or its examination failed in this
+        session): standing, the motion that follows may be it, and its first strides need the ZUPT-KF."""
+        return any(not self._resumable(b) for b in _MOVING)
+
     def idle(self) -> bool:
         """Standing with the gyroscope off (auto mode)."""
         return self.mode == "auto" and self.behaviour == "stand" and not self.gyro_wanted()
@@ -343,7 +353,9 @@ class Scheduler:
         and each answer may switch the gyroscope off) or before the navigation is ready (the start of the walk
         must reach the scheduler quickly); long in auto mode once the gyroscope is off and Gait-DR can navigate
         (fewer radio wake-ups and fewer per-batch computations; nothing is waiting for the answer)."""
-        if self.mode == "auto" and not gyro_on and self._gait_dr_can_start() and not self._exam_near():
+        # a stand whose gyroscope is wanted only for a motion Gait-DR has no model for: the device wakes it itself
+        for_unmodelled = self.behaviour == "stand" and self._unmodelled_motion()
+        if self.mode == "auto" and (not gyro_on or for_unmodelled) and self._gait_dr_can_start() and not self._exam_near():
             return LOW_POWER_BATCH_S
         return BATCH_S
 
@@ -423,6 +435,7 @@ class Scheduler:
             "compass_ready": self.compass_ready,
             "assist_active": self.assist_active,
             "zupt_aligned": self.zupt_aligned,
+            "device_gyro_awake": self.device_gyro_awake,
             "step_t_s": self.step_t_s,
             "exam_misses": self.exam_misses,
             "exam_strides": self.exam_strides,
@@ -441,6 +454,7 @@ class Scheduler:
                     "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
         obj.zupt_aligned = bool(d.get("zupt_aligned", False))  # absent in states stored before it existed
+        obj.device_gyro_awake = bool(d.get("device_gyro_awake", False))
         obj.step_t_s = float(d.get("step_t_s", 0.0))
         obj.exam_misses = int(d.get("exam_misses", 0))
         obj.exam_strides = int(d.get("exam_strides", 0))

@@ -35,12 +35,44 @@ def aligned(mode: str, config: EngineConfig, profile: Profile) -> Scheduler:
 # ---------------------------------------------------------------- Table 1: gyroscope strategy
 @pytest.mark.parametrize("working", ["zupt", "pdr"])
 def test_table1_static_behaviour_turns_gyro_off(working: str) -> None:
-    s = aligned("auto", CFG, Profile())
+    s = aligned("auto", CFG, calibrated("walk", "run"))
     s.working = working
     s.on_behaviour("stand", 1.0, 1)
     assert not s.gyro_wanted()
     cfg = s.sensor_config()
     assert not cfg.gyro_on and cfg.gyr_rate_hz == 0 and cfg.acc_rate_hz == CFG.stand_rate_hz
+
+
+@pytest.mark.parametrize("profile", [Profile(), calibrated("walk")])
+def test_table1_standing_while_a_moving_behaviour_has_no_model_leaves_the_gyro_to_the_device(profile) -> None:
+    """Off, but woken by the device on the first motion: the motion that follows may be one Gait-DR has no
+    model for (the mixed day's first run after a stand: five strides on the generic prior, 2.5 m short)."""
+    from energy.scheduler import LOW_POWER_BATCH_S
+
+    s = aligned("auto", CFG, profile)
+    s.zupt_aligned = True
+    s.deviation_pending.clear()
+    s.on_behaviour("stand", 1.0, 1)
+    cfg = s.sensor_config()
+    assert not cfg.gyro_on and cfg.gyro_wake_on_motion and cfg.mag_follows_gyro and not s.idle()
+    assert cfg.batch_s == LOW_POWER_BATCH_S  # the device needs no answer to wake it
+    s.profile = calibrated("walk", "run")
+    assert s.idle()
+
+
+def test_standing_with_a_gyroscope_the_device_woke_keeps_it_until_the_device_puts_it_down() -> None:
+    """The "stand" label lags the data by up to 1.5 s: a gyroscope the device woke for a foot that already walks
+    stays with the device (wake-on-motion) instead of being switched off (gdin exp43, returning: 10.9 m)."""
+    s = aligned("auto", CFG, calibrated("walk", "run"))
+    s.zupt_aligned = True
+    s.deviation_pending.clear()
+    s.on_behaviour("stand", 1.0, 1)
+    assert s.idle()
+    s.device_gyro_awake = True
+    assert not s.idle() and s.sensor_config().gyro_wake_on_motion
+    assert Scheduler.from_state(s.get_state()).device_gyro_awake
+    s.device_gyro_awake = False
+    assert s.idle()
 
 
 def test_table1_zupt_mode_keeps_gyro_on_while_moving() -> None:
@@ -165,7 +197,7 @@ def test_state_round_trip() -> None:
 
 
 def test_gyro_stays_on_until_the_zupt_kf_has_aligned() -> None:
-    s = Scheduler("auto", CFG, Profile())
+    s = Scheduler("auto", CFG, calibrated("walk", "run"))
     s.on_behaviour("stand", 1.0, 1)
     assert s.gyro_wanted() and s.sensor_config().acc_rate_hz == CFG.full_rate_hz
     s.nav_ready = True
@@ -232,7 +264,7 @@ def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() ->
     from energy.scheduler import BATCH_S, LOW_POWER_BATCH_S
 
     assert LOW_POWER_BATCH_S > BATCH_S
-    s = Scheduler("auto", CFG, calibrated("walk"))
+    s = Scheduler("auto", CFG, calibrated("walk", "run"))
     assert s.sensor_config().batch_s == BATCH_S  # not aligned yet: the start of the walk must be heard at once
     s.nav_ready = True
     s.on_behaviour("stand", 1.0, 1)
@@ -249,7 +281,7 @@ def test_long_uploads_only_with_the_gyroscope_off_once_gait_dr_can_navigate() ->
 
 
 def test_standing_at_session_start_gyro_sleeps_once_aligned_only_for_a_returning_user() -> None:
-    for profile, sleeps in ((calibrated("walk"), True), (Profile(), False)):
+    for profile, sleeps in ((calibrated("walk", "run"), True), (Profile(), False)):
         s = Scheduler("auto", CFG, profile)
         s.deviation_pending.clear()  # its stored heading deviation confirmed (see the test below)
         assert s.behaviour == "stand" and s.gyro_wanted()  # the ZUPT-KF must level on the still foot first
@@ -375,9 +407,9 @@ def test_deviation_state_round_trip() -> None:
 def test_a_session_start_on_an_unconfirmed_deviation_leaves_the_first_strides_to_the_zupt_kf() -> None:
     """Gait-DR would place the first strides on the stored deviation until the examination's verdict: with the
     gyroscope woken on the first motion they are the ZUPT-KF's, and they examine it."""
-    s = Scheduler("auto", CFG, calibrated("walk"))
+    s = Scheduler("auto", CFG, calibrated("walk", "run"))
     s.zupt_aligned = True
-    assert s.deviation_pending == {"walk"}
+    assert s.deviation_pending == {"walk", "run"}
     assert s.gyro_wanted() and s.wake_on_motion() and not s.idle()
     cfg = s.sensor_config()
     assert cfg.gyro_wake_on_motion and not cfg.gyro_on and cfg.acc_rate_hz == CFG.stand_rate_hz

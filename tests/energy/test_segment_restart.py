@@ -62,3 +62,18 @@ def test_the_first_stride_after_the_wake_is_placed(exp37) -> None:
     # the heel-off before the gyroscope delivers is not seen (about 0.1 s): the first stride comes out short
     assert d_est[0] > 0.6 * d_true[0], (d_est, d_true)
     assert abs(d_est.sum() - d_true.sum()) < 0.25 * d_true.sum(), (d_est, d_true)
+
+
+def test_a_returning_user_keeps_the_gyroscope_the_device_woke_while_the_labels_still_say_stand(gdin_dir) -> None:
+    """gdin exp43 (250 Hz, no magnetometer) as a returning user with walk and run calibrated: the device wakes
+    the gyroscope at the first step, but the behaviour label of the batch still says "stand" (it lags the data by
+    up to 1.5 s) and the ZUPT-KF had just levelled, so the scheduler sent "idle": the gyroscope went off for a
+    second, and Gait-DR placed 9 running strides on one held heading (stride error 10.9 m; 1.35 m as a new
+    user). The gyroscope the device woke now stays with the device."""
+    entry = next(e for e in gdin_entries(gdin_dir) if e.exp == 43)
+    rec = load_gdin_entry(entry)
+    new = evaluate_gdin_recording(rec, run_engine, "auto")
+    profile = new.plot["run"].profile
+    assert {b for b, c in profile["behaviours"].items() if c.get("calibrated")} == {"walk", "run"}
+    back = evaluate_gdin_recording(rec, run_engine, "auto", profile=profile)
+    assert back.row["stride_mean_err_m"] <= 1.2 * new.row["stride_mean_err_m"], (back.row, new.row)
