@@ -89,6 +89,16 @@ def _index(p: Path, cols: list[str], names: tuple[str, ...]) -> list[int]:
     return [cols.index(n) for n in names]
 
 
+def _scaled(p: Path, column: str, x: np.ndarray, plausible: tuple[float, float], unit: str, name: str,
+            factor: float) -> np.ndarray:
+    """``x`` in the header's ``unit`` converted by ``factor``, after checking that the median norm lies in the
+    ``plausible`` range for that unit (a file whose values do not fit its header is refused, not guessed)."""
+    med = float(np.median(np.linalg.norm(x, axis=1)))
+    if not plausible[0] <= med <= plausible[1]:
+        raise ImporterError(p, column, f"header says {unit} but median {name} = {med:.3g}; units unclear, refusing to guess")
+    return x * factor
+
+
 def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
     """Read a SensorConnect CSV (format A or B) into SI units.
 
@@ -161,22 +171,10 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
     notes += n1 + n2 + n3
     assert acc is not None and gyr is not None
     if fmt == "A":
-        med_a = float(np.median(np.linalg.norm(acc, axis=1)))
-        if not 0.5 <= med_a <= 2.5:
-            raise ImporterError(
-                p, _A_ACC[0],
-                f"header says g (scaledAccel) but median |a| = {med_a:.3g}; units unclear, refusing to guess",
-            )
-        acc = acc * G0
+        acc = _scaled(p, _A_ACC[0], acc, (0.5, 2.5), "g (scaledAccel)", "|a|", G0)
         units["acc"] = f"g -> m/s^2 (x {G0})"
         if mag is not None:
-            med_m = float(np.median(np.linalg.norm(mag, axis=1)))
-            if not 0.05 <= med_m <= 2.0:
-                raise ImporterError(
-                    p, _A_MAG[0],
-                    f"header says gauss (scaledMag) but median |m| = {med_m:.3g}; units unclear, refusing to guess",
-                )
-            mag = mag * GAUSS_TO_UT
+            mag = _scaled(p, _A_MAG[0], mag, (0.05, 2.0), "gauss (scaledMag)", "|m|", GAUSS_TO_UT)
             units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t, mag)
     meta = RecordingMeta(
