@@ -95,7 +95,8 @@ def _scaled(p: Path, column: str, x: np.ndarray, plausible: tuple[float, float],
     ``plausible`` range for that unit (a file whose values do not fit its header is refused, not guessed)."""
     med = float(np.median(np.linalg.norm(x, axis=1)))
     if not plausible[0] <= med <= plausible[1]:
-        raise ImporterError(p, column, f"header says {unit} but median {name} = {med:.3g}; units unclear, refusing to guess")
+        raise ImporterError(p, column,
+                            f"header says {unit} but median {name} = {med:.3g}; units unclear, refusing to guess")
     return x * factor
 
 
