@@ -613,6 +613,12 @@ class MagCalibrator:
             h = (ja * wa[:, None]).T @ ja + (j_sw * wb[:, None]).T @ j_sw + np.diag(lam)
             g = -(ja * wa[:, None]).T @ r_st.reshape(-1) - (j_sw * wb[:, None]).T @ r_sw - lam * theta
             d = np.linalg.solve(h, g)
+            if it == _FREEZE_WEIGHTS and self._hard_iron_sigma(h, mn) > 1.5 * self._hard_iron_sigma_max(mn):
+                # far from determined once the robust weights are settled: keep the linear stance fit without the
+                # remaining iterations (the mixed day's rejected fits ran 25-28 iterations, 6-9 ms each, half the
+                # compass's computation of a day). Not at the linear fit already: with a sensor's real hard iron
+                # the linear fit is far off and its sigma says little (a 44-uT shoe sensor: rejected there)
+                return
             if it >= _FREEZE_WEIGHTS and float(np.max(np.abs(d))) < 1e-9:
                 # converged: stopping here, not after a fixed count, makes the result depend smoothly on the data
                 # (the ZUPT-KF headings differ in the last bit between batch cuts; the engine must not)
@@ -633,14 +639,23 @@ class MagCalibrator:
         # (the mixed day's first minute: 0 and 90 deg) the swings' short pitch arcs left it at 5-9 uT and the
         # fit settled on 10-150 uT of hard iron on a sensor with none, trusted (0.3 deg RMS on its own stances,
         # 17 deg off on a new heading); the first stances towards 160-180 deg brought it under 1 uT
-        cov_c = np.linalg.inv(h)[i_c, i_c][:2, :2]
-        if math.sqrt(float(np.linalg.eigvalsh(cov_c).max())) > math.hypot(mn[0], mn[1]) * math.tan(self.max_heading_rms):
+        if self._hard_iron_sigma(h, mn) > self._hard_iron_sigma_max(mn):
             return  # keep the linear stance fit
         self.m_n = mn
         self.b = np.linalg.solve(w_mat, c)
         self.w = rot @ w_mat
         self.residual_std = s_st
         self.swing_std = s_sw
+
+    @staticmethod
+    def _hard_iron_sigma(h: np.ndarray, mn: np.ndarray) -> float:
+        """Largest posterior standard deviation [uT] of the horizontal hard iron (``c`` x, y) from the joint fit's
+        normal matrix ``h`` (its inverse is the parameters' covariance)."""
+        return math.sqrt(float(np.linalg.eigvalsh(np.linalg.inv(h)[3:5, 3:5]).max()))
+
+    def _hard_iron_sigma_max(self, mn: np.ndarray) -> float:
+        """The horizontal hard iron's standard deviation [uT] that turns the compass by ``max_heading_rms``."""
+        return math.hypot(float(mn[0]), float(mn[1])) * math.tan(self.max_heading_rms)
 
     @property
     def trusted(self) -> bool:
