@@ -194,6 +194,18 @@ def test_duty_factor_is_a_fraction_of_time_in_mixed_rate_windows(demo, factor):
     assert checked >= 30
 
 
+def test_run_needs_vigour():
+    """A low duty factor alone is not running: gentle first steps (less than a stride visible) read one too."""
+    from models.behaviour import RUN_MIN_GAIT_STD, WindowFeatures
+
+    def f(gait_std: float) -> WindowFeatures:
+        return WindowFeatures(dc=10.0, variance=gait_std**2, energy=gait_std**2, still_std=gait_std,
+                              stance_fraction=0.2, stride_period_s=0.75, periodicity=0.8, gait_s=3.0, gait_std=gait_std)
+
+    assert classify_window(f(RUN_MIN_GAIT_STD + 1.0)) == "run"
+    assert classify_window(f(RUN_MIN_GAIT_STD - 1.0)) == "walk"
+
+
 def test_labels_are_known():
     t = np.arange(2000) / 200.0
     a = np.tile([0.0, 0.0, -9.81], (2000, 1))
