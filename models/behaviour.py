@@ -16,17 +16,20 @@ acceleration. For a foot-mounted sensor we compute, over a sliding window of the
 - stride period [s] and periodicity: the first dominant peak of the normalised autocorrelation of ``|a|``
   (on a uniform grid of the lower rate when a window mixes rates).
 
-Running needs vigour: push-off, flight and landing spread |a| over the gait by at least ``RUN_MIN_GAIT_STD``,
-which keeps gentle first steps and shuffles (whose duty factor reads low while less than a stride is visible)
-out of run.
+A stop (the foot at rest longer than ``MAX_STANCE_S``) ends a gait: the duty factor and the gait's |a| spread
+are those of the gait since the most recent stop (no duty factor until it lasts ``MIN_GAIT_S``, as after a start
+from standing), so the strides before the stop (say, running) do not pull the new gait (say, walking) towards
+their label. Running needs vigour: push-off, flight and landing spread |a| over the gait by at least
+``RUN_MIN_GAIT_STD``, which keeps gentle first steps and shuffles (whose duty factor reads low while less than a
+stride is visible) out of run.
 
 All of these are moments or fractions of time, so they estimate the same quantities at 200 Hz and after
 de-sampling to 25-50 Hz. Measured on 12 synthetic days (``tests/models/test_behaviour.py``): every change of
-behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants below) turns the features
-into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF`` decisions before it replaces
-the current one, so one odd step does not flip the behaviour (and one odd decision in a change does not
-restart the count). Decisions are taken on a fixed time grid (every ``HOP_S`` from
-the first sample), which makes the recogniser chunk-invariant.
+behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants
+below) turns the features into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
+decisions before it replaces the current one, so one odd step does not flip the behaviour (and one odd decision
+in a change does not restart the count). Decisions are taken on a fixed time grid (every ``HOP_S`` from the
+first sample), which makes the recogniser chunk-invariant.
 """
 
 from __future__ import annotations
@@ -78,9 +81,9 @@ RUN_MIN_GAIT_STD = 5.0  # m/s^2
 OTHER_MAX_STD = 4.0  # m/s^2
 OTHER_MAX_PERIODICITY = 0.15  # normalised autocorrelation peak
 OTHER_MIN_STANCE = 0.75
-MAX_STANCE_S = 1.0  # s, a rest longer than this is standing, not the stance phase of a stride
+MAX_STANCE_S = 1.0  # s, a rest longer than this is standing (a stop), not the stance phase of a stride
 MAX_SAMPLE_DT_S = 0.1  # s, a sample stands for at most this much time (gaps in the stream are not stance)
-MIN_GAIT_S = 0.5  # s, less gait than this in the stance window (a start): no duty factor yet (reads 1.0)
+MIN_GAIT_S = 0.5  # s, less gait than this since the start or the last stop: no duty factor yet (reads 1.0)
 # A stride periodicity needs more than one stride in the window: while the gait part of the window (rests longer
 # than MAX_STANCE_S left out) is shorter than this, i.e. in the first stride after a rest, the periodicity test
 # of "other" waits (a start of walking is not "other" because only one stride is visible yet).
@@ -106,13 +109,15 @@ class WindowFeatures:
         Standard deviation of ``|a|`` over the most recent ``STILL_WINDOW_S`` [m/s^2].
     stance_fraction : float
         Recency-weighted fraction of the gait samples of the last ``STANCE_WINDOW_S`` with
-        ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S`` excluded; 1.0 with < ``MIN_GAIT_S`` of gait).
+        ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S``, i.e. stops, excluded, and so is everything
+        before the last completed stop; 1.0 with < ``MIN_GAIT_S`` of gait).
     stride_period_s : float
         Dominant period of ``|a|`` [s] (``nan`` when not found).
     periodicity : float
         Normalised autocorrelation at that period (0 = aperiodic, 1 = perfectly periodic).
     gait_s : float
-        Length of the gait part of the stance window [s] (rests longer than ``MAX_STANCE_S`` left out).
+        Length of the gait part of the stance window [s]: the gait since the last completed stop (rests longer
+        than ``MAX_STANCE_S`` left out).
     gait_std : float
         Standard deviation of ``|a|`` over that gait part [m/s^2].
     """
@@ -189,8 +194,8 @@ def _gait_stance_fraction(t: np.ndarray, x: np.ndarray, span_s: float) -> tuple[
 
     Rests longer than ``MAX_STANCE_S`` are standing, not stance phases of a gait, and are left out of both
     numerator and denominator, so a window that straddles a start or a stop measures the gait's duty factor.
-    Sample ``i`` weighs ``dt_i * sqrt((t_i - (t_end - span_s)) / span_s)`` (``dt_i`` from
-    :func:`_sample_dt`).
+    A stop ends a gait: only the samples after the last completed such rest are measured. Sample ``i`` weighs
+    ``dt_i * sqrt((t_i - (t_end - span_s)) / span_s)`` (``dt_i`` from :func:`_sample_dt`).
 
     Returns
     -------
@@ -205,6 +210,11 @@ def _gait_stance_fraction(t: np.ndarray, x: np.ndarray, span_s: float) -> tuple[
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     a, b = edges[::2], edges[1::2]
     long_ = (t[b - 1] - t[a]) > MAX_STANCE_S
+    ended = b[long_ & (b < rest.size)]  # first sample after each completed stop
+    if ended.size:
+        k = int(ended[-1])
+        t, x, rest = t[k:], x[k:], rest[k:]
+        a, b, long_ = a[a >= k] - k, b[a >= k] - k, long_[a >= k]
     keep = np.ones(rest.size, dtype=bool)
     for i0, i1 in zip(a[long_], b[long_]):
         keep[i0:i1] = False
@@ -270,8 +280,9 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
     :func:`window_features` (standard deviation over the most recent ``still_s`` [m/s^2]; mean [m/s^2] and
     variance [m^2/s^4] of the window; recency- and time-weighted gait stance fraction over the most recent
     ``stance_s`` with weights ``dt * sqrt((t - (t_end - stance_s)) / stance_s)`` (``dt`` the interval to
-    the next sample, at most ``max_dt``), rests longer than ``max_stance_s`` left out, 1.0 with less than
-    ``min_gait_s`` of gait; length [s] and standard deviation of ``|a|`` [m/s^2] of that gait part).
+    the next sample, at most ``max_dt``), rests longer than ``max_stance_s`` (stops) left out and so is
+    everything before the last completed one; 1.0 with less than ``min_gait_s`` of gait; length [s] and
+    standard deviation of ``|a|`` [m/s^2] of that gait part).
     """
     n = x.size
     t_end = t[n - 1]
@@ -296,8 +307,21 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
         ss += (x[i] - mu) ** 2
     var = ss / n
     i_st = np.searchsorted(t, t_end - stance_s)
-    size = n - i_st
     t_lo = t_end - stance_s
+    # A stop ends a gait: the gait part starts after the last completed rest longer than max_stance_s.
+    stop_end = -1
+    rs = -1
+    for i in range(i_st, n):
+        if abs(x[i] - g) < tol:
+            if rs < 0:
+                rs = i
+        else:
+            if rs >= 0 and t[i - 1] - t[rs] > max_stance_s:
+                stop_end = i
+            rs = -1
+    if stop_end >= 0:
+        i_st = stop_end
+    size = n - i_st
     w_all = 0.0  # weight of all samples
     w_rest = 0.0  # weight of the rest samples
     w_long = 0.0  # weight of the samples of long rests (standing)
