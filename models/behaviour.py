@@ -31,8 +31,10 @@ de-sampling to 25-50 Hz. Measured on 28 synthetic days (``tests/models/test_beha
 behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants
 below) turns the features into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
 decisions before it replaces the current one, so one odd step does not flip the behaviour (and one odd decision
-in a change does not restart the count). Decisions are taken on a fixed time grid (every ``HOP_S`` from the
-first sample), which makes the recogniser chunk-invariant.
+in a change does not restart the count); a run on which three cues agree (a duty factor between the run limit
+and the walking median, running cadence, running energy) needs ``FAST_CONFIRM`` of the last
+``FAST_CONFIRM_OF``. Decisions are taken on a fixed time grid (every ``HOP_S`` from the first sample), which
+makes the recogniser chunk-invariant.
 """
 
 from __future__ import annotations
@@ -66,6 +68,10 @@ STANCE_WINDOW_S = 3.0  # s, the duty factor looks at the most recent ~2-4 stride
 STILL_WINDOW_S = 1.0  # s, the stand test looks at the most recent second only (fast wake / fast sleep)
 HYSTERESIS = 3  # decisions a new label must win ...
 HYSTERESIS_OF = 4  # ... among the most recent this many (0.5-0.75 s beyond the first)
+# ... or, for a run decision on which the duty factor, the cadence and the energy agree (see _cadence_agrees),
+# this many of the most recent FAST_CONFIRM_OF (0.25 s beyond the first): three independent cues say run.
+FAST_CONFIRM = 2
+FAST_CONFIRM_OF = 3
 STANCE_TOL = 1.5  # m/s^2, | |a| - g | below this counts as foot at rest
 # Stand: a person standing still moves the foot far less than this (sensor noise ~0.02 m/s^2).
 STILL_STD = 0.5  # m/s^2, std of |a| over the last second
@@ -491,6 +497,16 @@ def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, st
     return "walk", per, perio
 
 
+def _cadence_agrees(label: str, still: float, stance: float, gait_std: float, per: float) -> bool:
+    """Whether a decision is a run on which the duty factor (between ``RUN_STANCE`` and
+    ``CADENCE_RUN_STANCE``), the cadence (stride period at most ``CADENCE_RUN_PERIOD_S``) and the energy (|a|
+    spread over the last ``STILL_WINDOW_S`` at least ``CADENCE_RUN_STD``, over the gait at least
+    ``RUN_MIN_GAIT_STD``) all agree; such a decision is confirmed by ``FAST_CONFIRM`` of the last
+    ``FAST_CONFIRM_OF``. ``per`` is ``nan`` where :func:`_rules` did not need it (then it does not agree)."""
+    return (label == "run" and RUN_STANCE < stance < CADENCE_RUN_STANCE and still >= CADENCE_RUN_STD
+            and gait_std >= RUN_MIN_GAIT_STD and per <= CADENCE_RUN_PERIOD_S)
+
+
 def _features_of(label: str, still: float, dc: float, var: float, stance: float, gait_s: float, gait_std: float,
                  per: float, perio: float) -> WindowFeatures:
     """The :class:`WindowFeatures` :func:`decide_window` reports for a decision (``nan`` where not needed)."""
@@ -585,14 +601,18 @@ class BehaviourRecognizer:
         current, recent = self.label, self._recent
         for j, (d, c) in enumerate(zip(td.tolist(), code.tolist())):
             if c != -1:  # a decided window
+                fast = False
                 if c == -2:  # the stride period decides
-                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *feats[j].tolist())
+                    f = feats[j].tolist()
+                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *f)
+                    fast = _cadence_agrees(label, f[0], f[3], f[5], per)
                 else:
                     label, per, perio = LABELS[c], nan, nan
                 last = j
                 # the hysteresis of _vote, inline (one method call per decision was most of a standing batch)
                 recent = (recent + [label])[-HYSTERESIS_OF:]
-                if label != current and recent.count(label) >= HYSTERESIS:
+                if label != current and (recent.count(label) >= HYSTERESIS
+                                         or (fast and recent[-FAST_CONFIRM_OF:].count(label) >= FAST_CONFIRM)):
                     current, recent = label, []
             out.append((d, current))
         self.label, self._recent = current, recent
@@ -604,11 +624,13 @@ class BehaviourRecognizer:
         self._t, self._n = self._t[cut:], self._n[cut:]
         return out
 
-    def _vote(self, new: str) -> None:
+    def _vote(self, new: str, fast: bool = False) -> None:
         """Hysteresis: ``new`` replaces the label once it won ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
-        decisions."""
+        decisions, or, when ``fast`` (the cues agree, :func:`_cadence_agrees`), ``FAST_CONFIRM`` of the last
+        ``FAST_CONFIRM_OF``."""
         self._recent = (self._recent + [new])[-HYSTERESIS_OF:]
-        if new != self.label and self._recent.count(new) >= HYSTERESIS:
+        if new != self.label and (self._recent.count(new) >= HYSTERESIS
+                                  or (fast and self._recent[-FAST_CONFIRM_OF:].count(new) >= FAST_CONFIRM)):
             self.label, self._recent = new, []
 
     # ------------------------------------------------------------------ state
