@@ -16,13 +16,25 @@ acceleration. For a foot-mounted sensor we compute, over a sliding window of the
 - stride period [s] and periodicity: the first dominant peak of the normalised autocorrelation of ``|a|``
   (on a uniform grid of the lower rate when a window mixes rates).
 
+A stop (the foot at rest longer than ``MAX_STANCE_S``) ends a gait: the duty factor and the gait's |a| spread
+are those of the gait since the most recent stop (no duty factor until it lasts ``MIN_GAIT_S``, as after a start
+from standing), so the strides before the stop (say, running) do not pull the new gait (say, walking) towards
+their label. Running needs vigour: push-off, flight and landing spread |a| over the gait by at least
+``RUN_MIN_GAIT_STD``, which keeps gentle first steps and shuffles (whose duty factor reads low while less than a
+stride is visible) out of run. Running cadence with running energy (stride period at most
+``CADENCE_RUN_PERIOD_S``, |a| spread over the last second at least ``CADENCE_RUN_STD``) label run as soon as the
+3-s duty factor, still diluted by the walking strides in the window after a walk-to-run change, is below the
+walking median (``CADENCE_RUN_STANCE``).
+
 All of these are moments or fractions of time, so they estimate the same quantities at 200 Hz and after
-de-sampling to 25-50 Hz. Measured on 12 synthetic days (``tests/models/test_behaviour.py``): every change of
-behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants below) turns the features
-into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF`` decisions before it replaces
-the current one, so one odd step does not flip the behaviour (and one odd decision in a change does not
-restart the count). Decisions are taken on a fixed time grid (every ``HOP_S`` from
-the first sample), which makes the recogniser chunk-invariant.
+de-sampling to 25-50 Hz. Measured on 28 synthetic days (``tests/models/test_behaviour.py``): every change of
+behaviour recognised within 2 s at 200 Hz and 25 Hz. One fixed, physically motivated rule set (module constants
+below) turns the features into a label; a new label must win ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
+decisions before it replaces the current one, so one odd step does not flip the behaviour (and one odd decision
+in a change does not restart the count); a run on which three cues agree (a duty factor between the run limit
+and the walking median, running cadence, running energy) needs ``FAST_CONFIRM`` of the last
+``FAST_CONFIRM_OF``. Decisions are taken on a fixed time grid (every ``HOP_S`` from the first sample), which
+makes the recogniser chunk-invariant.
 """
 
 from __future__ import annotations
@@ -56,6 +68,10 @@ STANCE_WINDOW_S = 3.0  # s, the duty factor looks at the most recent ~2-4 stride
 STILL_WINDOW_S = 1.0  # s, the stand test looks at the most recent second only (fast wake / fast sleep)
 HYSTERESIS = 3  # decisions a new label must win ...
 HYSTERESIS_OF = 4  # ... among the most recent this many (0.5-0.75 s beyond the first)
+# ... or, for a run decision on which the duty factor, the cadence and the energy agree (see _cadence_agrees),
+# this many of the most recent FAST_CONFIRM_OF (0.25 s beyond the first): three independent cues say run.
+FAST_CONFIRM = 2
+FAST_CONFIRM_OF = 3
 STANCE_TOL = 1.5  # m/s^2, | |a| - g | below this counts as foot at rest
 # Stand: a person standing still moves the foot far less than this (sensor noise ~0.02 m/s^2).
 STILL_STD = 0.5  # m/s^2, std of |a| over the last second
@@ -64,14 +80,28 @@ STILL_STD = 0.5  # m/s^2, std of |a| over the last second
 RUN_STANCE = 0.30
 JOG_STANCE = 0.40
 JOG_PERIOD_S = 1.05
+# Run needs vigour: the standard deviation of |a| over the gait part of the stance window (push-off, flight and
+# landing) at least this. Measured on the run decisions of the rules without it: VICON run trials >= 6.1 m/s^2
+# (1st percentile, 200 and 25 Hz), synthetic runs >= 12.6; VICON walk trials median 5.6, gdin walks away from
+# their fast strides median 3.6 (first steps and slow shuffles whose duty factor read low).
+RUN_MIN_GAIT_STD = 5.0  # m/s^2
+# Running cadence and running energy: a stride period of at most CADENCE_RUN_PERIOD_S (>= 70 strides/min, i.e.
+# >= 140 steps/min, above walking cadence) and a |a| spread over the last STILL_WINDOW_S (~1.3 running strides)
+# of at least CADENCE_RUN_STD (99th percentile of walking windows: VICON 7.9-8.2, gdin 9.6-10.1, synthetic 10.8
+# m/s^2; median of synthetic runs 14.5) label run once the 3-s duty factor is below CADENCE_RUN_STANCE (the
+# median of walking: 0.50-0.55 on VICON, gdin and synthetic walks). After a walk-to-run change the window holds
+# walking strides for ~2 s more, which keeps the duty factor alone above the run limits for 1.5-2 s.
+CADENCE_RUN_STANCE = 0.50
+CADENCE_RUN_PERIOD_S = 0.85  # s
+CADENCE_RUN_STD = 12.0  # m/s^2
 # Other (foot moves but does not walk: in-place foot lifts, shuffling, crawling): low energy and either no
 # stride periodicity or the foot on the ground most of the time.
 OTHER_MAX_STD = 4.0  # m/s^2
 OTHER_MAX_PERIODICITY = 0.15  # normalised autocorrelation peak
 OTHER_MIN_STANCE = 0.75
-MAX_STANCE_S = 1.0  # s, a rest longer than this is standing, not the stance phase of a stride
+MAX_STANCE_S = 1.0  # s, a rest longer than this is standing (a stop), not the stance phase of a stride
 MAX_SAMPLE_DT_S = 0.1  # s, a sample stands for at most this much time (gaps in the stream are not stance)
-MIN_GAIT_S = 0.5  # s, less gait than this in the stance window (a start): no duty factor yet (reads 1.0)
+MIN_GAIT_S = 0.5  # s, less gait than this since the start or the last stop: no duty factor yet (reads 1.0)
 # A stride periodicity needs more than one stride in the window: while the gait part of the window (rests longer
 # than MAX_STANCE_S left out) is shorter than this, i.e. in the first stride after a rest, the periodicity test
 # of "other" waits (a start of walking is not "other" because only one stride is visible yet).
@@ -97,13 +127,15 @@ class WindowFeatures:
         Standard deviation of ``|a|`` over the most recent ``STILL_WINDOW_S`` [m/s^2].
     stance_fraction : float
         Recency-weighted fraction of the gait samples of the last ``STANCE_WINDOW_S`` with
-        ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S`` excluded; 1.0 with < ``MIN_GAIT_S`` of gait).
+        ``| |a| - g | < STANCE_TOL`` (rests > ``MAX_STANCE_S``, i.e. stops, excluded, and so is everything
+        before the last completed stop; 1.0 with < ``MIN_GAIT_S`` of gait).
     stride_period_s : float
         Dominant period of ``|a|`` [s] (``nan`` when not found).
     periodicity : float
         Normalised autocorrelation at that period (0 = aperiodic, 1 = perfectly periodic).
     gait_s : float
-        Length of the gait part of the stance window [s] (rests longer than ``MAX_STANCE_S`` left out).
+        Length of the gait part of the stance window [s]: the gait since the last completed stop (rests longer
+        than ``MAX_STANCE_S`` left out).
     gait_std : float
         Standard deviation of ``|a|`` over that gait part [m/s^2].
     """
@@ -180,8 +212,8 @@ def _gait_stance_fraction(t: np.ndarray, x: np.ndarray, span_s: float) -> tuple[
 
     Rests longer than ``MAX_STANCE_S`` are standing, not stance phases of a gait, and are left out of both
     numerator and denominator, so a window that straddles a start or a stop measures the gait's duty factor.
-    Sample ``i`` weighs ``dt_i * sqrt((t_i - (t_end - span_s)) / span_s)`` (``dt_i`` from
-    :func:`_sample_dt`).
+    A stop ends a gait: only the samples after the last completed such rest are measured. Sample ``i`` weighs
+    ``dt_i * sqrt((t_i - (t_end - span_s)) / span_s)`` (``dt_i`` from :func:`_sample_dt`).
 
     Returns
     -------
@@ -196,6 +228,11 @@ def _gait_stance_fraction(t: np.ndarray, x: np.ndarray, span_s: float) -> tuple[
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     a, b = edges[::2], edges[1::2]
     long_ = (t[b - 1] - t[a]) > MAX_STANCE_S
+    ended = b[long_ & (b < rest.size)]  # first sample after each completed stop
+    if ended.size:
+        k = int(ended[-1])
+        t, x, rest = t[k:], x[k:], rest[k:]
+        a, b, long_ = a[a >= k] - k, b[a >= k] - k, long_[a >= k]
     keep = np.ones(rest.size, dtype=bool)
     for i0, i1 in zip(a[long_], b[long_]):
         keep[i0:i1] = False
@@ -237,10 +274,15 @@ def classify_window(f: WindowFeatures) -> str:
     if f.still_std < STILL_STD:
         return "stand"
     std = float(np.sqrt(f.variance))
-    if f.stance_fraction <= RUN_STANCE:
-        return "run"
-    if f.stance_fraction < JOG_STANCE and np.isfinite(f.stride_period_s) and f.stride_period_s <= JOG_PERIOD_S:
-        return "run"
+    if f.gait_std >= RUN_MIN_GAIT_STD:
+        if f.stance_fraction <= RUN_STANCE:
+            return "run"
+        period_ok = np.isfinite(f.stride_period_s)
+        if f.stance_fraction < JOG_STANCE and period_ok and f.stride_period_s <= JOG_PERIOD_S:
+            return "run"
+        if (f.stance_fraction < CADENCE_RUN_STANCE and f.still_std >= CADENCE_RUN_STD and period_ok
+                and f.stride_period_s <= CADENCE_RUN_PERIOD_S):
+            return "run"
     if std < OTHER_MAX_STD and f.stance_fraction >= OTHER_MIN_STANCE:
         return "other"
     if std < OTHER_MAX_STD and f.gait_s >= PERIODICITY_MIN_GAIT_S and f.periodicity < OTHER_MAX_PERIODICITY:
@@ -260,8 +302,9 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
     :func:`window_features` (standard deviation over the most recent ``still_s`` [m/s^2]; mean [m/s^2] and
     variance [m^2/s^4] of the window; recency- and time-weighted gait stance fraction over the most recent
     ``stance_s`` with weights ``dt * sqrt((t - (t_end - stance_s)) / stance_s)`` (``dt`` the interval to
-    the next sample, at most ``max_dt``), rests longer than ``max_stance_s`` left out, 1.0 with less than
-    ``min_gait_s`` of gait; length [s] and standard deviation of ``|a|`` [m/s^2] of that gait part).
+    the next sample, at most ``max_dt``), rests longer than ``max_stance_s`` (stops) left out and so is
+    everything before the last completed one; 1.0 with less than ``min_gait_s`` of gait; length [s] and
+    standard deviation of ``|a|`` [m/s^2] of that gait part).
     """
     n = x.size
     t_end = t[n - 1]
@@ -286,8 +329,21 @@ def _cheap_features(t: np.ndarray, x: np.ndarray, g: float, still_s: float, stan
         ss += (x[i] - mu) ** 2
     var = ss / n
     i_st = np.searchsorted(t, t_end - stance_s)
-    size = n - i_st
     t_lo = t_end - stance_s
+    # A stop ends a gait: the gait part starts after the last completed rest longer than max_stance_s.
+    stop_end = -1
+    rs = -1
+    for i in range(i_st, n):
+        if abs(x[i] - g) < tol:
+            if rs < 0:
+                rs = i
+        else:
+            if rs >= 0 and t[i - 1] - t[rs] > max_stance_s:
+                stop_end = i
+            rs = -1
+    if stop_end >= 0:
+        i_st = stop_end
+    size = n - i_st
     w_all = 0.0  # weight of all samples
     w_rest = 0.0  # weight of the rest samples
     w_long = 0.0  # weight of the samples of long rests (standing)
@@ -356,10 +412,11 @@ def _rules_code(still: float, var: float, stance: float, gait_s: float, gait_std
     the period decides (:func:`_rules` then runs in Python)."""
     if still < STILL_STD:
         return 0  # stand
-    if stance <= RUN_STANCE:
-        return 2  # run
-    if stance < JOG_STANCE:
-        return -2
+    if gait_std >= RUN_MIN_GAIT_STD:
+        if stance <= RUN_STANCE:
+            return 2  # run
+        if stance < JOG_STANCE or (stance < CADENCE_RUN_STANCE and still >= CADENCE_RUN_STD):
+            return -2
     if np.sqrt(var) < OTHER_MAX_STD:
         if stance >= OTHER_MIN_STANCE:
             return 3  # other
@@ -417,13 +474,16 @@ def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, st
         xu, fs = _uniform(t, x)
         return _stride_period(xu - xu.mean(), fs) if np.isfinite(fs) else (float("nan"), 0.0)
 
-    if stance <= RUN_STANCE:
-        return "run", nan, nan
     per, perio = nan, nan
-    if stance < JOG_STANCE:
-        per, perio = period()
-        if np.isfinite(per) and per <= JOG_PERIOD_S:
-            return "run", per, perio
+    if gait_std >= RUN_MIN_GAIT_STD:
+        if stance <= RUN_STANCE:
+            return "run", nan, nan
+        jog = stance < JOG_STANCE
+        cadence = stance < CADENCE_RUN_STANCE and still >= CADENCE_RUN_STD
+        if jog or cadence:
+            per, perio = period()
+            if np.isfinite(per) and ((jog and per <= JOG_PERIOD_S) or (cadence and per <= CADENCE_RUN_PERIOD_S)):
+                return "run", per, perio
     if math.sqrt(var) < OTHER_MAX_STD:
         if stance >= OTHER_MIN_STANCE:
             return "other", per, perio
@@ -435,6 +495,16 @@ def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, st
         elif gait_std < OTHER_MAX_STD:
             return "other", per, perio
     return "walk", per, perio
+
+
+def _cadence_agrees(label: str, still: float, stance: float, gait_std: float, per: float) -> bool:
+    """Whether a decision is a run on which the duty factor (between ``RUN_STANCE`` and
+    ``CADENCE_RUN_STANCE``), the cadence (stride period at most ``CADENCE_RUN_PERIOD_S``) and the energy (|a|
+    spread over the last ``STILL_WINDOW_S`` at least ``CADENCE_RUN_STD``, over the gait at least
+    ``RUN_MIN_GAIT_STD``) all agree; such a decision is confirmed by ``FAST_CONFIRM`` of the last
+    ``FAST_CONFIRM_OF``. ``per`` is ``nan`` where :func:`_rules` did not need it (then it does not agree)."""
+    return (label == "run" and RUN_STANCE < stance < CADENCE_RUN_STANCE and still >= CADENCE_RUN_STD
+            and gait_std >= RUN_MIN_GAIT_STD and per <= CADENCE_RUN_PERIOD_S)
 
 
 def _features_of(label: str, still: float, dc: float, var: float, stance: float, gait_s: float, gait_std: float,
@@ -531,14 +601,18 @@ class BehaviourRecognizer:
         current, recent = self.label, self._recent
         for j, (d, c) in enumerate(zip(td.tolist(), code.tolist())):
             if c != -1:  # a decided window
+                fast = False
                 if c == -2:  # the stride period decides
-                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *feats[j].tolist())
+                    f = feats[j].tolist()
+                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *f)
+                    fast = _cadence_agrees(label, f[0], f[3], f[5], per)
                 else:
                     label, per, perio = LABELS[c], nan, nan
                 last = j
                 # the hysteresis of _vote, inline (one method call per decision was most of a standing batch)
                 recent = (recent + [label])[-HYSTERESIS_OF:]
-                if label != current and recent.count(label) >= HYSTERESIS:
+                if label != current and (recent.count(label) >= HYSTERESIS
+                                         or (fast and recent[-FAST_CONFIRM_OF:].count(label) >= FAST_CONFIRM)):
                     current, recent = label, []
             out.append((d, current))
         self.label, self._recent = current, recent
@@ -550,11 +624,13 @@ class BehaviourRecognizer:
         self._t, self._n = self._t[cut:], self._n[cut:]
         return out
 
-    def _vote(self, new: str) -> None:
+    def _vote(self, new: str, fast: bool = False) -> None:
         """Hysteresis: ``new`` replaces the label once it won ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
-        decisions."""
+        decisions, or, when ``fast`` (the cues agree, :func:`_cadence_agrees`), ``FAST_CONFIRM`` of the last
+        ``FAST_CONFIRM_OF``."""
         self._recent = (self._recent + [new])[-HYSTERESIS_OF:]
-        if new != self.label and self._recent.count(new) >= HYSTERESIS:
+        if new != self.label and (self._recent.count(new) >= HYSTERESIS
+                                  or (fast and self._recent[-FAST_CONFIRM_OF:].count(new) >= FAST_CONFIRM)):
             self.label, self._recent = new, []
 
     # ------------------------------------------------------------------ state
