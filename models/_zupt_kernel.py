@@ -28,6 +28,7 @@ __all__ = [
     "quat_exp_s",
     "quat_dcm_s",
     "triad_s",
+    "strapdown_run",
     "cov_predict",
 ]
 
@@ -307,6 +308,45 @@ def _dcm_quat_s(m):
     for k in range(4):
         q[k] /= n
     return q
+
+
+@njit(cache=True)
+def strapdown_run(t, acc, gyr, q0, v0, p0, gravity, qs, vs, ps):
+    """Free-inertial mechanisation (004 eq. 1) of a whole record, the compiled twin of
+    :func:`models.strapdown.strapdown_step` applied sample by sample (exact attitude, mean DCM, trapezoidal
+    position); fills ``qs`` (N,4), ``vs`` (N,3), ``ps`` (N,3)."""
+    n = t.shape[0]
+    q = q0.copy()
+    v = v0.copy()
+    p = p0.copy()
+    for j in range(4):
+        qs[0, j] = q[j]
+    for j in range(3):
+        vs[0, j] = v[j]
+        ps[0, j] = p[j]
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        c0 = quat_dcm_s(q)
+        q1 = quat_mul_s(q, quat_exp_s(gyr[k, 0] * dt, gyr[k, 1] * dt, gyr[k, 2] * dt))
+        nq = math.sqrt(q1[0] * q1[0] + q1[1] * q1[1] + q1[2] * q1[2] + q1[3] * q1[3])
+        for j in range(4):
+            q1[j] /= nq
+        c1 = quat_dcm_s(q1)
+        for i in range(3):
+            a_n = 0.0
+            for j in range(3):
+                a_n += 0.5 * (c0[i, j] + c1[i, j]) * acc[k, j]
+            if i == 2:
+                a_n += gravity
+            v1 = v[i] + a_n * dt
+            p[i] = p[i] + 0.5 * (v[i] + v1) * dt
+            v[i] = v1
+        q = q1
+        for j in range(4):
+            qs[k, j] = q[j]
+        for j in range(3):
+            vs[k, j] = v[j]
+            ps[k, j] = p[j]
 
 
 @njit(cache=True)
