@@ -18,12 +18,13 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numba import njit
 
 from models.compass import CompassFollower, MagCalibrator
 from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
+from models.stats import median
 from models.step_length import FORM, StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
@@ -63,14 +64,27 @@ def _features(e: StepEvent) -> StepFeatures:
     return StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min)
 
 
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a NaN-free 1-D array, bit for bit (the middle value, or the mean of the two middle
-    values), without its generic machinery (~10 us per call)."""
-    k = x.size // 2
-    if x.size % 2:
-        return float(np.partition(x, k)[k])
-    p = np.partition(x, (k - 1, k))
-    return float((p[k - 1] + p[k]) / 2.0)
+@njit(cache=True)
+def _stillest_window(a, n, threshold, g0):
+    """First index of the quietest ``n``-row window of ``a`` (rows: specific force [m/s^2]) by the step
+    segmentation's quietness (vector variance plus the squared departure of the mean magnitude from ``g0``),
+    searching until the first later window at or over ``threshold`` (the foot moves again)."""
+    best, best_q = 0, math.inf
+    for k in range(a.shape[0] - n + 1):
+        m0 = m1 = m2 = ss = 0.0
+        for i in range(k, k + n):
+            m0 += a[i, 0]
+            m1 += a[i, 1]
+            m2 += a[i, 2]
+            ss += a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
+        m0, m1, m2, ss = m0 / n, m1 / n, m2 / n, ss / n
+        mu2 = m0 * m0 + m1 * m1 + m2 * m2
+        q = math.sqrt(max(ss - mu2, 0.0) + (math.sqrt(mu2) - g0) ** 2)
+        if k > 0 and q >= threshold:
+            break
+        if q < best_q:
+            best, best_q = k, q
+    return best
 
 
 class _LowRate:
@@ -103,7 +117,7 @@ class _LowRate:
         cuts = [] if fast.all() else (np.flatnonzero(fast[1:] != fast[:-1]) + 1).tolist()
         for lo, hi in zip([0, *cuts], [*cuts, len(t_s)]):
             if fast[lo]:
-                dt = _median(step[lo:hi])  # = np.median(np.diff(t_s[lo:hi], prepend=prev[lo]))
+                dt = median(step[lo:hi])  # = np.median(np.diff(t_s[lo:hi], prepend=prev[lo]))
                 factor = max(1, int(round(1.0 / (dt * self.rate_hz))))
                 if self.dec is None or factor != self.dec.factor:
                     self.dec = Decimator(self.rate_hz * factor, self.rate_hz, channels=x.shape[1])
@@ -256,8 +270,8 @@ class GaitPipeline:
         t0 = self._window_end
         if not t_s - t0 <= _SWING_MAX_S:
             return None
-        m = (self._mag_t > t0 + 1e-6) & (self._mag_t < t_s - 1e-6)
-        idx = np.flatnonzero(m)
+        tm = self._mag_t  # increasing: the rows strictly inside (t0, t_s) are one range
+        idx = np.arange(int(tm.searchsorted(t0 + 1e-6, "right")), int(tm.searchsorted(t_s - 1e-6, "left")))
         if idx.size < 2 or np.any(np.diff(np.r_[t0, self._mag_t[idx], t_s]) > 1.5 / self.rate_hz):
             return None
         keep = np.unique(np.round(np.linspace(0, idx.size - 1, min(idx.size, _SWING_SAMPLES))).astype(int))
@@ -307,7 +321,8 @@ class GaitPipeline:
         n = seg._w
         dt = 1.0 / self.rate_hz
         hi = t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6
-        idx = np.flatnonzero((self._mag_t >= t_s - 1e-6) & (self._mag_t <= hi))
+        tm = self._mag_t  # increasing: the rows of [t_s, hi] are one range
+        idx = np.arange(int(tm.searchsorted(t_s - 1e-6, "left")), int(tm.searchsorted(hi, "right")))
         if idx.size == 0 or self._mag_t[idx[0]] > t_s + 0.5 * dt:
             return None  # no field at the onset (magnetometer off): not one from later in the stride
         gaps = np.flatnonzero(np.diff(self._mag_t[idx]) > 1.5 * dt)
@@ -315,14 +330,7 @@ class GaitPipeline:
             idx = idx[: gaps[0] + 1]  # only the samples that follow the onset without a gap
         best = idx[:n]
         if idx.size > n:
-            w = sliding_window_view(self._mag_a[idx], n, axis=0)  # (windows, 3, n)
-            mu = w.mean(axis=2)
-            mu2 = np.einsum("ki,ki->k", mu, mu)
-            q = np.sqrt(np.maximum((w * w).sum(axis=1).mean(axis=1) - mu2, 0.0) + (np.sqrt(mu2) - _G0) ** 2)
-            moved = np.flatnonzero(q[1:] >= seg.stance_threshold)  # the foot moves again: the stance is over
-            q = q[: moved[0] + 1 if moved.size else q.size]
-            q[np.isnan(q)] = np.inf
-            k = int(np.argmin(q))  # the first of the quietest
+            k = _stillest_window(self._mag_a[idx[0]:idx[-1] + 1], n, seg.stance_threshold, _G0)
             best = idx[k:k + n]
         return self._mag_a[best].mean(axis=0), self._mag_v[best].mean(axis=0), float(self._mag_t[best[-1]])
 

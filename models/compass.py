@@ -42,6 +42,7 @@ import numpy as np
 
 from models.heading_deviation import wrap_angle
 from models.rotations import euler_to_dcm, rotvec_to_dcm, skew
+from models.stats import median
 
 __all__ = ["tilt_from_acc", "level_heading", "follow_compass", "CompassFollower", "MagCalibrator"]
 
@@ -78,19 +79,6 @@ def tilt_from_acc(acc: np.ndarray) -> tuple[float, float]:
 def _tilt(f: list[float]) -> tuple[float, float]:
     """:func:`tilt_from_acc` on plain floats (the same operations)."""
     return math.atan2(-f[1], -f[2]), math.atan2(f[0], math.hypot(f[1], f[2]))
-
-
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D float array, bit for bit (the middle value, or the mean of the two middle values
-    as ``(a + b) / 2``), without its generic machinery (~20 us per call); NaN-containing input goes to
-    ``np.median`` itself."""
-    k = x.size // 2
-    if x.size == 0 or np.isnan(x).any():
-        return float(np.median(x))
-    if x.size % 2:
-        return float(np.partition(x, k)[k])
-    p = np.partition(x, (k - 1, k))
-    return float((p[k - 1] + p[k]) / 2.0)
 
 
 def _level_heading(f: tuple[float, float, float] | list[float], m: tuple[float, float, float] | list[float]) -> float:
@@ -469,7 +457,7 @@ class MagCalibrator:
             x = np.linalg.solve(aw.T @ a + np.diag(lam), aw.T @ y)
             r = (y - a @ x).reshape(-1, 3)
             rn = np.sqrt(np.add.reduce(r * r, axis=1))  # = np.linalg.norm(r, axis=1), bit for bit
-            s = max(1.4826 * _median(rn) / math.sqrt(3.0) * 1.2, 0.5)
+            s = max(1.4826 * median(rn) / math.sqrt(3.0) * 1.2, 0.5)
             u = rn / (s * math.sqrt(3.0))
             wts = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
         if self.soft_iron:

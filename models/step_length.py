@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models.stats import median
 from models.steps import G0
 
 __all__ = ["MODELS", "FORM", "MAX_PAIRS", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
@@ -171,18 +172,18 @@ def robust_fit(x: np.ndarray, y: np.ndarray, prior_mean: np.ndarray, prior_std: 
     w = np.ones_like(y)
     c = m.copy()
     s = 0.05  # m, initial residual scale
+    dlam, lam_m = np.diag(lam), lam * m
     for _ in range(iterations):
-        a = (x * (w / s**2)[:, None]).T @ x + np.diag(lam)
-        b = (x * (w / s**2)[:, None]).T @ y + lam * m
-        c_new = np.linalg.solve(a, b)
+        xw = x * (w / s**2)[:, None]  # the same product both normal-equation terms used to compute on their own
+        c_new = np.linalg.solve(xw.T @ x + dlam, xw.T @ y + lam_m)
         r = y - x @ c_new
-        s = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 0.005)
+        s = max(1.4826 * median(np.abs(r - median(r))), 0.005)
         u = np.abs(r) / s
         w = np.where(u <= huber_k, 1.0, huber_k / np.maximum(u, 1e-12))
-        if np.allclose(c_new, c, rtol=0, atol=1e-10):
-            c = c_new
-            break
+        done = float(np.max(np.abs(c_new - c))) <= 1e-10  # = np.allclose(c_new, c, rtol=0, atol=1e-10)
         c = c_new
+        if done:
+            break
     return c
 
 
