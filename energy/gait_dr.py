@@ -271,11 +271,14 @@ class GaitPipeline:
         if not t_s - t0 <= _SWING_MAX_S:
             return None
         tm = self._mag_t  # increasing: the rows strictly inside (t0, t_s) are one range
-        idx = np.arange(int(tm.searchsorted(t0 + 1e-6, "right")), int(tm.searchsorted(t_s - 1e-6, "left")))
-        if idx.size < 2 or np.any(np.diff(np.r_[t0, self._mag_t[idx], t_s]) > 1.5 / self.rate_hz):
-            return None
-        keep = np.unique(np.round(np.linspace(0, idx.size - 1, min(idx.size, _SWING_SAMPLES))).astype(int))
-        return self._mag_v[idx[keep]].copy()
+        lo, hi = int(tm.searchsorted(t0 + 1e-6, "right")), int(tm.searchsorted(t_s - 1e-6, "left"))
+        gap = 1.5 / self.rate_hz
+        if hi - lo < 2 or tm[lo] - t0 > gap or t_s - tm[hi - 1] > gap or float(np.diff(tm[lo:hi]).max()) > gap:
+            return None  # too few samples, or the magnetometer paused
+        if hi - lo <= _SWING_SAMPLES:
+            return self._mag_v[lo:hi].copy()
+        keep = np.unique(np.round(np.linspace(0, hi - lo - 1, _SWING_SAMPLES)).astype(int))
+        return self._mag_v[lo + keep]
 
     def flush(self) -> None:
         """End of the session: the step events the filters and the segmenter's look-ahead still hold."""
