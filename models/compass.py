@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from models._compass_kernel import N_JOINT, PAUSED, joint_gauss_newton
 from models.heading_deviation import wrap_angle
 from models.rotations import euler_to_dcm, rotvec_to_dcm, skew
 from models.stats import median
@@ -528,7 +529,45 @@ class MagCalibrator:
         gives the field in the accelerometer's axes. Steps that raise the robust cost are halved (up to 6 times);
         the robust weights are re-estimated in the first ``_FREEZE_WEIGHTS`` iterations, and the iterations stop
         once a step is below 1e-9 (uT, rad).
+
+        The iterations run compiled (:func:`models._compass_kernel.joint_gauss_newton`, state in plain arrays);
+        this method prepares them, checks the hard iron's posterior after the weights are settled and at the
+        end, and stores the result. :meth:`_fit_joint_reference` is the numpy version it equals to rounding
+        (4-11 ms per fit, mostly the call overhead of small arrays).
         """
+        n, k = rows.shape[0], swing.shape[0]
+        tilts = [_tilt(r) for r in rows[:, :3].tolist()]  # tilt_from_acc's operations on plain floats
+        c_i = euler_to_dcm(np.array([t[0] for t in tilts], dtype=np.float64),
+                           np.array([t[1] for t in tilts], dtype=np.float64), np.ascontiguousarray(rows[:, 6]))
+        lam = np.zeros(N_JOINT)  # zero-mean priors: c, alignment A, soft iron e
+        lam[3:6] = 1.0 / self.hard_iron_std**2
+        lam[6:9] = 1.0 / self.alignment_std**2
+        lam[9:13] = 1.0 / self.soft_iron_std**2
+        mn, c, rot, e = self.m_n.astype(np.float64).copy(), self.w @ self.b, np.eye(3), np.zeros(4)
+        w_st, w_sw, scales, h = np.ones(n), np.ones(k), np.zeros(2), np.zeros((N_JOINT, N_JOINT))
+        state = (c_i, np.ascontiguousarray(rows[:, 3:6]), np.ascontiguousarray(swing, dtype=np.float64), lam,
+                 float(self.residual_std), mn, c, rot, e, w_st, w_sw, scales, h)
+        if joint_gauss_newton(*state, 0, iterations, _FREEZE_WEIGHTS, _FREEZE_WEIGHTS) == PAUSED:
+            # the robust weights are settled (iteration _FREEZE_WEIGHTS): a horizontal hard iron far from
+            # determined keeps the linear stance fit without the remaining iterations (_fit_joint_reference)
+            if self._hard_iron_sigma(h, mn) > 1.5 * self._hard_iron_sigma_max(mn):
+                return
+            # from the same state: iteration _FREEZE_WEIGHTS's normal equations again, then its step
+            joint_gauss_newton(*state, _FREEZE_WEIGHTS, iterations, _FREEZE_WEIGHTS, -1)
+        w_mat = _soft_matrix(e)
+        if not (np.all(np.isfinite(mn)) and np.all(np.isfinite(c)) and np.all(np.isfinite(w_mat))) or iterations < 2:
+            return  # keep the linear stance fit (iterations < 2: no step solved for, no normal matrix)
+        if self._hard_iron_sigma(h, mn) > self._hard_iron_sigma_max(mn):
+            return  # keep the linear stance fit (posterior of the horizontal hard iron: _fit_joint_reference)
+        self.m_n = mn
+        self.b = np.linalg.solve(w_mat, c)
+        self.w = rot @ w_mat
+        self.residual_std = float(scales[0])
+        self.swing_std = float(scales[1])
+
+    def _fit_joint_reference(self, rows: np.ndarray, swing: np.ndarray, iterations: int = 30) -> None:
+        """:meth:`_fit_joint` in numpy, the reference the compiled iterations are tested against (same arguments,
+        same effect, to rounding)."""
         n, k = rows.shape[0], swing.shape[0]
         soft = True
         p = 9 + (4 if soft else 0)
