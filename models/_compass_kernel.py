@@ -8,7 +8,8 @@ the reference the tests compare with) spent 4-11 ms per fit, mostly on the call 
 Unknowns (13): ``[m_n (3), c = W b (3), alignment update (3), e (4)]``: field [uT] (navigation frame), hard
 iron c [uT], the rotation A from the magnetometer's axes to the accelerometer's (held as a matrix, stepped by
 a rotation vector [rad] on the left), soft iron ``W = I + E`` with ``E = [[e0 e1 e2] [e1 -e0 e3] [e2 e3 0]]``
-(dimensionless; :func:`models.compass._soft_matrix`).
+(dimensionless; :func:`models.compass._soft_matrix`). Divisions follow numpy's error model (inf/NaN, no
+exception), as the reference's arrays did: a non-finite fit keeps the linear one.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def _wm_minus_c(e, m0, m1, m2, c):
             e[2] * m0 + e[3] * m1 + m2 - c[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _residuals(c_i, m_i, swing, mn, c, rot, e, r_st, rv, r_sw, sh):
     """Stance residuals ``C_i A (W m_i - c) - m_n`` -> r_st (n, 3) [uT] with ``A (W m_i - c)`` -> rv (n, 3);
     swing residuals ``|W m_k - c| - |m_n|`` -> r_sw (k,) [uT] with the unit vectors of ``W m_k - c`` -> sh (k, 3)."""
@@ -120,7 +121,7 @@ def _mat3(a, b, out):
             out[r, q] = a[r, 0] * b[0, q] + a[r, 1] * b[1, q] + a[r, 2] * b[2, q]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _normal_equations(c_i, m_i, swing, mn, rot, r_st, rv, r_sw, sh, w_st, w_sw, s_st, s_sw, lam, theta, h, g):
     """Gauss-Newton normal matrix -> h (13, 13) and right-hand side -> g (13,) at the residuals r_st, r_sw.
 
@@ -208,7 +209,7 @@ def _normal_equations(c_i, m_i, swing, mn, rot, r_st, rv, r_sw, sh, w_st, w_sw, 
             h[a, b] = h[b, a]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_gauss_newton(c_i, m_i, swing, lam, s_lin, mn, c, rot, e, w_st, w_sw, scales, h, it0, iterations, freeze,
                        pause_at):
     """Iterations ``it0 .. iterations - 1`` of the joint fit (``MagCalibrator._fit_joint``), state in place.
