@@ -199,7 +199,7 @@ class StepSegmenter:
         self._run = np.zeros(9)
         self._aw = np.zeros((_AW_MAX, 7))
         self._pend = np.zeros(11)
-        self._last = np.zeros(6)
+        self._last = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
         self._per = np.zeros(_N_PER)
         self._ist = np.zeros(5, dtype=np.int64)  # count, b0, n_events, n_await, n_periods
         self._flushed = False
@@ -290,6 +290,12 @@ class StepSegmenter:
             need = min(need, int(self._pend[5]) - back)
         cut = need - b0
         if cut > 0:
+            last = self._last
+            lo = int(last[4]) + 1 - b0
+            if last[0] > 0.0 and lo < cut:
+                # the next stance's swing test spans every sample since the last stance's end (a stand with a
+                # shuffle in it outlasts the buffer): keep the largest |a| of those the cut drops
+                last[6] = max(last[6], float(self._bm[max(lo, 0):cut].max()))
             self._bt, self._bm = self._bt[cut:], self._bm[cut:]
             self._ist[1] = b0 + cut
         self._collapse_quiet()
@@ -363,6 +369,8 @@ class StepSegmenter:
         for a in cls._ARRAYS:
             ref = getattr(obj, "_" + a)
             setattr(obj, "_" + a, np.asarray(d[a], dtype=ref.dtype).reshape((-1,) + ref.shape[1:]).copy())
+        if obj._last.size < 7:  # stored before the dropped samples' maximum was kept
+            obj._last = np.concatenate([obj._last, [-np.inf]])
         return obj
 
 
@@ -372,7 +380,8 @@ class StepSegmenter:
 #   run  [valid, i_first, i_last, q, n, mx, my, mz, emitted]   quiet stretch in progress
 #   aw   (AW_MAX, 7) [i_first, i_last, q, n, mx, my, mz]        candidates waiting for their look-ahead
 #   pend [valid, t_on, t_end, q, score, i_first, i_last, mx, my, mz, lim]   best candidate of the refractory window
-#   last [valid, t_on, t_end, i_first, i_last, onset_idx]      last selected stance
+#   last [valid, t_on, t_end, i_first, i_last, onset_idx, emax]  last selected stance; emax: largest |a| of the
+#        samples after its end that the buffer dropped (the next swing test spans them)
 #   per  (9,) ring of the last stride periods [s]
 #   ist  [count, b0, n_events, n_await, n_periods]
 # Parameters: pf [thr, swing_min, refr_frac, min_period, max_period, swing_frac, min_swing, rel_thr, k_dur, dur_cap,
@@ -431,13 +440,14 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     had_last = last[0] > 0.0
     lo = int(last[4]) if had_last else b0
     last_on, last_end, last_onidx = last[1], last[2], int(last[5])
-    swing = _k_emax(bm, b0, lo + 1, i1 - 1) >= pf[1]
+    swing = max(_k_emax(bm, b0, lo + 1, i1 - 1), last[6] - G0) >= pf[1]
     last[0] = 1.0
     last[1] = onset
     last[2] = pend[2]
     last[3] = float(i1)
     last[4] = float(i2)
     last[5] = float(on_idx)
+    last[6] = -np.inf
     if not swing:
         return n_ev  # standing, shuffling: a new reference stance but no step
     period = onset - last_on if had_last else np.nan
