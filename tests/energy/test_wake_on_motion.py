@@ -46,17 +46,24 @@ def test_refuses_contradictory_or_incomplete_wake_configs() -> None:
     assert SensorConfig(**WAKE.to_dict()) == WAKE  # the server's JSON form round-trips
 
 
+def _emit_seconds(batch, cfg: SensorConfig, stream: str, seconds: int = 60) -> tuple[np.ndarray, list]:
+    """A device on ``batch`` under one configuration, emitting 1-s batches: the ``stream``'s sample times [s
+    from the recording's start] and the spans it ran (``DeviceEmulator.last_spans``, concatenated)."""
+    dev = DeviceEmulator(batch)
+    t0 = int(batch.t_start_ns or 0)
+    times, spans = [], []
+    for k in range(seconds):
+        out = dev.emit(t0 + k * 10**9, t0 + (k + 1) * 10**9, cfg)
+        times.append(out.stream(stream)[0])
+        spans += dev.last_spans
+    return (np.concatenate(times) - t0) / 1e9, spans
+
+
 def test_device_wakes_the_gyro_from_the_accelerometer_alone(day) -> None:
     """Configuration never changes: the gyroscope sleeps through the stand and starts when the foot moves."""
     _, batch = day
-    dev = DeviceEmulator(batch)
     t0 = int(batch.t_start_ns or 0)
-    gyr_t, spans = [], []
-    for k in range(60):
-        out = dev.emit(t0 + k * 10**9, t0 + (k + 1) * 10**9, WAKE)
-        gyr_t.append(out.stream("gyr")[0])
-        spans += dev.last_spans
-    g = (np.concatenate(gyr_t) - t0) / 1e9
+    g, spans = _emit_seconds(batch, WAKE, "gyr")
     motion = onset_s(batch, 40.0)
     assert len(g) > 1000
     assert g[0] >= motion + GYRO_TURN_ON_S - 1e-6  # nothing before the motion plus the turn-on time
@@ -92,13 +99,7 @@ def test_the_magnetometer_sleeps_and_wakes_with_the_gyro(day) -> None:
     base = {**WAKE.to_dict(), "mag_rate_hz": 50.0}
     for follows in (True, False):
         cfg = SensorConfig(**{**base, "mag_follows_gyro": follows})
-        dev = DeviceEmulator(batch)
-        mag_t, spans = [], []
-        for k in range(60):
-            out = dev.emit(t0 + k * 10**9, t0 + (k + 1) * 10**9, cfg)
-            mag_t.append(out.stream("mag")[0])
-            spans += dev.last_spans
-        m = (np.concatenate(mag_t) - t0) / 1e9
+        m, spans = _emit_seconds(batch, cfg, "mag")
         awake = [((a - t0) / 1e9, (b - t0) / 1e9) for a, b, _, gyr, _ in spans if gyr > 0]
         inside = np.zeros(len(m), dtype=bool)
         for a, b in awake:
