@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from energy.codec import dumps, loads
 from energy.gait_dr import GaitPipeline
@@ -426,3 +428,34 @@ def test_stance_tilt_and_field_come_from_the_same_still_samples() -> None:
     sw = np.concatenate(swings)
     assert len(swings) >= 40 and all(len(s) <= 8 for s in swings)
     assert np.ptp(sw[:, 2]) > 10.0 and np.std(np.linalg.norm(sw, axis=1)) < 1.0
+
+
+def _stillest_reference(a: np.ndarray, n: int, threshold: float, g0: float) -> int:
+    """The quietest window search as the numpy loop wrote it before it was compiled."""
+    best, best_q = 0, math.inf
+    for k in range(max(a.shape[0] - n + 1, 1)):
+        w = a[k:k + n]
+        mu = w.mean(axis=0)
+        mu2 = float(mu @ mu)
+        q = math.sqrt(max(float(np.mean(np.sum(w * w, axis=1))) - mu2, 0.0) + (math.sqrt(mu2) - g0) ** 2)
+        if k and q >= threshold:
+            break
+        if q < best_q:
+            best, best_q = k, q
+    return best
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), m=st.integers(4, 40), n=st.integers(2, 6),
+       noise=st.sampled_from([0.01, 0.1, 0.5, 2.0]))
+def test_stillest_window_equals_the_numpy_search(seed: int, m: int, n: int, noise: float) -> None:
+    """The compiled stance-window search picks the same window as the numpy loop (quiet stances with
+    heel-strike ringing at the start and the foot moving again at the end)."""
+    from energy.gait_dr import _stillest_window
+
+    rng = np.random.default_rng(seed)
+    a = np.tile([0.5, -0.3, -9.78], (m, 1)) + rng.normal(0.0, noise, (m, 3))
+    a[: rng.integers(0, 3)] += rng.normal(0.0, 3.0, 3)  # heel strike
+    a[m - rng.integers(0, 4):] += rng.normal(0.0, 4.0, 3)  # the foot lifts
+    for thr in (0.3, 1.0, 5.0):
+        assert _stillest_window(a, n, thr, 9.80665) == _stillest_reference(a, n, thr, 9.80665)
