@@ -396,7 +396,11 @@ class GaitPipeline:
                 self.mag.add(acc_st, m, float(st.heading), swing)
                 self._cal_last = e.index
             if self.mag.ready:
-                self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m))
+                # a trusted compass's change between the segment's stances is tested against the gyroscope's
+                # (CompassFollower.observe: a disturbance the gate let through turns the compass, not the foot)
+                sigma = self._compass_sigma() if self.mag.trusted else math.nan
+                self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m),
+                                      psi=float(st.heading), sigma=sigma)
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return None
@@ -619,7 +623,7 @@ class GaitPipeline:
         """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m], sensor heading [rad]."""
         self.dr = GaitDeadReckoner(position, compensate=not self.conventional)
         self.heading = float(heading)
-        self.follower.forget()  # turns are counted from this heading on
+        self.follower.restart()  # turns are counted from this heading on
 
     def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
         """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
@@ -655,8 +659,11 @@ class GaitPipeline:
                 self.held_steps += 1  # no calibrated field in this session's frame: hold the last heading
                 self.follower.forget()
             else:
+                shape = self.mag.field_shape(acc_st, m)
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
-                                                  *self.mag.field_shape(acc_st, m), self.mag.trusted)
+                                                  *shape, self.mag.trusted, self._compass_sigma(),
+                                                  self.mag.settled(*shape, self.follower.rot_mag_tol,
+                                                                   self.follower.rot_dip_tol))
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
@@ -667,6 +674,15 @@ class GaitPipeline:
                     direction = before + 0.5 * wrap_angle(self.heading - before)
             out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
         return out
+
+    def _compass_sigma(self) -> float:
+        """Noise [rad] of one compass reading: the robust scale of its disagreement with the ZUPT-KF on the
+        calibration stances (its RMS, or the trust limit, where that is unknown)."""
+        cal = self.mag
+        for s in (cal.heading_scale, cal.heading_rms, cal.max_heading_rms):
+            if math.isfinite(s):
+                return float(s)
+        return math.nan
 
     def turn_to(self, t_start_s: float) -> tuple[float, float] | None:
         """Turn of the foot [rad] by the compass from the last Gait-DR stance to the step event of the stance

@@ -463,3 +463,112 @@ def test_stances_are_bounded_to_the_newest_and_refits_count_all() -> None:
     state["rows"] = np.vstack([state["rows"], state["rows"][:40]])  # a state stored before the bound
     old = MagCalibrator.from_state(state)
     assert old.n_stances == _ROWS_KEEP and old.n_added == _ROWS_KEEP + 40
+
+
+# ------------------------------------------------------------------------------ compass against the gyroscope
+def _turned_field(yaw: float, field_turn: float, rng: np.random.Generator,
+                  scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A level stance at ``yaw`` [rad] in the Earth's field turned by ``field_turn`` [rad] about the vertical and
+    scaled by ``scale`` (the dip unchanged); the compass reads ``yaw - field_turn``."""
+    c = euler_to_dcm(np.float64(0.0), np.float64(0.0), np.float64(yaw))
+    rz = euler_to_dcm(np.float64(0.0), np.float64(0.0), np.float64(field_turn))
+    return c.T @ np.array([0.0, 0.0, -G]), c.T @ (scale * rz @ M_N) + rng.normal(scale=0.05, size=3)
+
+
+def _gait_step(f, cal: MagCalibrator, h: float, acc: np.ndarray, mag: np.ndarray) -> float:
+    shape = cal.field_shape(acc, mag)
+    return f.step(h, cal.heading(acc, mag), not cal.disturbed(acc, mag), *shape, cal.trusted, cal.heading_scale,
+                  cal.settled(*shape, f.rot_mag_tol, f.rot_dip_tol))
+
+
+def test_a_compass_that_turns_while_the_gyroscope_does_not_is_not_followed() -> None:
+    """Walking straight north (the ZUPT-KF heading stays 0) through a field that turns by 15 deg per stride, its
+    magnitude up by at most 7 % and its dip unchanged (within the 12 % / 8 deg gate): the examination's stances
+    show the compass turning where the gyroscope does not, so Gait-DR after it holds the handed-over heading
+    instead of following the compass 45 deg away, and lets the compass lead again once it is steady on a field
+    of the Earth's shape."""
+    from models.compass import CompassFollower
+
+    rng = np.random.default_rng(21)
+    cal = _calibrated(rng)
+    assert cal.trusted
+    turns = np.radians([0.0, 15.0, 30.0])  # the field's turn at the examination's stances
+    gait = np.radians([40.0, 45.0, 40.0, 30.0, 15.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # ... and at Gait-DR's after it
+    runs = {}
+    for gyro in (True, False):
+        f = CompassFollower()
+        for _ in range(4):  # an established clean field before
+            f.observe(cal.heading(*_turned_field(0.0, 0.0, rng)), True, *cal.field_shape(*_turned_field(0.0, 0.0, rng)))
+        for t in turns:
+            acc, mag = _turned_field(0.0, float(t), rng)
+            assert not cal.disturbed(acc, mag)
+            f.observe(cal.heading(acc, mag), True, *cal.field_shape(acc, mag), psi=0.0 if gyro else None,
+                      sigma=cal.heading_scale)
+        assert f.suspect == gyro
+        f.restart()
+        h, errs = 0.0, []
+        for t in gait:
+            acc, mag = _turned_field(0.0, float(t), rng, 1.0 + 0.07 * float(t) / gait.max())
+            assert not cal.disturbed(acc, mag)
+            h = _gait_step(f, cal, h, acc, mag)
+            errs.append(abs(math.remainder(h, 2 * math.pi)))
+        runs[gyro] = errs
+        assert not f.suspect and f.established  # the compass leads again on the Earth's field
+    assert max(runs[True]) < math.radians(2.0)  # held through, nothing followed
+    assert max(runs[False]) > math.radians(30.0)  # without the gyroscope's test it follows the field
+
+
+def test_a_compass_that_turns_with_the_gyroscope_stays_trusted() -> None:
+    """A real turn of the foot (the compass and the ZUPT-KF heading turn together) raises no suspicion."""
+    from models.compass import CompassFollower
+
+    rng = np.random.default_rng(22)
+    cal = _calibrated(rng)
+    f = CompassFollower()
+    for yaw in np.radians([0.0, 0.0, 30.0, 60.0, 90.0, 90.0]):
+        acc, mag = _turned_field(float(yaw), 0.0, rng)
+        f.observe(cal.heading(acc, mag), True, *cal.field_shape(acc, mag), psi=float(yaw), sigma=cal.heading_scale)
+    assert not f.suspect and f.established
+
+
+def test_a_suspect_compass_leads_again_when_steady_even_against_the_held_heading() -> None:
+    """The held heading may be the wrong one (the ZUPT-KF restarted from a heading already taken from the
+    disturbed compass): a compass steady on a field of the Earth's shape leads again after ``reanchor_stances``
+    stances, and pulls the heading back to itself; a settled compass that keeps moving does not."""
+    from models.compass import CompassFollower
+
+    rng = np.random.default_rng(23)
+    cal = _calibrated(rng)
+    f = CompassFollower()
+    f.suspect = True
+    f.clean_run = 10
+    h = math.radians(25.0)  # held, 25 deg off the truth (0)
+    for k in range(4):  # the first stance has no previous one to be steady against; 3 steady ones after it
+        h = _gait_step(f, cal, h, *_turned_field(0.0, 0.0, rng))
+        assert f.suspect == (k < 3)
+    for _ in range(6):
+        h = _gait_step(f, cal, h, *_turned_field(0.0, 0.0, rng))
+    assert abs(h) < math.radians(1.0)
+    g = CompassFollower()
+    g.suspect, g.clean_run = True, 10
+    for t in np.radians([0.0, 12.0, 24.0, 36.0, 48.0]):  # the field keeps turning: never consistent
+        _gait_step(g, cal, math.radians(60.0), *_turned_field(0.0, float(t), rng))
+        assert g.suspect
+
+
+def test_follower_state_keeps_the_suspicion() -> None:
+    from models.compass import CompassFollower
+
+    f = CompassFollower()
+    f.observe(0.0, True, 47.0, 1.1, psi=0.0, sigma=0.01)
+    f.observe(0.5, True, 47.0, 1.1, psi=0.0, sigma=0.01)
+    assert f.suspect
+    back = CompassFollower.from_state(loads(dumps(f.get_state())))
+    assert (back.suspect, back.consistent_run, back.gyro_ref, back.sigmas, back.min_dev) == (
+        f.suspect, f.consistent_run, f.gyro_ref, f.sigmas, f.min_dev)
+    old = f.get_state()
+    old["params"] = old["params"][:6]
+    for k in ("suspect", "consistent_run", "gyro_ref"):
+        del old[k]
+    legacy = CompassFollower.from_state(old)  # a state stored before the test
+    assert not legacy.suspect and legacy.gyro_ref is None and legacy.min_dev == CompassFollower().min_dev
