@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from models._zupt_kernel import quat_dcm_s, quat_exp_s
+
 __all__ = ["N_JOINT", "PAUSED", "joint_gauss_newton"]
 
 N_JOINT = 13  # unknowns
@@ -100,17 +102,8 @@ def _huber(u, out):
 @njit(cache=True)
 def _rotvec_dcm_s(p0, p1, p2):
     """``exp([phi x])`` via the unit quaternion, as ``models.rotations.rotvec_to_dcm``."""
-    ang = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-    half = 0.5 * ang
-    k = math.sin(half) / ang if ang > 1e-8 else 0.5 - ang**2 / 48.0
-    w, x, y, z = math.cos(half), k * p0, k * p1, k * p2
-    nq = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / nq, x / nq, y / nq, z / nq
-    out = np.empty((3, 3))
-    out[0, 0], out[0, 1], out[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    out[1, 0], out[1, 1], out[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    out[2, 0], out[2, 1], out[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    return out
+    q = quat_exp_s(p0, p1, p2)
+    return quat_dcm_s(q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]))
 
 
 @njit(cache=True)
