@@ -540,7 +540,8 @@ class BatchStream:
         """The sensor configuration of the latest answer (what the device must use next).
 
         Keys as :class:`energy.types.SensorConfig`; with ``gyro_wake_on_motion`` the gyroscope is off but the
-        device turns it on by itself on motion (``wake_threshold_ms2``, ``sleep_after_s``), see
+        device turns it on by itself on motion (``wake_threshold_ms2``, ``sleep_after_s``; ``wake_mode`` says whether
+        the threshold applies to a departure from the still reference or to the absolute acceleration), see
         :class:`energy.device.DeviceEmulator`.
         """
         return None if self.last_response is None else self.last_response["sensor_config"]

@@ -118,6 +118,9 @@ class DeviceEmulator:
       the last departure the gyroscope powers down (the device's inactivity), the accelerometer returns to
       ``acc_rate_hz`` and the detector re-arms.
 
+    With ``config.wake_mode == "high_g"`` an event is a sample whose absolute value exceeds the threshold on
+    some axis (the IMU's high-g interrupt) instead of a departure from the reference; the rest is the same.
+
     The decision is made by the device on the samples it actually produces, between uploads; the engine just
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
     the gyroscope awake; a switch to wake-on-motion then lets it sleep only after the inactivity duration.
@@ -191,7 +194,11 @@ class DeviceEmulator:
         return SensorBatch(**kw)
 
     # ------------------------------------------------------------------ wake-on-motion
-    def _departs(self, v: np.ndarray, thr: float) -> bool:
+    def _departs(self, v: np.ndarray, thr: float, high_g: bool) -> bool:
+        """An activity event: ``v`` departs from the reference (``high_g``: from zero, i.e. its absolute
+        value) by more than ``thr`` [m/s^2] on some axis."""
+        if high_g:
+            return bool(np.max(np.abs(v)) > thr)
         assert self._ref is not None
         return bool(np.max(np.abs(v - self._ref)) > thr)
 
@@ -213,6 +220,7 @@ class DeviceEmulator:
         """Splice the low-rate (asleep) and shared-rate (awake) accelerometer outputs and find the gyroscope's
         windows ``(charged from, delivers from, off at)`` [ns] within ``[t0, t1)``."""
         thr = float(config.wake_threshold_ms2)
+        high_g = config.wake_mode == "high_g"
         dur = int(round(float(config.sleep_after_s) * 1e9))
         out_t: list[np.ndarray] = []
         out_v: list[np.ndarray] = []
@@ -227,9 +235,9 @@ class DeviceEmulator:
                 ts, vs = blk_t[m], blk_v[m]
                 hit = -1
                 for i in range(len(ts)):
-                    if self._ref is None:
+                    if self._ref is None and not high_g:
                         self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
-                    elif self._departs(vs[i], thr):
+                    elif self._departs(vs[i], thr, high_g):
                         self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
                         hit = i
                         break
@@ -251,7 +259,7 @@ class DeviceEmulator:
                 ts, vs = fast_t[m], fast_v[m]
                 hit = -1
                 for i in range(len(ts)):
-                    if self._ref is None or self._departs(vs[i], thr):
+                    if (self._ref is None and not high_g) or self._departs(vs[i], thr, high_g):
                         self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
                     elif int(ts[i]) - self._quiet_ns >= dur:
                         hit = i

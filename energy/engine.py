@@ -800,6 +800,8 @@ class Engine:
             b = label if label in ("walk", "run") else "walk"
             d_sl, _ = gait.step_length(e, b)
             passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
+            fitted = gait.cal.cadence_range(b, 1.0 / gait.rate_hz)
+            new_pattern = fitted is not None and not fitted[0] <= e.f_s <= fitted[1]
         # a deviation from the profile, not yet confirmed in this session: tested before KF II takes the stride
         pending = sorted(sched.deviation_pending)
         tested = label in pending and label == sched.behaviour
@@ -808,7 +810,7 @@ class Engine:
         heading = None if prior is None or z is None else _heading_test(z, prior)
         verdict: list[Event] = []
         if exam:
-            verdict = sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns, heading)
+            verdict = sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns, heading, new_pattern)
         elif heading is not None:
             verdict = sched.on_heading_check(heading, st.t_end_s, t_ns)
         events += verdict
@@ -816,6 +818,7 @@ class Engine:
             gait.forget_mount(pending)  # the sensor was re-mounted: its stored deviations and compass are stale
         sched.compass_ready = gait.heading_source()
         sched.nav_ready = gait.bootstrapped()
+        sched.run_wake_ms2 = gait.run_wake_threshold()
         if sched.ready_for_pdr() and gait.ready(label):
             fits = gait.fit(label)
             cal = self._store_calibration(label, fits)

@@ -44,6 +44,14 @@ _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step
 _BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
 _KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more than this do not update KF II
 _ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
+# Run wake (energy.scheduler): the device's high-g interrupt wakes the gyroscope when its accelerometer exceeds
+# this factor times the largest absolute specific force on an axis (25-Hz samples) of this person's latest
+# walking strides. Largest |a| on an axis over 2-s windows of 40-ms means: synthetic walks <= 30.8 m/s^2 (4
+# seeds), runs >= 41.0 (ratio 1.33); VICON walk trials <= 36.1, run trials median 41.0, so a slow jog may not
+# wake (the behaviour recognition still catches it).
+RUN_WAKE_MARGIN = 1.4
+_SPAN_STRIDES = 16  # walking strides whose largest span sets the run-wake threshold
+_SPAN_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
 
 def _event_row(e: StepEvent) -> list[float]:
@@ -202,6 +210,8 @@ class GaitPipeline:
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
         self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
+        self.stride_span: dict[int, float] = {}  # largest |specific force| on an axis over each stride [m/s^2]
+        self.walk_spans: list[float] = []  # the same for the latest walking ZUPT-KF strides [m/s^2]
         self._window_end = -math.inf  # last sample time of the previous stance's field window [s]
         self._cal_last = -1  # index of the last step event whose stance joined a compass calibration
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
@@ -243,11 +253,12 @@ class GaitPipeline:
         cut = int(self._mag_t.searchsorted(lt[-1] - _MAG_KEEP_S, "left"))
         if cut:
             self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
-        if self.stance_mag or self.stance_acc or self.stance_swing:
+        if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_span:
             live = {e.index for e in self.queue}
             self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
             self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
             self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
+            self.stride_span = {k: v for k, v in self.stride_span.items() if k in live}
 
     def _queue_event(self, e: StepEvent) -> None:
         """A new step event joins the queue with the stance field and specific force of its stillest window,
@@ -261,6 +272,22 @@ class GaitPipeline:
             if sw is not None:
                 self.stance_swing[e.index] = sw
         self._window_end = -math.inf if fa is None else fa[2]
+        span = self._stride_span(e)
+        if span is not None:
+            self.stride_span[e.index] = span
+
+    def _stride_span(self, e: StepEvent) -> float | None:
+        """Largest absolute low-rate specific force on an axis [m/s^2] over the stride that ends at ``e`` (at
+        most ``_SWING_MAX_S`` before its onset, up to the end of its stance's field window): what a high-g
+        interrupt at this rate sees of it. None where the stride's samples are not all there (magnetometer
+        off or paused)."""
+        t0 = e.t_s - min(e.period_s, _SWING_MAX_S)
+        tm = self._mag_t
+        lo, hi = int(tm.searchsorted(t0 - 1e-6, "left")), int(tm.searchsorted(self._window_end + 1e-6, "right"))
+        gap = 1.5 / self.rate_hz
+        if hi - lo < 2 or tm[lo] - t0 > gap or float(np.diff(tm[lo:hi]).max()) > gap:
+            return None
+        return float(np.abs(self._mag_a[lo:hi]).max())
 
     def _swing_field(self, t_s: float) -> np.ndarray | None:
         """Up to ``_SWING_SAMPLES`` low-rate field samples [uT] (body), evenly spread over the swing between the
@@ -405,6 +432,9 @@ class GaitPipeline:
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return None
         self.cal.add(behaviour, _features(e), st.step_length)
+        span = self.stride_span.get(e.index)
+        if behaviour == "walk" and span is not None and math.isfinite(span):
+            self.walk_spans = (self.walk_spans + [span])[-_SPAN_STRIDES:]
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
         generic = self._generic.predict(behaviour, _features(e))[0]
         if generic > 0.0:
@@ -577,6 +607,15 @@ class GaitPipeline:
         self._mag_fit_n = -1
         self.follower.forget()
 
+    def run_wake_threshold(self) -> float | None:
+        """High-g threshold [m/s^2] per axis above this person's walking (``RUN_WAKE_MARGIN`` times the largest
+        absolute specific force on an axis of their latest walking ZUPT-KF strides): a device asked to wake the gyroscope on it does so
+        on the first strides of a run, before the host has recognised one. None until enough walking strides
+        were seen."""
+        if len(self.walk_spans) < _SPAN_MIN_STRIDES:
+            return None
+        return RUN_WAKE_MARGIN * max(self.walk_spans)
+
     def bootstrapped(self) -> bool:
         """Gait-DR can place a step: some behaviour has a heading deviation (KF II) and a stride estimate."""
         return any(self.kf2[b].n_updates >= _BOOT_STEPS and (self.recent_d[b] or self.cal.calibrated(b))
@@ -734,6 +773,7 @@ class GaitPipeline:
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
             "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
+            "stride_span": [[k, v] for k, v in self.stride_span.items()], "walk_spans": list(self.walk_spans),
             "window_end": self._window_end, "cal_last": self._cal_last,
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
@@ -764,6 +804,8 @@ class GaitPipeline:
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d.get("stance_acc", [])}
         obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d.get("stance_swing", [])}
+        obj.stride_span = {int(k): float(v) for k, v in d.get("stride_span", [])}  # older states: none
+        obj.walk_spans = [float(x) for x in d.get("walk_spans", [])]
         obj._window_end = float(d.get("window_end", -math.inf))
         obj._cal_last = int(d.get("cal_last", -1))
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])

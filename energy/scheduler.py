@@ -85,6 +85,8 @@ class Scheduler:
         self.heading_misses = 0  # consecutive heading-deviation misses outside an examination
         self.cadences: list[float] = []  # step frequencies of the latest Gait-DR strides of this behaviour [Hz]
         self.pattern_left: int | None = None  # ZUPT-KF strides still wanted by a walking-pattern initialisation
+        # activity threshold above this person's walking [m/s^2] (energy.gait_dr.GaitPipeline.run_wake_threshold)
+        self.run_wake_ms2: float | None = None
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -151,12 +153,17 @@ class Scheduler:
             return []
         b = self.behaviour
         events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f, "fitted_hz": list(fitted)})]
+        return events + self._pattern_init(b, t_ns)
+
+    def _pattern_init(self, b: str, t_ns: int) -> list[Event]:
+        """Initialise a new walking pattern of ``b``: ``PATTERN_INIT_STRIDES`` ZUPT-KF strides."""
         self._calibrate(b)
         self.progress_m.pop(b, None)
         self.l_zupt_m = 0.0
+        self.exam_active = False
+        self.exam_misses = 0
         self.pattern_left = PATTERN_INIT_STRIDES
-        events += self._switch("zupt", t_ns, reason=f"walking pattern of {b} changed")
-        return events
+        return self._switch("zupt", t_ns, reason=f"walking pattern of {b} changed")
 
     def on_calibrated(self, t_s: float, t_ns: int, detail: dict[str, Any] | None = None) -> list[Event]:
         """The engine fitted the step model and KF II after L0: switch to Gait-DR. ``detail`` joins the event."""
@@ -210,7 +217,7 @@ class Scheduler:
         return []
 
     def on_exam_result(self, passed: bool, d_kf: float, d_sl: float, t_s: float, t_ns: int,
-                       heading: dict[str, Any] | None = None) -> list[Event]:
+                       heading: dict[str, Any] | None = None, new_pattern: bool = False) -> list[Event]:
         """004 Table 3: |d_KF - d_SL| <= 3 sigma_d keeps Gait-DR, otherwise re-initialise.
 
         Unlike 004 (one stride), a miss is confirmed on the next stride before the L0 re-initialisation: the
@@ -222,6 +229,12 @@ class Scheduler:
         ``gamma_psi_rad``, ``deviation_rad``, ``sigma_rad``), None when the stride observed no gamma - psi or
         the behaviour's deviation is not tested. A stride fits when both tests pass. While the stored deviation
         is unconfirmed, a stride without a heading observation decides nothing (up to ``EXAM_MAX_STRIDES``).
+
+        ``new_pattern``: the deciding stride's cadence lies outside the cadences the model was fitted on. A
+        step-length failure there is a walking pattern the model has not seen (004 Table 2 (ii)), not a model
+        gone wrong: the ZUPT-KF takes ``PATTERN_INIT_STRIDES`` strides of it (as :meth:`on_cadence` does)
+        instead of a whole L0 (the demo's walk after its run: a fast walk failed the examination before five
+        Gait-DR strides had told its cadence, and the ZUPT-KF then ran the 40 m of an initialisation).
         """
         b = self.behaviour
         detail: dict[str, Any] = {"d_kf_m": d_kf, "d_sl_m": d_sl, "behaviour": b}
@@ -243,6 +256,10 @@ class Scheduler:
         self.last_exam_s = t_s
         if ok:
             return [Event(t_ns, "examination_passed", detail)]
+        if heading_ok and new_pattern and b in _MOVING:
+            return [Event(t_ns, "examination_failed", {**detail, "cause": "walking_pattern",
+                                                       "reason": "a walking pattern the model was not fitted on"}),
+                    *self._pattern_init(b, t_ns)]
         return self._fail(b, t_ns, detail, "heading_deviation" if not heading_ok else "step_length")
 
     def on_heading_check(self, heading: dict[str, Any], t_s: float, t_ns: int) -> list[Event]:
@@ -344,6 +361,21 @@ class Scheduler:
         session): standing, the motion that follows may be it, and its first strides need the ZUPT-KF."""
         return any(not self._resumable(b) for b in _MOVING)
 
+    def run_wake(self) -> bool:
+        """Gait-DR of a walk while running has no model: let the device wake the gyroscope by itself when its
+        accelerometer goes beyond this person's walking (``run_wake_ms2``), as it does on the first motion of a
+        stand (auto mode).
+
+        The host hears "run" only after the recognition delay (~2 s of running) and the rest of a long upload:
+        in the demo's first walk the device sent 4-s batches and the gyroscope came on 5.4 s after the run began,
+        and Gait-DR placed the 8 running strides in between with the walking model (1.1-1.8 m for 2.2-2.4 m).
+        Woken by the device, the gyroscope delivers one turn-on time after the first running stride's impact;
+        the ZUPT-KF takes over at the next stance. Once the host has recognised the run it keeps the gyroscope
+        on (its initialisation); a false wake puts it down after ``SLEEP_AFTER_S`` without such a departure.
+        """
+        return (self.mode == "auto" and self.working == "pdr" and self.behaviour == "walk"
+                and self.run_wake_ms2 is not None and not self._resumable("run"))
+
     def idle(self) -> bool:
         """Standing with the gyroscope off (auto mode)."""
         return self.mode == "auto" and self.behaviour == "stand" and not self.gyro_wanted()
@@ -384,6 +416,10 @@ class Scheduler:
         if gyro:  # ZUPT-KF (initialisation or a one-step examination) needs the full rate
             return SensorConfig(gyro_on=True, acc_rate_hz=c.full_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.mag_rate_hz,
                                 batch_s=batch), False
+        if self.run_wake():  # de-sampled Gait-DR; the device wakes the gyroscope on a run
+            return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.pdr_rate_hz,
+                                batch_s=batch, gyro_wake_on_motion=True, wake_threshold_ms2=float(self.run_wake_ms2 or 0.0),
+                                sleep_after_s=SLEEP_AFTER_S, wake_mode="high_g"), False
         # 004 Section 4.3: de-sampled Gait-DR
         return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz, batch_s=batch), False
 
@@ -445,6 +481,7 @@ class Scheduler:
             "progress_m": dict(self.progress_m),
             "cadences": list(self.cadences),
             "pattern_left": self.pattern_left,
+            "run_wake_ms2": self.run_wake_ms2,
         }
 
     @classmethod
@@ -465,4 +502,6 @@ class Scheduler:
         obj.cadences = [float(f) for f in d.get("cadences", [])]  # older states: none yet
         left = d.get("pattern_left")
         obj.pattern_left = None if left is None else int(left)
+        wake = d.get("run_wake_ms2")  # older states: none
+        obj.run_wake_ms2 = None if wake is None else float(wake)
         return obj

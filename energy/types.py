@@ -9,6 +9,7 @@ __all__ = ["Behaviour", "Mode", "SensorConfig", "Position", "Event", "Update"]
 
 Behaviour = Literal["stand", "walk", "run", "other"]
 Mode = Literal["zupt", "pdr", "idle"]
+WAKE_MODES: tuple[str, ...] = ("motion", "high_g")  # SensorConfig.wake_mode
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,12 @@ class SensorConfig:
         Activity threshold [m/s^2] per axis (used with ``gyro_wake_on_motion``).
     sleep_after_s : float
         Inactivity duration before the device powers the gyroscope down again [s] (with ``gyro_wake_on_motion``).
+    wake_mode : {"motion", "high_g"}
+        With ``gyro_wake_on_motion``, what the threshold applies to. ``"motion"``: the departure of a sample
+        from the still reference (the activity function above: a foot that starts to move). ``"high_g"``: the
+        absolute specific force on an axis (an IMU's high-g interrupt, e.g. LSM9DS1 ``INT_GEN_CFG_XL``
+        ``XHIE/YHIE/ZHIE`` with ``INT_GEN_THS_*_XL``, BMI270 high-g): a gait more vigorous than the one the
+        host has a model for. In both, the gyroscope powers down after ``sleep_after_s`` without an event.
     mag_follows_gyro : bool
         With ``gyro_wake_on_motion``: the magnetometer is powered down while the gyroscope sleeps and samples at
         ``mag_rate_hz`` while it is awake (the device's controller switches it on the same activity interrupt);
@@ -58,8 +65,11 @@ class SensorConfig:
     wake_threshold_ms2: float = 0.0
     sleep_after_s: float = 0.0
     mag_follows_gyro: bool = False
+    wake_mode: str = "motion"
 
     def __post_init__(self) -> None:
+        if self.wake_mode not in WAKE_MODES:
+            raise ValueError(f"SensorConfig: wake_mode must be one of {WAKE_MODES}, got {self.wake_mode!r}")
         if self.gyro_wake_on_motion:
             if self.gyro_on:
                 raise ValueError("SensorConfig: gyro_wake_on_motion means the gyroscope is off now; gyro_on must be False")

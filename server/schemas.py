@@ -100,6 +100,9 @@ class SensorConfigOut(BaseModel):
     sleep_after_s: float = 0.0
     # with gyro_wake_on_motion: the magnetometer sleeps and wakes with the gyroscope (rows stored before: False)
     mag_follows_gyro: bool = False
+    # with gyro_wake_on_motion: "motion" (departure from the still reference) or "high_g" (absolute specific force
+    # on an axis beyond the threshold: a run while Gait-DR has only a walking model; rows stored before: "motion")
+    wake_mode: Literal["motion", "high_g"] = "motion"
 
 
 class SessionOut(_Out):

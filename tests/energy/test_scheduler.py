@@ -502,3 +502,47 @@ def test_walking_pattern_state_round_trip() -> None:
     del old["cadences"], old["pattern_left"]  # a state stored before the walking-pattern trigger
     o = Scheduler.from_state(old)
     assert o.cadences == [] and o.pattern_left is None
+
+
+def test_an_examination_failed_at_a_cadence_the_model_never_saw_initialises_a_walking_pattern_not_l0() -> None:
+    from energy.scheduler import PATTERN_INIT_STRIDES
+
+    for new_pattern in (True, False):
+        s = walking_in_gait_dr()
+        s.start_exam(40.0, 40)
+        s.on_exam_result(False, 1.62, 1.33, 40.5, 40, None, new_pattern)
+        events = s.on_exam_result(False, 1.58, 1.33, 41.5, 41, None, new_pattern)
+        assert events[0].kind == "examination_failed" and s.working == "zupt" and s.calibrating == "walk"
+        assert not s.exam_active and s.l_zupt_m == 0.0
+        if new_pattern:  # a walking pattern of a model still good for its own: a few ZUPT-KF strides
+            assert events[0].detail["cause"] == "walking_pattern" and s.pattern_left == PATTERN_INIT_STRIDES
+            assert "walk" not in s.failed
+        else:  # the model no longer fits where it was fitted: a whole initialisation
+            assert events[0].detail["cause"] == "step_length" and s.pattern_left is None and "walk" in s.failed
+    s = walking_in_gait_dr()  # a heading miss is a re-mounted sensor whatever the cadence
+    s.start_exam(40.0, 40)
+    miss = {"passed": False, "gamma_psi_rad": 1.0, "deviation_rad": 0.0, "sigma_rad": 0.05}
+    s.on_exam_result(True, 1.4, 1.4, 40.5, 40, miss, True)
+    assert s.on_exam_result(True, 1.4, 1.4, 41.5, 41, miss, True)[0].detail["cause"] == "heading_deviation"
+
+
+# ---------------------------------------------------------------- run wake (device high-g interrupt)
+def test_gait_dr_of_a_walk_lets_the_device_wake_the_gyro_on_a_run_it_has_no_model_for() -> None:
+    s = walking_in_gait_dr()
+    c = s.sensor_config()
+    assert not c.gyro_on and not c.gyro_wake_on_motion  # no threshold known yet: plain de-sampled Gait-DR
+    s.run_wake_ms2 = 42.0
+    c = s.sensor_config()
+    assert not c.gyro_on and c.gyro_wake_on_motion and c.wake_mode == "high_g" and c.wake_threshold_ms2 == 42.0
+    assert c.acc_rate_hz == CFG.pdr_rate_hz and c.gyr_rate_hz == CFG.full_rate_hz and c.mag_rate_hz == CFG.pdr_rate_hz
+    assert not c.mag_follows_gyro  # the compass keeps its field
+    r = Scheduler.from_state(s.get_state())
+    assert r.get_state() == s.get_state() and r.sensor_config() == c
+    s.profile.behaviours["run"] = calibrated("run").behaviours["run"]  # a run has a model: nothing to wake for
+    assert not s.sensor_config().gyro_wake_on_motion
+    s.profile.behaviours.pop("run")
+    s.start_exam(50.0, 50)  # the host wants the gyroscope: it asks for it
+    assert s.sensor_config().gyro_on
+    p = walking_in_gait_dr("pdr")  # the fixed scheme never asks for the gyroscope
+    p.run_wake_ms2 = 42.0
+    assert not p.sensor_config().gyro_wake_on_motion and not p.sensor_config().gyro_on

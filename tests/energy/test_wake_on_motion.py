@@ -225,3 +225,39 @@ def test_a_short_gyro_power_down_ends_the_segment_a_dropout_does_not() -> None:
         starts[name] = seen
     assert len(starts["dropout"]) == 1
     assert len(starts["power-down"]) == 2 and 3.12 <= starts["power-down"][1] <= 3.13
+
+
+def test_high_g_wake_takes_the_absolute_specific_force_not_its_departure(day) -> None:
+    """``wake_mode="high_g"``: the largest absolute specific force on an axis decides, to within the 40-ms means
+    the detector sees; a still foot (|a| = g) never wakes it."""
+    rec, batch = day
+    t, a = batch.stream("acc")
+    ts = (t - t[0]) / 1e9
+    k = int(round(batch.rate_hz("acc") / 25.0))
+    n = len(a) // k * k
+    means = a[:n].reshape(-1, k, 3).mean(axis=1)  # what the detector sees: 40-ms means
+    peak = float(np.abs(means).max())
+    for thr, wakes in ((peak * 1.02, False), (peak * 0.9, True)):
+        cfg = SensorConfig(**{**WAKE.to_dict(), "wake_mode": "high_g", "wake_threshold_ms2": thr})
+        g, spans = _emit_seconds(batch, cfg, "gyr")
+        assert (len(g) > 0) == wakes, thr
+        if wakes:  # at the first 40-ms mean beyond the threshold, and never during the stand
+            first = float(ts[k - 1 :: k][: len(means)][np.argmax(np.abs(means).max(axis=1) > thr)])
+            assert abs(g[0] - (first + GYRO_TURN_ON_S)) < 0.006 and g[0] > 40.0
+    with pytest.raises(ValueError, match="wake_mode"):
+        SensorConfig(**{**WAKE.to_dict(), "wake_mode": "shake"})
+
+
+def test_the_device_wakes_the_gyro_at_a_run_while_gait_dr_walks_without_a_run_model() -> None:
+    """The demo's first walk: Gait-DR walks on a walking calibration when the person breaks into a run. The
+    device's high-g interrupt turns the gyroscope on within a stride of the run; before, the host heard of the run
+    after the recognition delay and a 4-s upload, and Gait-DR placed the first 8 running strides with the walking
+    model (1.1-1.8 m for 2.2-2.4 m)."""
+    rec = synthesize("demo", seed=0)
+    res = replay(Engine(mode="auto"), rec.batch, None)
+    t0 = int(rec.batch.t_start_ns or 0)
+    run_t0 = min(a for a, _, lab in rec.truth.extra["segments"] if lab == "run")
+    assert any(c.gyro_wake_on_motion and c.wake_mode == "high_g" for t, c in res.configs if (t - t0) / 1e9 < run_t0)
+    run = [p for p in res.positions if run_t0 < (p.t_ns - t0) / 1e9 < run_t0 + 25.0]  # the run segment
+    first_zupt = next(i for i, p in enumerate(run) if p.mode == "zupt")
+    assert first_zupt <= 2, [(round((p.t_ns - t0) / 1e9, 2), p.mode) for p in run[:10]]
