@@ -701,7 +701,7 @@ class GaitPipeline:
                 shape = self.mag.field_shape(acc_st, m)
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
                                                   *shape, self.mag.trusted, self._compass_sigma(),
-                                                  self.mag.settled(*shape, self.follower.rot_mag_tol,
+                                                  self.mag.settled(*shape, self.follower.lead_mag_tol,
                                                                    self.follower.rot_dip_tol))
                 self.compass_steps += 1
                 direction = self.heading

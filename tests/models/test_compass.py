@@ -263,11 +263,14 @@ def test_untrusted_compass_is_averaged_as_before() -> None:
 def test_follower_state_round_trip() -> None:
     from models.compass import CompassFollower
 
-    f = CompassFollower(reanchor_stances=2)
+    f = CompassFollower(reanchor_stances=2, lead_mag_tol=0.03)
     f.observe(0.3, True, 47.0, 1.1)
     f.observe(0.4, False, 52.0, 1.0)
     back = CompassFollower.from_state(loads(dumps(f.get_state())))
-    assert (back.clean_run, back.prev, back.reanchor_stances) == (f.clean_run, f.prev, 2)
+    assert (back.clean_run, back.prev, back.reanchor_stances, back.lead_mag_tol) == (f.clean_run, f.prev, 2, 0.03)
+    old = f.get_state()
+    old["params"] = old["params"][:8]  # a state stored before the lead tolerance existed: the default
+    assert CompassFollower.from_state(old).lead_mag_tol == CompassFollower().lead_mag_tol
     for g in (f, back):
         g.forget()
     assert back.step(0.0, 1.0, False, 52.0, 1.0) == f.step(0.0, 1.0, False, 52.0, 1.0)
@@ -479,7 +482,7 @@ def _gait_step(f, cal: MagCalibrator, h: float, acc: np.ndarray, mag: np.ndarray
     """One Gait-DR stance; ``settled_test`` False: the follower is told every field is settled (the rule before
     a trusted compass had to be settled to lead)."""
     shape = cal.field_shape(acc, mag)
-    settled = cal.settled(*shape, f.rot_mag_tol, f.rot_dip_tol) if settled_test else True
+    settled = cal.settled(*shape, f.lead_mag_tol, f.rot_dip_tol) if settled_test else True
     return f.step(h, cal.heading(acc, mag), not cal.disturbed(acc, mag), *shape, cal.trusted, cal.heading_scale, settled)
 
 
@@ -603,7 +606,7 @@ def test_a_trusted_compass_leads_only_on_a_settled_field(seed: int) -> None:
             acc = c.T @ np.array([0.0, 0.0, -G])
             mag = c.T @ (M_N + a * d_peak) + rng.normal(scale=0.3, size=3)
             shape = cal.field_shape(acc, mag)
-            settled = cal.settled(*shape, f.rot_mag_tol, f.rot_dip_tol) if use_settled else True
+            settled = cal.settled(*shape, f.lead_mag_tol, f.rot_dip_tol) if use_settled else True
             h = f.step(h, cal.heading(acc, mag), not cal.disturbed(acc, mag), *shape, True, math.nan, settled)
             errs.append(abs(math.remainder(h - yaw, 2 * math.pi)))
         assert max(errs[-3:]) < math.radians(4.0)  # re-anchored on the clean field either way
