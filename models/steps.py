@@ -70,7 +70,8 @@ class StepEvent:
     t_s : float
         Stance-onset time [s] (same clock as the input, filter delay compensated).
     period_s : float
-        Time since the previous stance onset [s] (after a rest: swing time plus a nominal stance).
+        Time since the previous stance onset [s] (after a rest: swing time plus a nominal stance; after a
+        stance longer than a stride, i.e. a short pause: the running stride-period estimate).
     f_s : float
         Step frequency [Hz] = 1 / period_s (004 eq. 15).
     acc_mean, acc_max, acc_min : float
@@ -457,7 +458,14 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
         return n_ev  # standing, shuffling: a new reference stance but no step
     period = onset - last_on if had_last else np.nan
     after_rest = not (period > 0.0 and period <= pf[4])
-    if after_rest:
+    p_est = _k_period(per, ist, pf)
+    if not after_rest and last_end - last_on > p_est:
+        # the previous stance outlasted a whole stride: a pause (shorter than max_period) that the time since its
+        # onset includes (a 1.7-s stop made a 1.15-s walking stride 2.3 s long, f_s 0.44 Hz, and the fitted
+        # cadence range of 004 Table 2 (ii) took it in). The stride's own period is not measurable; it is
+        # taken at the pace before the pause (the estimate) and kept out of the period estimate.
+        period = p_est
+    elif after_rest:
         if had_last and np.isfinite(last_end):
             swing_t = onset - last_end
         else:

@@ -321,3 +321,17 @@ def test_a_state_stored_before_the_stance_statistic_was_kept_restores() -> None:
     seg = StepSegmenter.from_state(loads(dumps(d)))
     assert seg._last.size == 8 and seg._last[7] == np.inf
     assert len(first) + len(seg.feed(t[k:], acc[k:])) == 12
+
+
+@pytest.mark.parametrize("rate", [25.0, 200.0])
+def test_a_stride_after_a_short_pause_has_the_pace_not_the_pause(rate: float) -> None:
+    """A stop of 1.2 s (shorter than ``max_period_s``) inside a walk of 1.1-s strides: the stride after it was
+    given 2.3 s (the time since the previous onset), a cadence of 0.44 Hz that the step-length model and the
+    fitted cadence range took in. It has the pace of the strides before it."""
+    stride = [("stride", 0.65, 0.65), ("still", 0.45, 0.0)]
+    t, acc = _pieces(rate, [("still", 2.0, 0.0)] + stride * 6 + [("still", 1.2, 0.0)] + stride * 4
+                     + [("still", 3.0, 0.0)], 0)
+    seg = StepSegmenter(rate)
+    ev = seg.feed(t, acc) + seg.flush()
+    assert len(ev) == 10 and not any(e.after_rest for e in ev[1:])
+    assert np.allclose([e.period_s for e in ev[1:]], 1.1, rtol=0.05)
