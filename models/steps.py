@@ -24,7 +24,9 @@ therefore works on *candidates* and picks one per stride:
    stride follows a mid-swing pause);
 5. refractory period from the running stride-period estimate: candidates closer than ``refractory_frac``
    periods compete and only the best-scoring one survives (non-maximum suppression), and a new stride
-   needs a swing of at least ``swing_frac`` periods (``min_swing_s`` at least) after the previous stance.
+   needs a swing of at least ``swing_frac`` periods (``min_swing_s`` at least) after the previous stance;
+   two still stances (``q < stance_threshold``) with such a swing between them do not compete whatever the
+   refractory period (it lags a change of pace, e.g. walk -> run: :func:`_k_parted`).
 
 A selected candidate is a step when a swing (``|a| - g`` peak above ``swing_min``) separates it from the
 previous one. Decisions are final once no competing candidate can still arrive, i.e. ``refractory`` plus
@@ -68,7 +70,8 @@ class StepEvent:
     t_s : float
         Stance-onset time [s] (same clock as the input, filter delay compensated).
     period_s : float
-        Time since the previous stance onset [s] (after a rest: swing time plus a nominal stance).
+        Time since the previous stance onset [s] (after a rest: swing time plus a nominal stance; after a
+        stance longer than a stride, i.e. a short pause: the running stride-period estimate).
     f_s : float
         Step frequency [Hz] = 1 / period_s (004 eq. 15).
     acc_mean, acc_max, acc_min : float
@@ -199,7 +202,7 @@ class StepSegmenter:
         self._run = np.zeros(9)
         self._aw = np.zeros((_AW_MAX, 7))
         self._pend = np.zeros(11)
-        self._last = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
+        self._last = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf, np.inf])
         self._per = np.zeros(_N_PER)
         self._ist = np.zeros(5, dtype=np.int64)  # count, b0, n_events, n_await, n_periods
         self._flushed = False
@@ -371,6 +374,8 @@ class StepSegmenter:
             setattr(obj, "_" + a, np.asarray(d[a], dtype=ref.dtype).reshape((-1,) + ref.shape[1:]).copy())
         if obj._last.size < 7:  # stored before the dropped samples' maximum was kept
             obj._last = np.concatenate([obj._last, [-np.inf]])
+        if obj._last.size < 8:  # stored before the stance's statistic was kept: not taken as still
+            obj._last = np.concatenate([obj._last, [np.inf]])
         return obj
 
 
@@ -380,8 +385,8 @@ class StepSegmenter:
 #   run  [valid, i_first, i_last, q, n, mx, my, mz, emitted]   quiet stretch in progress
 #   aw   (AW_MAX, 7) [i_first, i_last, q, n, mx, my, mz]        candidates waiting for their look-ahead
 #   pend [valid, t_on, t_end, q, score, i_first, i_last, mx, my, mz, lim]   best candidate of the refractory window
-#   last [valid, t_on, t_end, i_first, i_last, onset_idx, emax]  last selected stance; emax: largest |a| of the
-#        samples after its end that the buffer dropped (the next swing test spans them)
+#   last [valid, t_on, t_end, i_first, i_last, onset_idx, emax, q]  last selected stance; emax: largest |a| of the
+#        samples after its end that the buffer dropped (the next swing test spans them); q: its statistic
 #   per  (9,) ring of the last stride periods [s]
 #   ist  [count, b0, n_events, n_await, n_periods]
 # Parameters: pf [thr, swing_min, refr_frac, min_period, max_period, swing_frac, min_swing, rel_thr, k_dur, dur_cap,
@@ -448,11 +453,19 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     last[4] = float(i2)
     last[5] = float(on_idx)
     last[6] = -np.inf
+    last[7] = pend[3]
     if not swing:
         return n_ev  # standing, shuffling: a new reference stance but no step
     period = onset - last_on if had_last else np.nan
     after_rest = not (period > 0.0 and period <= pf[4])
-    if after_rest:
+    p_est = _k_period(per, ist, pf)
+    if not after_rest and last_end - last_on > p_est:
+        # the previous stance outlasted a whole stride: a pause (shorter than max_period) that the time since its
+        # onset includes (a 1.7-s stop made a 1.15-s walking stride 2.3 s long, f_s 0.44 Hz, and the fitted
+        # cadence range of 004 Table 2 (ii) took it in). The stride's own period is not measurable; it is
+        # taken at the pace before the pause (the estimate) and kept out of the period estimate.
+        period = p_est
+    elif after_rest:
         if had_last and np.isfinite(last_end):
             swing_t = onset - last_end
         else:
@@ -498,6 +511,48 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
 
 
 @njit(cache=True)
+def _k_parted(end0, q0, i_end0, emax0, t_on, i1, sw, bm, b0, pf):
+    """Two still stances with a swing between them: two strides, whatever the refractory period says.
+
+    The refractory period scales with the running stride-period estimate (median of the last periods), which
+    lags a change of pace: after a walk (1.15-1.35 s) the first run stances (0.74 s apart) fall inside the
+    walking refractory window (0.6 periods), one of each pair is suppressed, and the merged strides (two run
+    strides measured as one walk-like period) keep the estimate there (demo seed 23 at 25 Hz: every other run
+    stride lost). The refractory period is there for stances without a measurable end (the rolling stance at
+    a fast pace; a near-still moment of the swing lies about half a period after its onset). A stance that is
+    still (statistic below ``stance_threshold``, the sensor-noise scale) does have an end, and the swing rule
+    measured from that end (at least ``max(min_swing_s, swing_frac * period)``, with ``|a| - g`` above
+    ``swing_min``) already tells a stance after the swing from a moment within it; a candidate that is still
+    too is then the next stride's stance, not a competitor.
+
+    Parameters
+    ----------
+    end0 : float
+        End of the earlier stance [s].
+    q0 : float
+        Its statistic [m/s^2] (at or above ``stance_threshold``: not still, the rule does not apply).
+    i_end0 : int
+        Its last statistic index.
+    emax0 : float
+        Largest ``|a|`` [m/s^2] of the samples after it that the buffer dropped (``-inf``: none).
+    t_on : float
+        Onset of the (still) candidate [s].
+    i1 : int
+        Its first statistic index.
+    sw : float
+        Shortest swing [s].
+
+    Returns
+    -------
+    bool
+        True when the earlier stance was still and a swing separates the two.
+    """
+    if not (q0 < pf[0]) or t_on - end0 < sw:
+        return False
+    return max(_k_emax(bm, b0, i_end0 + 1, i1 - 1), emax0 - G0) >= pf[1]
+
+
+@njit(cache=True)
 def _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     """Score a candidate and run the non-maximum suppression (returns the new event count)."""
     b0 = ist[1]
@@ -516,11 +571,16 @@ def _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     score = pf[8] * min(dur, pf[9]) + (pre - post) - pf[10] * q
     p = _k_period(per, ist, pf)
     refr = max(pf[3], pf[2] * p)
-    if pend[0] > 0.0 and t_on - pend[1] >= refr:
+    sw = max(pf[6], pf[5] * p)  # shortest swing [s]
+    still = q < pf[0]
+    if pend[0] > 0.0 and (t_on - pend[1] >= refr or (still and _k_parted(pend[2], pend[3], int(pend[6]), -np.inf,
+                                                                          t_on, i1, sw, bm, b0, pf))):
         n_ev = _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
     if pend[0] <= 0.0:
-        if last[0] > 0.0 and (t_on - last[1] < refr or t_on - last[2] < max(pf[6], pf[5] * p)):
-            return n_ev
+        if last[0] > 0.0 and (t_on - last[1] < refr or t_on - last[2] < sw):
+            if not (still and t_on - last[1] >= pf[3]
+                    and _k_parted(last[2], last[7], int(last[4]), last[6], t_on, i1, sw, bm, b0, pf)):
+                return n_ev
     elif score <= pend[4]:
         return n_ev
     pend[0] = 1.0

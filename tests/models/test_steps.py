@@ -262,3 +262,76 @@ def test_a_state_stored_uncollapsed_mid_stand_restores_and_collapses() -> None:
     assert seg._bt.size < 200
     got += seg.feed(t[k + 25:], acc[k + 25:]) + seg.flush()
     assert _event_key(got) == _event_key(ref) and len(got) == 12
+
+
+# -- a change of pace: walk -> run at the Gait-DR rate ----------------------------------------------------------
+def _walk_then_run(walk: str, seed: int, rate: float = 25.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A synthetic walk then a run (no stop), decimated to ``rate`` as the device does: times [s], specific force
+    [m/s^2], truth heel strikes [s]."""
+    from clients.synth import Scenario, Segment, synthesize
+
+    scn = Scenario("walk-run", (Segment("stand", 3.0), Segment(walk, 12.0), Segment("run", 10.0),
+                                Segment("stand", 3.0)))
+    rec = synthesize(scn, seed=seed)
+    dec = Decimator(rec.batch.rate_hz("acc"), rate)
+    t1, a1 = dec.process(rec.batch.acc_t_ns, rec.batch.acc)
+    t2, a2 = dec.flush()
+    return np.r_[t1, t2] * 1e-9, np.r_[a1, a2], np.asarray(rec.truth.extra["step_t_s"])
+
+
+@pytest.mark.parametrize(("walk", "seed"), [("walk_slow", 0), ("walk_slow", 3), ("walk", 1)])
+def test_no_stride_lost_when_a_walk_turns_into_a_run(walk: str, seed: int) -> None:
+    """Run strides (0.74 s) after a walk (1.15-1.35 s) fall inside the refractory period of the walking period
+    estimate; the still run stances after a swing are strides nonetheless. Before that rule one stance of each
+    pair was suppressed (walk_slow: 12-14 of 21 strides, the estimate locked on the doubled period; walk, seed 1:
+    the second run stride lost). Every heel strike found, none added, at 25 Hz without the gyroscope."""
+    t, acc, truth = _walk_then_run(walk, seed)
+    seg = StepSegmenter(25.0)
+    ev = seg.feed(t, acc) + seg.flush()
+    on = np.array([e.t_s for e in ev])
+    assert on.size == truth.size
+    assert np.max(np.abs(on - truth)) < 0.1  # stance onset vs heel strike [s]
+    run = np.array([e.period_s for e in ev[-12:]])  # the run's strides after its first (13 in all)
+    assert np.allclose(run, 0.74, rtol=0.1)
+
+
+@settings(max_examples=15, deadline=None)
+@given(cuts=st.lists(st.integers(min_value=0, max_value=700), max_size=8), small=st.integers(min_value=1, max_value=30))
+def test_walk_to_run_chunk_invariance_and_state_round_trip(cuts: list[int], small: int) -> None:
+    t, acc, _ = _walk_then_run("walk_slow", 0)
+    ref = StepSegmenter(25.0).feed(t, acc)
+    bounds = [0, *sorted({c for c in cuts + list(range(380, 480, small)) if c < t.size}), t.size]
+    seg = StepSegmenter(25.0)
+    got = []
+    for i, j in zip(bounds[:-1], bounds[1:]):
+        seg = StepSegmenter.from_state(loads(dumps(seg.get_state())))
+        got += seg.feed(t[i:j], acc[i:j])
+    assert _event_key(got) == _event_key(ref)
+
+
+def test_a_state_stored_before_the_stance_statistic_was_kept_restores() -> None:
+    """``last`` without the stance's statistic (7 values): restored as not still (the refractory rule applies
+    to the next candidate), and the strides after it are found."""
+    t, acc = synthetic_foot(25.0, strides=12)
+    seg = StepSegmenter(25.0)
+    k = int(6.3 * 25)
+    first = seg.feed(t[:k], acc[:k])
+    d = seg.get_state()
+    d["last"] = d["last"][:7]
+    seg = StepSegmenter.from_state(loads(dumps(d)))
+    assert seg._last.size == 8 and seg._last[7] == np.inf
+    assert len(first) + len(seg.feed(t[k:], acc[k:])) == 12
+
+
+@pytest.mark.parametrize("rate", [25.0, 200.0])
+def test_a_stride_after_a_short_pause_has_the_pace_not_the_pause(rate: float) -> None:
+    """A stop of 1.2 s (shorter than ``max_period_s``) inside a walk of 1.1-s strides: the stride after it was
+    given 2.3 s (the time since the previous onset), a cadence of 0.44 Hz that the step-length model and the
+    fitted cadence range took in. It has the pace of the strides before it."""
+    stride = [("stride", 0.65, 0.65), ("still", 0.45, 0.0)]
+    t, acc = _pieces(rate, [("still", 2.0, 0.0)] + stride * 6 + [("still", 1.2, 0.0)] + stride * 4
+                     + [("still", 3.0, 0.0)], 0)
+    seg = StepSegmenter(rate)
+    ev = seg.feed(t, acc) + seg.flush()
+    assert len(ev) == 10 and not any(e.after_rest for e in ev[1:])
+    assert np.allclose([e.period_s for e in ev[1:]], 1.1, rtol=0.05)
