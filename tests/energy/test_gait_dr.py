@@ -238,40 +238,27 @@ def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() 
     assert gp.own_mag is not None  # Gait-DR stances have no ZUPT-KF heading: they do not feed the own fit
 
 
-def test_trusted_loaded_compass_is_not_replaced_by_an_untrusted_own_fit() -> None:
+@pytest.mark.parametrize("seed, off_deg, own_trusted", [(23, 20.0, False), (24, 4.0, True)])
+def test_trusted_loaded_compass_is_replaced_only_by_an_own_fit_that_agrees_better(seed, off_deg, own_trusted) -> None:
     """A returning user's own fit from a few examination stances can be ready but not trusted (its headings
-    disagree with the ZUPT-KF's); replacing a trusted loaded compass with it would make auto keep the gyroscope
-    on (mixed-day returning seeds 1-2: energy ratio 0.10 -> 0.25). The loaded one stays."""
-    rng = np.random.default_rng(23)
+    disagree with the ZUPT-KF's by 20 deg; replacing a trusted loaded compass with it made auto keep the gyroscope
+    on: mixed-day returning seeds 1-2, energy ratio 0.10 -> 0.25), or trusted yet noisier than the loaded one
+    (4 deg; mixed-day returning seed 26: 15 stances, some of them running, 3.8 deg against the ZUPT-KF, and the
+    compass was then 8-10 deg off through the run, mean error 7.2 m; kept, 4.1 m). It supersedes the loaded one
+    only when trusted and its agreement with the ZUPT-KF (:attr:`MagCalibrator.heading_scale`) is at least as
+    good: here the loaded one stays."""
+    rng = np.random.default_rng(seed)
     stored = _calibrated_compass(rng)
     gp = GaitPipeline(25.0)
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     yaws = rng.uniform(-math.pi, math.pi, 20)
-    for k, yaw in enumerate(yaws):  # ZUPT-KF headings 20 deg off the compass's at random: an untrusted fit
-        off = float(rng.normal(scale=math.radians(20.0)))
+    for k, yaw in enumerate(yaws):  # ZUPT-KF headings off the compass's at random
+        off = float(rng.normal(scale=math.radians(off_deg)))
         _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw) + off))
-    assert gp.own_mag is not None and gp.own_mag.ready and not gp.own_mag.trusted
-    assert gp.mag.trusted and gp.heading_source()
-    assert gp.mag.n_stances == stored.n_stances
-
-
-def test_trusted_loaded_compass_is_replaced_only_by_an_own_fit_that_agrees_better() -> None:
-    """An own fit from a few examination stances can be trusted yet noisier than the loaded compass (mixed day,
-    returning seed 26: 15 stances, some of them running, 3.8 deg against the ZUPT-KF; the compass was then 8-10 deg
-    off through the run, mean error 7.2 m; kept, 4.1 m). It supersedes the loaded one only when its agreement
-    with the ZUPT-KF (:attr:`MagCalibrator.heading_scale`) is at least as good."""
-    rng = np.random.default_rng(24)
-    stored = _calibrated_compass(rng)
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    yaws = rng.uniform(-math.pi, math.pi, 20)
-    for k, yaw in enumerate(yaws):  # ZUPT-KF headings 4 deg off the compass's at random: trusted, but noisy
-        off = float(rng.normal(scale=math.radians(4.0)))
-        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw) + off))
-    assert gp.own_mag is not None and gp.own_mag.ready and gp.own_mag.trusted
-    assert gp.own_mag.heading_scale > gp.mag.heading_scale and gp.mag.n_stances == stored.n_stances
+    assert gp.own_mag is not None and gp.own_mag.ready and gp.own_mag.trusted == own_trusted
+    assert gp.own_mag.heading_scale > gp.mag.heading_scale
+    assert gp.mag.trusted and gp.heading_source() and gp.mag.n_stances == stored.n_stances
 
 
 def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round_trips() -> None:
