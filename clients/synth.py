@@ -373,7 +373,10 @@ def _plan(scn: Scenario, rng: np.random.Generator) -> tuple[_Strides, list[tuple
         labels.append((seg_start, t, BEHAVIOUR_OF[seg.kind]))
         if t_end > t:
             labels.append((t, t_end, "stand"))
-        t = t_end
+        # the strides' periods vary (3 %), so the whole strides that fit on average can overrun the segment by a
+        # few tenths of a second: the next segment then starts at the last heel strike, not before it (starting
+        # at t_end put its first stance, or swing, inside the last swing: demo seed 0 had a 15 ms stance)
+        t = max(t, t_end)
     return st, labels, steel, t
 
 

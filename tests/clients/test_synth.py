@@ -38,6 +38,20 @@ def test_mixed_day_content():
     assert np.ptp(heading) >= np.pi / 2  # turns
 
 
+@pytest.mark.parametrize("name", ["demo", "mixed-day"])
+def test_segments_do_not_overlap(name):
+    """A gait segment whose strides overrun its duration (their periods vary) ends at its last heel strike: the
+    next segment's first stance is a whole one (before, demo seed 0 had a 15 ms stance between walk and run)."""
+    for seed in range(16):
+        r = synthesize(name, seed=seed)
+        seg = r.truth.extra["segments"]
+        assert all(a[1] <= b[0] + 1e-9 for a, b in zip(seg[:-1], seg[1:])), seed
+        # every stance (heel strike to the next toe-off) at least most of the shortest nominal one (run: 0.185 s)
+        d = np.diff(np.r_[0, r.truth.extra["stance"].astype(np.int8), 0])
+        stance_s = (np.flatnonzero(d == -1) - np.flatnonzero(d == 1)) / r.batch.rate_hz()
+        assert stance_s.min() >= 0.15, (seed, stance_s.min())
+
+
 @pytest.mark.parametrize("seed", [0, 7])
 def test_deterministic_from_seed(seed):
     a, b = synthesize("demo", seed=seed), synthesize("demo", seed=seed)
