@@ -46,12 +46,13 @@ _KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more 
 _ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
 # Run wake (energy.scheduler): the device's high-g interrupt wakes the gyroscope when its accelerometer exceeds
 # this factor times the largest absolute specific force on an axis (25-Hz samples) of this person's latest
-# walking strides. Largest |a| on an axis over 2-s windows of 40-ms means: synthetic walks <= 30.8 m/s^2 (4
-# seeds), runs >= 41.0 (ratio 1.33); VICON walk trials <= 36.1, run trials median 41.0, so a slow jog may not
-# wake (the behaviour recognition still catches it).
+# walking strides. Largest |a| on an axis over 2-s windows of 40-ms means (synthetic, 6 seeds each): walks
+# <= 30.8 m/s^2, fast walks <= 39.3, runs >= 43.4 (median 47.1); with 1.25 the fast walks woke it (mixed day
+# energy_ratio up to 0.253). VICON walk trials <= 36.1, run trials median 41.0: a slow jog may not wake (the
+# behaviour recognition still catches it).
 RUN_WAKE_MARGIN = 1.4
-_SPAN_STRIDES = 16  # walking strides whose largest span sets the run-wake threshold
-_SPAN_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
+_PEAK_STRIDES = 16  # walking strides whose largest peak sets the run-wake threshold
+_PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
 
 def _event_row(e: StepEvent) -> list[float]:
@@ -210,8 +211,8 @@ class GaitPipeline:
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
         self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
-        self.stride_span: dict[int, float] = {}  # largest |specific force| on an axis over each stride [m/s^2]
-        self.walk_spans: list[float] = []  # the same for the latest walking ZUPT-KF strides [m/s^2]
+        self.stride_peak: dict[int, float] = {}  # largest |specific force| on an axis over each stride [m/s^2]
+        self.walk_peaks: list[float] = []  # the same for the latest walking ZUPT-KF strides [m/s^2]
         self._window_end = -math.inf  # last sample time of the previous stance's field window [s]
         self._cal_last = -1  # index of the last step event whose stance joined a compass calibration
         self.heading = float("nan")  # last good heading of the sensor x axis [rad]
@@ -253,12 +254,12 @@ class GaitPipeline:
         cut = int(self._mag_t.searchsorted(lt[-1] - _MAG_KEEP_S, "left"))
         if cut:
             self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
-        if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_span:
+        if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_peak:
             live = {e.index for e in self.queue}
             self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
             self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
             self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
-            self.stride_span = {k: v for k, v in self.stride_span.items() if k in live}
+            self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
 
     def _queue_event(self, e: StepEvent) -> None:
         """A new step event joins the queue with the stance field and specific force of its stillest window,
@@ -272,11 +273,11 @@ class GaitPipeline:
             if sw is not None:
                 self.stance_swing[e.index] = sw
         self._window_end = -math.inf if fa is None else fa[2]
-        span = self._stride_span(e)
-        if span is not None:
-            self.stride_span[e.index] = span
+        peak = self._stride_peak(e)
+        if peak is not None:
+            self.stride_peak[e.index] = peak
 
-    def _stride_span(self, e: StepEvent) -> float | None:
+    def _stride_peak(self, e: StepEvent) -> float | None:
         """Largest absolute low-rate specific force on an axis [m/s^2] over the stride that ends at ``e`` (at
         most ``_SWING_MAX_S`` before its onset, up to the end of its stance's field window): what a high-g
         interrupt at this rate sees of it. None where the stride's samples are not all there (magnetometer
@@ -432,9 +433,9 @@ class GaitPipeline:
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return None
         self.cal.add(behaviour, _features(e), st.step_length)
-        span = self.stride_span.get(e.index)
-        if behaviour == "walk" and span is not None and math.isfinite(span):
-            self.walk_spans = (self.walk_spans + [span])[-_SPAN_STRIDES:]
+        peak = self.stride_peak.get(e.index)
+        if behaviour == "walk" and peak is not None and math.isfinite(peak):
+            self.walk_peaks = (self.walk_peaks + [peak])[-_PEAK_STRIDES:]
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
         generic = self._generic.predict(behaviour, _features(e))[0]
         if generic > 0.0:
@@ -532,8 +533,9 @@ class GaitPipeline:
         if n >= self._mag_fit_n + max(1, n // (4 if cal.ready and cal.trusted else 10)):
             cal.refit()
             self._mag_fit_n = n
-        if self.own_mag is not None and self.own_mag.ready and (
-                not self.mag.trusted or (self.own_mag.trusted and self.own_mag.heading_scale <= self.mag.heading_scale)):
+        own = self.own_mag
+        if own is not None and own.ready and (
+                not self.mag.trusted or (own.trusted and own.heading_scale <= self.mag.heading_scale)):
             # a trusted loaded compass stays until the own fit is trusted too and agrees with the ZUPT-KF at least as
             # well: an early own fit, from the few stances of a returning user's examinations, is often not trusted
             # (auto would then keep the gyroscope on), or noisier (returning seed 26: 3.8 deg from 15 stances, some
@@ -612,12 +614,12 @@ class GaitPipeline:
 
     def run_wake_threshold(self) -> float | None:
         """High-g threshold [m/s^2] per axis above this person's walking (``RUN_WAKE_MARGIN`` times the largest
-        absolute specific force on an axis of their latest walking ZUPT-KF strides): a device asked to wake the gyroscope on it does so
-        on the first strides of a run, before the host has recognised one. None until enough walking strides
-        were seen."""
-        if len(self.walk_spans) < _SPAN_MIN_STRIDES:
+        absolute specific force on an axis of their latest walking ZUPT-KF strides): a device asked to wake the
+        gyroscope on it does so on the first strides of a run, before the host has recognised one. None until
+        enough walking strides were seen."""
+        if len(self.walk_peaks) < _PEAK_MIN_STRIDES:
             return None
-        return RUN_WAKE_MARGIN * max(self.walk_spans)
+        return RUN_WAKE_MARGIN * max(self.walk_peaks)
 
     def bootstrapped(self) -> bool:
         """Gait-DR can place a step: some behaviour has a heading deviation (KF II) and a stride estimate."""
@@ -776,7 +778,7 @@ class GaitPipeline:
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
             "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
-            "stride_span": [[k, v] for k, v in self.stride_span.items()], "walk_spans": list(self.walk_spans),
+            "stride_peak": [[k, v] for k, v in self.stride_peak.items()], "walk_peaks": list(self.walk_peaks),
             "window_end": self._window_end, "cal_last": self._cal_last,
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
@@ -807,8 +809,8 @@ class GaitPipeline:
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d.get("stance_acc", [])}
         obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d.get("stance_swing", [])}
-        obj.stride_span = {int(k): float(v) for k, v in d.get("stride_span", [])}  # older states: none
-        obj.walk_spans = [float(x) for x in d.get("walk_spans", [])]
+        obj.stride_peak = {int(k): float(v) for k, v in d.get("stride_peak", [])}  # older states: none
+        obj.walk_peaks = [float(x) for x in d.get("walk_peaks", [])]
         obj._window_end = float(d.get("window_end", -math.inf))
         obj._cal_last = int(d.get("cal_last", -1))
         obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])

@@ -85,7 +85,7 @@ class Scheduler:
         self.heading_misses = 0  # consecutive heading-deviation misses outside an examination
         self.cadences: list[float] = []  # step frequencies of the latest Gait-DR strides of this behaviour [Hz]
         self.pattern_left: int | None = None  # ZUPT-KF strides still wanted by a walking-pattern initialisation
-        # activity threshold above this person's walking [m/s^2] (energy.gait_dr.GaitPipeline.run_wake_threshold)
+        # high-g threshold above this person's walking [m/s^2] (energy.gait_dr.GaitPipeline.run_wake_threshold)
         self.run_wake_ms2: float | None = None
 
     # ------------------------------------------------------------------ inputs
@@ -371,7 +371,7 @@ class Scheduler:
         and Gait-DR placed the 8 running strides in between with the walking model (1.1-1.8 m for 2.2-2.4 m).
         Woken by the device, the gyroscope delivers one turn-on time after the first running stride's impact;
         the ZUPT-KF takes over at the next stance. Once the host has recognised the run it keeps the gyroscope
-        on (its initialisation); a false wake puts it down after ``SLEEP_AFTER_S`` without such a departure.
+        on (its initialisation); a false wake puts it down after ``SLEEP_AFTER_S`` without such an event.
         """
         return (self.mode == "auto" and self.working == "pdr" and self.behaviour == "walk"
                 and self.run_wake_ms2 is not None and not self._resumable("run"))
