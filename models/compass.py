@@ -838,7 +838,7 @@ class MagCalibrator:
         self._dips = []
         self._dip_seen = self._dip_fit_at = 0
 
-    def observe_dip(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
+    def observe_dip(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> bool:
         """A stance whose field passed the disturbance test, in any mode (no heading needed): the dip invariant.
 
         The angle between the field and gravity does not depend on the attitude: with the calibration right,
@@ -851,15 +851,17 @@ class MagCalibrator:
         after turns the stances tell delta (least squares on ``sin(dip) = s0 + delta . k``, robust, with a
         zero-mean prior of the change of the offset between two power-ons, ``_SESSION_TILT_STD``); :attr:`session_tilt` then rotates the calibrated field back onto
         the accelerometer's axes. Only for calibrations from an earlier session (:meth:`start_session`).
+
+        Returns True when this stance refitted the tilt offset (the compass's headings changed).
         """
         if not (self.session_on and self.trusted):
-            return  # an untrusted compass (indoors) is only averaged; its dips are the disturbances'
+            return False  # an untrusted compass (indoors) is only averaged; its dips are the disturbances'
 
         m = self.w_fit @ (np.asarray(mag_stance, dtype=np.float64).reshape(3) - self.b)
         f = np.asarray(acc_stance, dtype=np.float64).reshape(3)
         nm, nf = float(np.linalg.norm(m)), float(np.linalg.norm(f))
         if not (nm > 0.0 and nf > 0.0 and math.isfinite(nm + nf)):
-            return
+            return False
         g = -f / nf  # down, body frame
         self._dips.append([*(np.cross(g, m) / nm).tolist(), float(m @ g) / nm, *g.tolist()])
         del self._dips[:-_DIP_STANCES]
@@ -869,6 +871,8 @@ class MagCalibrator:
             # stance that was as much again as all the rest of Gait-DR's computation)
             self._dip_fit_at = self._dip_seen
             self._fit_session_tilt()
+            return True
+        return False
 
     def _fit_session_tilt(self) -> None:
         """Robust least squares of :meth:`observe_dip`'s model; sets :attr:`session_tilt` and :attr:`w`.
