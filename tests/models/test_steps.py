@@ -319,19 +319,40 @@ def test_a_state_stored_before_the_stance_statistic_was_kept_restores() -> None:
     d = seg.get_state()
     d["last"] = d["last"][:7]
     seg = StepSegmenter.from_state(loads(dumps(d)))
-    assert seg._last.size == 8 and seg._last[7] == np.inf
+    assert seg._last.size == 9 and seg._last[7] == np.inf and seg._last[8] == 0.0
     assert len(first) + len(seg.feed(t[k:], acc[k:])) == 12
 
 
 @pytest.mark.parametrize("rate", [25.0, 200.0])
-def test_a_stride_after_a_short_pause_has_the_pace_not_the_pause(rate: float) -> None:
+@pytest.mark.parametrize("stop_s", [1.2, 0.5])
+def test_a_stride_after_a_short_pause_has_the_pace_not_the_pause(rate: float, stop_s: float) -> None:
     """A stop of 1.2 s (shorter than ``max_period_s``) inside a walk of 1.1-s strides: the stride after it was
     given 2.3 s (the time since the previous onset), a cadence of 0.44 Hz that the step-length model and the
-    fitted cadence range took in. It has the pace of the strides before it."""
+    fitted cadence range took in. A stop of 0.5 s (a stance of 0.95 s, shorter than the stride) was still given
+    1.6 s. It has the pace of the strides before it."""
     stride = [("stride", 0.65, 0.65), ("still", 0.45, 0.0)]
-    t, acc = _pieces(rate, [("still", 2.0, 0.0)] + stride * 6 + [("still", 1.2, 0.0)] + stride * 4
+    t, acc = _pieces(rate, [("still", 2.0, 0.0)] + stride * 6 + [("still", stop_s, 0.0)] + stride * 4
                      + [("still", 3.0, 0.0)], 0)
     seg = StepSegmenter(rate)
     ev = seg.feed(t, acc) + seg.flush()
     assert len(ev) == 10 and not any(e.after_rest for e in ev[1:])
     assert np.allclose([e.period_s for e in ev[1:]], 1.1, rtol=0.05)
+
+
+def test_a_sudden_slow_down_reaches_the_period_estimate() -> None:
+    """From 1.1-s strides to 1.6-s ones whose stance (0.95 s) is most of the old stride, at Gait-DR's 25 Hz: the
+    first slow stride is taken for one after a pause (the pace before it), but never two in a row, so the
+    estimate follows the slower pace from the 6th slow stride on (3 of the first 5 at the old pace: the price
+    of the pause rule); a stance taken for a pause every time would have kept the estimate at 1.1 s for good."""
+    rate = 25.0
+    fast = [("stride", 0.65, 0.65), ("still", 0.45, 0.0)]
+    slow = [("stride", 0.65, 0.65), ("still", 0.95, 0.0)]
+    t, acc = _pieces(rate, [("still", 2.0, 0.0)] + fast * 6 + slow * 10 + [("still", 3.0, 0.0)], 0)
+    seg = StepSegmenter(rate)
+    ev = seg.feed(t, acc) + seg.flush()
+    assert len(ev) == 16
+    periods = np.array([e.period_s for e in ev])
+    assert np.allclose(periods[1:6], 1.1, rtol=0.05)
+    assert np.sum(periods[7:] < 1.3) == 3  # the first slow strides, every other one
+    assert np.allclose(periods[-4:], 1.6, rtol=0.05)
+    assert seg._last[8] == 0.0
