@@ -491,6 +491,15 @@ class MagCalibrator:
         """Stances recorded in all (also those no longer held): what refits are scheduled by."""
         return self._added
 
+    def heading_scale_on(self, first_added: int, last_added: int) -> float:
+        """Robust scale [rad] of this calibration's disagreement with the ZUPT-KF heading (as
+        :attr:`heading_scale`) on the stances held that were recorded ``first_added``-th to ``last_added``-th
+        (counts of :attr:`n_added`, end excluded); NaN where none of them is held."""
+        lo = max(first_added - (self._added - len(self._rows)), 0)
+        hi = max(last_added - (self._added - len(self._rows)), 0)
+        rows = np.asarray(self._rows[lo:hi], dtype=np.float64).reshape(-1, 7)
+        return self._heading_rms(rows)[1] if rows.shape[0] else math.nan
+
     def _design(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Linear model rows: unknowns (m_n, c = W b) hard iron, plus (e00, e11, e01, e02, e12) soft iron.
 

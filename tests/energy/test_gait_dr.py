@@ -215,6 +215,31 @@ def test_loaded_compass_is_anchored_again_as_this_sessions_tilt_offset_is_learne
     assert max(abs(errors_deg(gp))) < 0.6
 
 
+@pytest.mark.parametrize("off_deg, handed_refit", [(0.0, True), (25.0, False)])
+def test_profile_compass_is_refitted_unless_the_latest_stances_pull_it_off(off_deg: float, handed_refit: bool) -> None:
+    """A profile hands on the compass refitted on every stance it holds, unless that refit agrees with the ZUPT-KF
+    on the stances of the fit in use by half again worse (and 0.5 deg): six later stances whose ZUPT-KF heading
+    was 25 deg off (a segment restarted from a held heading) are not the sensor's calibration. Six good ones are."""
+    from models.compass import MagCalibrator
+
+    rng = np.random.default_rng(41)
+    gp = GaitPipeline(25.0)
+    gp.has_mag = True
+    gp.mag = _calibrated_compass(rng)
+    gp._mag_fit_n = gp.mag.n_added  # the fit in use saw every stance so far
+    for _ in range(6):
+        acc, mag = _field_stance(rng, 0.4)
+        gp.mag.add(acc, mag, 0.4 + math.radians(off_deg))
+    refit = MagCalibrator.from_state(gp.mag.get_state())
+    refit.refit()
+    assert not np.allclose(refit.b, gp.mag.b)
+    used, worse = gp.mag.heading_scale_on(0, gp._mag_fit_n), refit.heading_scale_on(0, gp._mag_fit_n)
+    assert (worse > max(1.5 * used, used + math.radians(0.5))) != handed_refit
+    handed = MagCalibrator.from_state(gp.compass_state())
+    assert np.allclose(handed.b, refit.b if handed_refit else gp.mag.b)
+    assert handed.n_stances == gp.mag.n_stances  # the stances are handed on either way
+
+
 ELSEWHERE = np.array([26.0, 3.0, 46.0])  # uT, NED: another building's field (|m| +15 %, dip +5 deg against M_N)
 
 
