@@ -1,4 +1,4 @@
-"""Python SDK of the pednav REST API (httpx; sync and async).
+"""Python SDK of the pednav REST API (httpx2; sync and async).
 
 Uploads are sequenced: batch ``k`` of a session is ``PUT /v1/sessions/{id}/batches/{k}``. A failed request
 (connection error, timeout, 429/5xx) is retried with the *same* sequence number and body, which the server
@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import httpx
+import httpx2
 import msgpack
 import numpy as np
 
@@ -117,7 +117,7 @@ def encode_batch(batch: SensorBatch, encoding: Encoding = "msgpack", float_dtype
     return msgpack.packb(out, use_bin_type=True), "application/msgpack"
 
 
-def _raise_for(r: httpx.Response) -> None:
+def _raise_for(r: httpx2.Response) -> None:
     if r.status_code < 400:
         return
     try:
@@ -131,7 +131,7 @@ def _raise_for(r: httpx.Response) -> None:
     raise ApiError(r.status_code, detail, body)
 
 
-def _retry_after(r: httpx.Response, cap_s: float = 30.0) -> float:
+def _retry_after(r: httpx2.Response, cap_s: float = 30.0) -> float:
     """Extra wait [s] a 429/503 asks for (``Retry-After`` in seconds; 0 when absent or unreadable)."""
     try:
         return min(max(float(r.headers.get("retry-after", "0")), 0.0), cap_s)
@@ -139,7 +139,7 @@ def _retry_after(r: httpx.Response, cap_s: float = 30.0) -> float:
         return 0.0
 
 
-def _decode(r: httpx.Response) -> Any:
+def _decode(r: httpx2.Response) -> Any:
     _raise_for(r)
     if r.status_code == 204:
         return None
@@ -176,7 +176,7 @@ class PednavClient:
         First retry delay [s]; doubles per attempt.
     timeout_s : float
         Per-request timeout [s].
-    http : httpx.Client, optional
+    http : httpx2.Client, optional
         A ready client (tests pass FastAPI's ``TestClient``); ``base_url`` is then ignored.
     """
 
@@ -190,10 +190,10 @@ class PednavClient:
         retries: int = 5,
         backoff_s: float = 0.1,
         timeout_s: float = 30.0,
-        http: httpx.Client | None = None,
+        http: httpx2.Client | None = None,
     ) -> None:
         self._own = http is None
-        self.http = http if http is not None else httpx.Client(base_url=base_url, timeout=timeout_s)
+        self.http = http if http is not None else httpx2.Client(base_url=base_url, timeout=timeout_s)
         self.token = token
         self.opts = _Options(encoding, float_dtype, retries, backoff_s)
 
@@ -212,7 +212,7 @@ class PednavClient:
         h = {"Authorization": f"Bearer {self.token}"} if self.token else {}
         return {**h, **(extra or {})}
 
-    def request(self, method: str, path: str, **kw: Any) -> httpx.Response:
+    def request(self, method: str, path: str, **kw: Any) -> httpx2.Response:
         """One request with retries on transport errors and 429/5xx; raises :class:`Offline` at the end."""
         headers = self._headers(kw.pop("headers", None))
         last: Exception | None = None
@@ -221,7 +221,7 @@ class PednavClient:
                 time.sleep(self.opts.backoff_s * 2 ** (attempt - 1))
             try:
                 r = self.http.request(method, path, headers=headers, **kw)
-            except httpx.TransportError as exc:
+            except httpx2.TransportError as exc:
                 last = exc
                 continue
             if r.status_code in _RETRY_STATUS:
@@ -576,7 +576,7 @@ class BatchStream:
 
 
 class AsyncPednavClient:
-    """Asynchronous twin of :class:`PednavClient` (same parameters; ``http`` is an ``httpx.AsyncClient``)."""
+    """Asynchronous twin of :class:`PednavClient` (same parameters; ``http`` is an ``httpx2.AsyncClient``)."""
 
     def __init__(
         self,
@@ -588,10 +588,10 @@ class AsyncPednavClient:
         retries: int = 5,
         backoff_s: float = 0.1,
         timeout_s: float = 30.0,
-        http: httpx.AsyncClient | None = None,
+        http: httpx2.AsyncClient | None = None,
     ) -> None:
         self._own = http is None
-        self.http = http if http is not None else httpx.AsyncClient(base_url=base_url, timeout=timeout_s)
+        self.http = http if http is not None else httpx2.AsyncClient(base_url=base_url, timeout=timeout_s)
         self.token = token
         self.opts = _Options(encoding, float_dtype, retries, backoff_s)
 
@@ -605,7 +605,7 @@ class AsyncPednavClient:
         if self._own:
             await self.http.aclose()
 
-    async def request(self, method: str, path: str, **kw: Any) -> httpx.Response:
+    async def request(self, method: str, path: str, **kw: Any) -> httpx2.Response:
         headers = {**({"Authorization": f"Bearer {self.token}"} if self.token else {}), **(kw.pop("headers", None) or {})}
         last: Exception | None = None
         for attempt in range(self.opts.retries + 1):
@@ -613,7 +613,7 @@ class AsyncPednavClient:
                 await asyncio.sleep(self.opts.backoff_s * 2 ** (attempt - 1))
             try:
                 r = await self.http.request(method, path, headers=headers, **kw)
-            except httpx.TransportError as exc:
+            except httpx2.TransportError as exc:
                 last = exc
                 continue
             if r.status_code in _RETRY_STATUS:

@@ -127,16 +127,16 @@ class _Server:
         return f"http://127.0.0.1:{self.port}"
 
     def wait(self, timeout: float = 60.0) -> None:
-        import httpx
+        import httpx2
 
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}")
             try:
-                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                if httpx2.get(self.url + "/healthz", timeout=1.0).status_code == 200:
                     return
-            except httpx.TransportError:
+            except httpx2.TransportError:
                 pass
             time.sleep(0.2)
         raise RuntimeError("server did not start")
@@ -270,11 +270,11 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
 
 async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]],
                      cpu: Any = lambda: {}) -> dict[str, Any]:
-    import httpx
+    import httpx2
 
     port = int(url.rsplit(":", 1)[1])
-    limits = httpx.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
-    async with httpx.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
+    limits = httpx2.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
+    async with httpx2.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
         token = tokens[-1]  # warm-up and set-up; every device has its own token (the per-token rate limit)
         h = {"Authorization": f"Bearer {token}"}
         # warm-up sessions (engine JIT compilation), not measured: consecutive session ids, so each of up to

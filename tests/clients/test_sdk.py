@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 from pathlib import Path
 
-import httpx
+import httpx2
 import numpy as np
 import pytest
 from hypothesis import given, settings as hsettings, strategies as st
@@ -54,26 +54,26 @@ def test_binary_body_is_at_least_3x_smaller_than_json(seed: int) -> None:
     assert np.array_equal(decode_batch(f4, "application/msgpack", 10**6).acc, b.acc)
 
 
-class Flaky(httpx.BaseTransport):
+class Flaky(httpx2.BaseTransport):
     """Wraps a transport; fails the chosen attempts before sending or after the server answered."""
 
-    def __init__(self, inner: httpx.BaseTransport) -> None:
+    def __init__(self, inner: httpx2.BaseTransport) -> None:
         self.inner = inner
         self.fail_before = 0
         self.lose_response = 0
         self.down = False
         self.calls = 0
 
-    def handle_request(self, request: httpx.Request) -> httpx.Response:
+    def handle_request(self, request: httpx2.Request) -> httpx2.Response:
         self.calls += 1
         if self.down or self.fail_before > 0:
             self.fail_before = max(self.fail_before - 1, 0)
-            raise httpx.ConnectError("simulated: no network", request=request)
+            raise httpx2.ConnectError("simulated: no network", request=request)
         resp = self.inner.handle_request(request)
         if self.lose_response > 0:
             self.lose_response -= 1
             resp.read()
-            raise httpx.ReadTimeout("simulated: answer lost", request=request)
+            raise httpx2.ReadTimeout("simulated: answer lost", request=request)
         return resp
 
 
@@ -81,7 +81,7 @@ class Flaky(httpx.BaseTransport):
 def flaky_api(client, make_user):  # type: ignore[no-untyped-def]  # noqa: F811
     _, tok = make_user()
     flaky = Flaky(client._transport)
-    http = httpx.Client(transport=flaky, base_url=str(client.base_url))
+    http = httpx2.Client(transport=flaky, base_url=str(client.base_url))
     api = PednavClient(token=tok, http=http, retries=4, backoff_s=0.0)
     yield api, flaky
     http.close()
@@ -124,7 +124,7 @@ def test_async_client(app, make_user) -> None:  # type: ignore[no-untyped-def]  
     _, tok = make_user()
 
     async def go() -> list[dict]:  # type: ignore[type-arg]
-        http = httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test")
+        http = httpx2.AsyncClient(transport=httpx2.ASGITransport(app=app), base_url="http://test")
         async with AsyncPednavClient(token=tok, http=http) as api:
             sid = (await api.start_session("watch"))["id"]
             stream = api.stream(sid)
@@ -196,16 +196,16 @@ def test_api_streamed_equals_local_real_recording(client, make_user, vicon_dir: 
 # ---------------------------------------------------------------- durable offline buffer (spool)
 _CRASHING_DEVICE = r"""
 import os, signal, sys
-import httpx
+import httpx2
 from clients.sdk import PednavClient
 from tests.server.conftest import still_batch
 
-class Down(httpx.BaseTransport):
+class Down(httpx2.BaseTransport):
     def handle_request(self, request):
-        raise httpx.ConnectError("simulated: no network", request=request)
+        raise httpx2.ConnectError("simulated: no network", request=request)
 
 sid, spool, t0 = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
-api = PednavClient(token="irrelevant", http=httpx.Client(transport=Down(), base_url="http://testserver"), retries=0)
+api = PednavClient(token="irrelevant", http=httpx2.Client(transport=Down(), base_url="http://testserver"), retries=0)
 stream = api.stream(sid, next_seq=1, spool_dir=spool)
 for k in range(1, 4):
     assert stream.send(still_batch(t0 + k * 10**9, seed=k)) == []
@@ -300,7 +300,7 @@ def test_async_stream_with_spool(app, make_user, tmp_path) -> None:  # type: ign
     _, tok = make_user()
 
     async def go() -> tuple[list[int], list[int]]:
-        http = httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test")
+        http = httpx2.AsyncClient(transport=httpx2.ASGITransport(app=app), base_url="http://test")
         async with AsyncPednavClient(token=tok, http=http) as api:
             sid = (await api.start_session("watch"))["id"]
             stream = api.stream(sid, spool_dir=tmp_path)
