@@ -197,6 +197,14 @@ def sigma_d(d_kf: np.ndarray, d_sl: np.ndarray) -> float:
     return float(np.sqrt(np.sum((d_kf - d_sl) ** 2) / (n - 1)))
 
 
+def _fit_state(v: dict) -> dict:
+    """A fit entry as plain data (``acc_mean_range`` only where kept: fits stored before it hold no a_bar)."""
+    out = {"coef": [float(c) for c in v["coef"]], "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
+    if "acc_mean_range" in v:
+        out["acc_mean_range"] = [float(x) for x in v["acc_mean_range"]]
+    return out
+
+
 class StepLengthCalibrator:
     """Online step-length calibration per behaviour and walking pattern (004 eq. 15, Table 3).
 
@@ -303,7 +311,8 @@ class StepLengthCalibrator:
                 coef = robust_fit(x, r[:, 4], pooled, self.band_prior_scale * sd)
             sig = sigma_d(r[:, 4], x @ coef)  # 004 Table 3
             out[key] = {"coef": coef.tolist(), "sigma_d": max(sig, self.sigma_floor) if np.isfinite(sig)
-                        else float("nan"), "n": int(len(r))}
+                        else float("nan"), "n": int(len(r)),
+                        "acc_mean_range": [float(r[:, 1].min()), float(r[:, 1].max())]}
         for k in [k for k in self._fits if k == behaviour or k.startswith(behaviour + "/")]:
             del self._fits[k]
         self._fits.update(out)
@@ -336,6 +345,14 @@ class StepLengthCalibrator:
         model = self.model_for(behaviour)
         e = self._entry(behaviour, x.f_s)
         coef = e["coef"] if e else default_prior(model)[0].tolist()
+        if model == "eq15" and e and "acc_mean_range" in e and coef[3] < 0.0:
+            # a K3 fitted negative over the calibration strides' narrow range of a_bar would place a more vigorous
+            # stride shorter beyond it: the demo's first running stride, still labelled walk (a_bar 24 against the
+            # walk's 13-14 m/s^2), got 0.87 m for 2.15 m. Beyond that range it is held at the range's edge (the
+            # cadence terms, held by the prior's shape, still extrapolate); a positive K3 extrapolates (clamping
+            # it too: mixed day new users 1.93 / 2.12 -> 2.21 / 2.23 m, gdin pdr distance 0.83 -> 0.92 %)
+            lo, hi = e["acc_mean_range"]
+            x = StepFeatures(x.f_s, min(max(x.acc_mean, lo), hi), x.acc_max, x.acc_min)
         d = math.fsum(c * r for c, r in zip(coef, _regressor_list(model, x, self.height_m)))
         return d, (float(e["sigma_d"]) if e else float("nan"))
 
@@ -380,8 +397,7 @@ class StepLengthCalibrator:
                 "height_m": self.height_m, "sigma_floor": self.sigma_floor, "band_prior_scale": self.band_prior_scale,
                 "max_pairs": self.max_pairs,
                 "pairs": {k: [list(map(float, r)) for r in v] for k, v in self._pairs.items()},
-                "fits": {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
-                         for k, v in self._fits.items()}}
+                "fits": {k: _fit_state(v) for k, v in self._fits.items()}}
 
     @classmethod
     def from_state(cls, d: dict) -> StepLengthCalibrator:
@@ -392,8 +408,7 @@ class StepLengthCalibrator:
                   str(d.get("run_model", "eq15_run")),  # older profiles: 004's running form
                   int(d.get("max_pairs", MAX_PAIRS)))
         obj._pairs = {k: [list(map(float, r)) for r in v] for k, v in d["pairs"].items()}
-        obj._fits = {k: {"coef": list(map(float, v["coef"])), "sigma_d": float(v["sigma_d"]), "n": int(v["n"])}
-                     for k, v in d["fits"].items()}
+        obj._fits = {k: _fit_state(v) for k, v in d["fits"].items()}
         for b in list(obj._pairs):  # profiles stored before the bound
             obj._bound(b)
         if d.get("form") != FORM:

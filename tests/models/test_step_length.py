@@ -267,3 +267,25 @@ def test_pairs_are_bounded_to_the_newest_and_the_fit_keeps_counting_its_own() ->
     assert back.max_pairs == 300 and back.n_pairs("walk") == 50
     with pytest.raises(ValueError, match="max_pairs"):
         StepLengthCalibrator(max_pairs=4)
+
+
+@pytest.mark.parametrize("k3", [-0.05, 0.15])
+def test_a_negative_acceleration_slope_is_not_extrapolated_beyond_the_calibration(k3: float) -> None:
+    """Fitted over a_bar 13-14 m/s^2, a negative K3 would place a stride of a_bar 24 (a first running stride still
+    labelled walk) far shorter than the walk's; beyond the fitted range a_bar is held at its edge. Within the
+    range, and for a positive K3 beyond it, the fitted slope applies."""
+    rng = np.random.default_rng(5)
+    cal = StepLengthCalibrator("eq15")
+    for _ in range(40):
+        a = float(rng.uniform(13.0, 14.0))
+        cal.add("walk", StepFeatures(0.85, a, 30.0, 5.0), 1.35 + k3 * (a - 13.5) + float(rng.normal(scale=0.005)))
+    cal.fit("walk")
+    assert cal._fits["walk"]["coef"][3] == pytest.approx(k3, abs=0.03)
+    edge = cal.predict("walk", StepFeatures(0.85, 14.0, 30.0, 5.0))[0]
+    inside = cal.predict("walk", StepFeatures(0.85, 13.2, 30.0, 5.0))[0]
+    vigorous = cal.predict("walk", StepFeatures(0.85, 24.0, 30.0, 5.0))[0]
+    assert (edge - inside) * k3 > 0.0  # the fitted slope within the range
+    if k3 < 0.0:
+        assert vigorous == pytest.approx(edge)
+    else:
+        assert vigorous > edge + 1.0
