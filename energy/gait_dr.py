@@ -460,12 +460,15 @@ class GaitPipeline:
         that passed the gate moved the fitted tilt offset by 1.1 deg and the compass by 5 deg at one heading for
         100 s (synthetic mixed day, returning seed 8: mean error 4.39 -> 2.51 m with this test). True when the
         offset was refitted."""
-        cal = self.mag
-        if not cal.session_on:
+        if not self.mag.session_on:
             return False
-        shape = cal.field_shape(acc_stance, mag_stance)
-        return (cal.settled(*shape, self.follower.lead_mag_tol, self.follower.rot_dip_tol)
-                and cal.observe_dip(acc_stance, mag_stance))
+        return self._settled(self.mag.field_shape(acc_stance, mag_stance)) and self.mag.observe_dip(acc_stance,
+                                                                                                    mag_stance)
+
+    def _settled(self, shape: tuple[float, float]) -> bool:
+        """The field's magnitude [uT] and dip [rad] (:meth:`~models.compass.MagCalibrator.field_shape`) are the
+        Earth's within the tolerances by which the compass may lead (:class:`~models.compass.CompassFollower`)."""
+        return self.mag.settled(*shape, self.follower.lead_mag_tol, self.follower.rot_dip_tol)
 
     def _anchor_compass(self, heading: float, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
         """Turn a compass calibration loaded from a profile into this session's navigation frame.
@@ -743,8 +746,7 @@ class GaitPipeline:
                 shape = self.mag.field_shape(acc_st, m)
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
                                                   *shape, self.mag.trusted, self._compass_sigma(),
-                                                  self.mag.settled(*shape, self.follower.lead_mag_tol,
-                                                                   self.follower.rot_dip_tol))
+                                                  self._settled(shape))
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
