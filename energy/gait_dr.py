@@ -326,8 +326,10 @@ class GaitPipeline:
 
     @property
     def horizon(self) -> float:
-        """Every step event with a stance onset before this time [s] is in :attr:`queue` (or was taken)."""
-        return self.t_in - SEGMENTER_LATENCY_S
+        """Every step event with a stance onset before this time [s] is in :attr:`queue` (or was taken): the step
+        segmentation's own bound (:attr:`models.steps.StepSegmenter.final_before_s`), usually 0.5-1 s fresher than
+        the fixed ``t_in - SEGMENTER_LATENCY_S``, so a hand-over to Gait-DR is decided a batch sooner."""
+        return self._seg.final_before_s if math.isfinite(self.t_in) else self.t_in
 
     def _stance_field(self, t_s: float) -> tuple[np.ndarray, np.ndarray, float] | None:
         """Mean low-rate specific force [m/s^2] and field [uT] (body) over the stance's stillest window.

@@ -213,6 +213,30 @@ class StepSegmenter:
         """Bound on (input time when a step is emitted) - (its onset) [s]: ``max_latency_s`` + filter delay."""
         return self.max_latency_s + self._delay / self.rate_hz
 
+    @property
+    def final_before_s(self) -> float:
+        """Every step with an onset before this time [s] has been emitted (input clock).
+
+        The earliest onset any candidate can still have: the pending one, those awaiting their look-ahead, the
+        quiet stretch in progress, and one a later sample can open (a local minimum at the newest statistic,
+        one sample back). Usually 0.6-1 s behind the newest input, where :attr:`latency_s` bounds it.
+        """
+        if self._flushed:
+            return math.inf
+        count, b0 = int(self._ist[0]), int(self._ist[1])
+        if count == 0 or self._bt.size == 0:
+            return -math.inf
+        w1 = self._w - 1
+        first = count - 1 - w1  # statistic index of the earliest candidate a later sample can open
+        if self._run[0] > 0.0 and self._run[8] <= 0.0:
+            first = min(first, int(self._run[1]))
+        if self._ist[3]:
+            first = min(first, int(self._aw[: self._ist[3], 0].min()))
+        t = float(self._bt[min(max(first - w1 - b0, 0), self._bt.size - 1)])
+        if self._pend[0] > 0.0:
+            t = min(t, float(self._pend[1]))
+        return t
+
     # -- streaming -----------------------------------------------------------------------------------------
     def feed(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray | None = None) -> list[StepEvent]:
         """Consume a chunk of accelerometer samples.

@@ -172,6 +172,27 @@ def test_restore_mid_session_continues_identically(sent) -> None:
         assert got.shape == whole.shape and np.abs(got[:, 1:] - whole[:, 1:]).max() <= 1e-9
 
 
+def test_horizon_is_never_passed_by_a_later_step_and_is_fresher_than_the_fixed_bound(demo) -> None:
+    """GaitPipeline.horizon (the segmentation's own bound, through the 200 -> 25 Hz decimation): no step event
+    comes out later with an onset before it, and it is less stale than ``t_in - SEGMENTER_LATENCY_S``."""
+    gait = GaitPipeline(25.0)
+    b = demo.batch.time_slice(None, demo.batch.t_start_ns + int(90e9))
+    t = (b.acc_t_ns - b.t_start_ns) / 1e9
+    horizon, lags, n = -np.inf, [], 0
+    for lo in range(0, len(t), 37):
+        hi = min(lo + 37, len(t))
+        gait.feed(t[lo:hi], b.acc[lo:hi], np.full((hi - lo, 3), np.nan))
+        assert all(e.t_s >= horizon for e in gait.queue)
+        n += len(gait.queue)
+        gait.queue.clear()
+        assert gait.horizon >= horizon
+        horizon = gait.horizon
+        lags.append(t[hi - 1] - horizon)
+    assert n > 30
+    assert max(lags) < SEGMENTER_LATENCY_S
+    assert np.median(lags) < SEGMENTER_LATENCY_S - 0.5, np.median(lags)
+
+
 def test_step_events_arrive_within_the_declared_latency(demo) -> None:
     """GaitPipeline.horizon relies on this bound; measured with 0.1 s pieces at 200 Hz."""
     gait = GaitPipeline(25.0)

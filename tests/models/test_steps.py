@@ -197,6 +197,36 @@ def test_collapsed_quiet_stretches_give_the_same_events(rate: float, kinds: list
     assert _event_key(got) == _event_key(ref)
 
 
+@settings(max_examples=30, deadline=None)
+@given(rate=st.sampled_from([25.0, 200.0]), kinds=st.lists(_SEGMENTS, min_size=2, max_size=14),
+       cuts=st.lists(st.floats(0.0, 1.0), max_size=12), seed=st.integers(0, 3), restore=st.booleans())
+def test_no_step_comes_out_before_the_final_before_bound(rate: float, kinds: list, cuts: list[float], seed: int,
+                                                         restore: bool) -> None:
+    """``final_before_s`` (what the engine waits for before it works through a ZUPT-KF stance): no step emitted
+    later has an earlier onset, the bound never moves back, it is at most ``latency_s`` behind the newest input
+    (the fixed bound it replaces), and infinite once flushed."""
+    kinds = [("stride", 1.1, 1.1)] + kinds + [("still", 3.0, 0.0)]
+    t, acc = _pieces(rate, kinds, seed)
+    seg = StepSegmenter(rate)
+    assert seg.final_before_s == -np.inf
+    bounds = [0, *sorted({int(c * t.size) for c in cuts} | set(range(0, t.size, int(0.37 * rate)))), t.size]
+    bound, fresher = -np.inf, 0
+    for i, j in zip(bounds[:-1], bounds[1:]):
+        if restore:
+            seg = StepSegmenter.from_state(loads(dumps(seg.get_state())))
+        events = seg.feed(t[i:j], acc[i:j])
+        assert all(e.t_s >= bound for e in events), (bound, [e.t_s for e in events])
+        new = seg.final_before_s
+        assert new >= bound
+        if j > i:
+            assert new >= t[j - 1] - seg.latency_s - 1e-9
+            fresher += new > t[j - 1] - seg.latency_s + 0.2
+        bound = new
+    assert all(e.t_s >= bound for e in seg.flush())
+    assert seg.final_before_s == np.inf
+    assert fresher > 0
+
+
 def test_a_stand_right_after_a_stance_gives_the_same_events() -> None:
     """The stand's quiet stretch starts within the swing rule of the stance before it (a shuffle between
     them), so it is not selected; the next step's swing test spans the collapsed samples (a spike among them)."""
