@@ -461,6 +461,18 @@ def test_a_sustained_cadence_change_re_initialises_the_walking_pattern_and_one_o
     assert s.working == "pdr" and s.pattern_left is None and s.last_exam_s == 20.0
 
 
+def test_a_pace_between_two_sample_counts_is_not_a_new_walking_pattern() -> None:
+    """Periods in whole 0.04-s samples: a 1.11-s pace reads as 1.08 and 1.16 s. Three 1.08-s strides in five make
+    the median cadence (0.926 Hz) leave a range fitted up to 0.909 Hz; the middle periods' mean (1.107 s) does
+    not. One sample shorter throughout (1.04 s) is a new pattern."""
+    fitted = (0.70, 0.909)
+    s = walking_in_gait_dr()
+    mixed = [1 / 1.08, 1 / 1.16, 1 / 1.08, 1 / 1.16, 1 / 1.08, 1 / 1.24, 1 / 1.08, 1 / 1.16, 1 / 1.08]
+    assert not [e for f in mixed for e in s.on_cadence(f, fitted, 1)] and s.working == "pdr"
+    events = [e for f in [1 / 1.04] * 3 for e in s.on_cadence(f, fitted, 2)]
+    assert [e.kind for e in events] == ["walking_pattern_changed", "mode_switch"] and s.working == "zupt"
+
+
 def test_the_walking_pattern_trigger_needs_auto_mode_gait_dr_and_a_fitted_model() -> None:
     fast = [1.0] * 6
     p = walking_in_gait_dr("pdr")  # the fixed scheme has no examinations
