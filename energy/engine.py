@@ -628,11 +628,16 @@ class Engine:
         reversed: rates negated, velocity sign flipped) from the still foot, where the attitude is known (roll
         and pitch levelled from ``acc_rest``, ``heading`` as the restarted ZUPT-KF gets it) and the velocity
         is zero, with the ZUPT-KF's bias estimates removed. What the foot did before the gyroscope delivered
-        (the detector's period plus the turn-on time, about 0.1 s of heel-off) is not seen.
+        (the detector's period plus the turn-on time, about 0.1 s of heel-off) is not seen. A foot still from
+        the first sample on (a gentle start, a turn on the spot that begins slowly) has none: zero (gaitmap-mag,
+        6.7 s: taken for a host-started segment, Gait-DR had placed the first step 1.7 m off the ZUPT-KF's).
+        None where the segment did not start on its own or found no still foot within ``_LEAD_MAX_S``.
         """
         lead, self._lead = self._lead, None
-        if lead is None or len(lead[0]) < 2:
+        if lead is None or not len(lead[0]):
             return None
+        if len(lead[0]) == 1:
+            return np.zeros(3)  # the still foot is the segment's first sample: the whole first stride is its own
         t, a, g = lead
         if float(t[-1]) - float(t[0]) > _LEAD_MAX_S:
             return None

@@ -27,3 +27,8 @@ def gdin_dir() -> Path:
 @pytest.fixture(scope="session")
 def gaitmap_dir() -> Path:
     return _require("gaitmap-mocap")
+
+
+@pytest.fixture(scope="session")
+def gaitmap_mag_dir() -> Path:
+    return _require("gaitmap-mag")
