@@ -98,6 +98,8 @@ PAR = {
             "gap_gyr_sigma",  # [rad/s] per axis: tilt rate a linear interpolation over a gap misses
             "gap_yaw_sigma",  # [rad/s] heading rate it misses (unobservable by ZUPT; lets the heading aids act)
             "gap_max_s",  # [s] a longer gap is not bridged: hold, re-level at the next stance
+            "swing_min_s",  # [s] no stance starts this soon after the last one ended ...
+            "swing_speed",  # [m/s] ... while the mechanised foot moves faster than this (a mid-swing pause)
         )
     )
 }
@@ -140,6 +142,7 @@ FS = {
             "dt_n",  # intervals pushed into the ring below
             "dtr0", "dtr1", "dtr2", "dtr3", "dtr4", "dtr5", "dtr6", "dtr7", "dtr8",  # latest intervals [s]
             "dt_min",  # smallest of them [s]
+            "t_toe_off",  # end of the last stance [s]
         )
     )
 }
@@ -227,6 +230,9 @@ _F_NCO = FS["n_coasted"]
 _F_DTN = FS["dt_n"]
 _F_DTR = FS["dtr0"]
 _F_DTMIN = FS["dt_min"]
+_F_TOFF = FS["t_toe_off"]
+_SWMIN = PAR["swing_min_s"]
+_SWSPD = PAR["swing_speed"]
 _N_DTR = 9
 
 
@@ -1049,6 +1055,12 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
         fs[1] = t[i]
         ist[3] = 1
         # ---- stance bookkeeping and measurement updates ----
+        if zv and not ist[1] and t[i] - fs[_F_TOFF] < par[_SWMIN] and (
+                x[4] ** 2 + x[5] ** 2 + x[6] ** 2 > par[_SWSPD] ** 2):
+            # a foot still moving fast just after toe-off is in mid-swing, not on the ground: stair ascent pauses
+            # the foot's rotation 0.1-0.25 s into the swing at 1.3-2 m/s (gaitmap stair-up: every stride)
+            zv = False
+            o_zupt[k] = False
         if zv:
             if not ist[1]:
                 # heel strike: start of a stance
@@ -1078,6 +1090,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
             if ist[1]:
                 # toe-off: the stance ends; magnetic heading update from the stance's mean field
                 ist[1] = 0
+                fs[_F_TOFF] = t[i]
                 mag_used = 0.0
                 if fs[22] > 0 and fs[26] > 0 and par[_MAGON] > 0:
                     mN = fs[19] / fs[22]

@@ -347,12 +347,12 @@ def test_chunk_invariance_with_gyro_delay(delay_s):
     assert len(out.stances) == len(ref.stances)
 
 
-def test_state_from_before_the_gyro_peak_entry_restores():
+def test_state_from_before_the_newest_float_state_entry_restores():
     t, acc, gyr, _ = synthetic_walk()
     nav = ZuptNavigator()
     nav.process(t[:700], acc[:700], gyr[:700])
     state = nav.get_state()
-    state["fs"] = state["fs"][:-1]  # a state saved before FS gained "gyr_peak"
+    state["fs"] = state["fs"][:-1]  # a state saved before FS gained its last entry (now "t_toe_off")
     back = ZuptNavigator.from_state(state)
     assert back.get_state()["fs"][-1] == 0.0
     back.process(t[700:], acc[700:], gyr[700:])
@@ -372,3 +372,50 @@ def test_a_half_hour_walk_keeps_the_covariance_symmetric_and_positive_definite()
     assert len(out.stances) > 1400
     np.testing.assert_array_equal(p, p.T)
     assert np.linalg.eigvalsh(p).min() > 0.0
+
+
+def _gliding_strides(n_strides: int = 4, push: float = 15.0, push_s: float = 0.1, glide_s: float = 0.15,
+                     stance_s: float = 0.6, rest_s: float = 1.5, rate: float = 200.0):
+    """Strides north in which the foot, 0.1 s after toe-off, glides for ``glide_s`` at ``push * push_s`` m/s
+    without accelerating or rotating: the IMU then reads what a still foot reads. Returns t, acc, gyr and the
+    true distance [m]."""
+    period = 2 * push_s + glide_s + stance_s
+    t = np.arange(0, rest_s + n_strides * period + rest_s, 1 / rate)
+    ph = (t - rest_s) % period
+    moving = (t >= rest_s) & (t < rest_s + n_strides * period)
+    a = np.where(moving & (ph < push_s), push, 0.0) - np.where(
+        moving & (ph >= push_s + glide_s) & (ph < 2 * push_s + glide_s), push, 0.0)
+    acc = np.column_stack([a, np.zeros_like(a), np.full_like(a, -G)])
+    rng = np.random.default_rng(3)
+    acc += rng.normal(0, 0.01, acc.shape)
+    gyr = rng.normal(0, 2e-4, (t.size, 3))
+    return t, acc, gyr, n_strides * push * push_s * (push_s + glide_s)
+
+
+def test_a_foot_gliding_fast_just_after_toe_off_is_not_standing() -> None:
+    """Stair ascent pauses the foot's rotation 0.1-0.25 s into the swing while it moves at 1.3-2 m/s, and the
+    detector, its threshold raised by the hard footfalls, took that for a stance: the ZUPT zeroed the climb
+    (gaitmap stair-up: 1.4 m climbed instead of the 4.4 m the same flight descends). Here the foot glides at
+    1.5 m/s with the IMU reading exactly what a still foot reads; within ``swing_min_s`` of toe-off and faster
+    than ``swing_speed`` that is a swing, so every stride keeps its length (without the rule it loses its glide)."""
+    t, acc, gyr, dist = _gliding_strides()
+    out = ZuptNavigator().run(t, acc, gyr)
+    assert np.linalg.norm(out.pos[-1, :2]) == pytest.approx(dist, rel=0.05)
+    off = ZuptNavigator(ZuptConfig(swing_speed=1e9)).run(t, acc, gyr)  # the rule switched off
+    assert np.linalg.norm(off.pos[-1, :2]) < 0.5 * dist
+
+
+def test_stairs_up_climb_what_stairs_down_descend(gaitmap_dir) -> None:
+    """gaitmap's stair ascent and descent (one flight, up then down, 204.8 Hz, no magnetometer): the ZUPT-KF
+    must climb about what it descends, stride by stride (before the mid-swing rule: 1.4 m up, 4.5 m down)."""
+    from clients.importers import load
+
+    climbs = []
+    for name in ("imu_sample_healthy_stair_up.csv", "imu_sample_healthy_stair_down.csv"):
+        b = load(gaitmap_dir / name).batch
+        t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+        out = ZuptNavigator().run(t, b.acc, b.gyr)
+        climbs.append(-sum(s.delta[2] for s in out.stances))  # NED: up is -d
+    up, down = climbs
+    assert up > 3.5 and down < -3.5, climbs
+    assert abs(up + down) < 0.1 * abs(down), climbs
