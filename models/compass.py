@@ -160,7 +160,10 @@ class CompassFollower:
     within ``sigmas`` x sqrt(2) x the compass's own noise (a difference of two readings). A compass that turns
     while the gyroscope does not is disturbed whatever the gate says: the follower becomes :attr:`suspect`, the
     absolute compass does not lead (the heading the ZUPT-KF handed over is held, turns taken from compass
-    changes as through a gated disturbance) until ``reanchor_stances`` consecutive stances are consistent
+    changes as through a gated disturbance, but only on a clean and settled field: on any other the field was
+    just seen turning by itself, so its changes are not taken either; synthetic mixed day, seed 27, 143-149 s:
+    three such changes taken as turns held the heading 58 deg off, mean error 6.4 -> 2.1 m, 3 of 64 other days
+    moved by under 0.1 m) until ``reanchor_stances`` consecutive stances are consistent
     again: on a ZUPT-KF stance, the field passes the gate and its change agrees with the gyroscope's; on a
     Gait-DR stance (no gyroscope), the field passes the gate and either the compass agrees with the held heading
     (the field is back, the held heading was right) or the field's magnitude and dip are the Earth's within their
@@ -321,6 +324,8 @@ class CompassFollower:
             return follow_compass(heading, compass, clean, self.gain, self.turn)
         if clean and settled and self.established:
             return follow_compass(heading, compass, True, self.gain, self.turn)
+        if self.suspect and not (clean and settled):
+            return heading  # the field turned by itself here: its changes are not the foot's
         return wrap_angle(heading + turned)
 
     def get_state(self) -> dict:
