@@ -1,9 +1,12 @@
-"""``pednav eval vicon|gdin``: run the engine over public recordings and print DESIGN.md's metrics.
+"""``pednav eval vicon|gdin|gaitmap``: run the engine over public recordings and print DESIGN.md's metrics.
 
 Forms (DESIGN.md "Evaluation contracts")::
 
     pednav eval vicon DIR --json
     pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
+
+Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
+of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`).
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
@@ -279,6 +282,49 @@ def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: d
     return rows, failed, groups
 
 
+def _run_gaitmap(args: argparse.Namespace) -> int:
+    from clients.evaluation import harness
+    from clients.importers.gaitmap import load_gaitmap
+
+    directory = Path(args.dir) if args.dir else _default_dir("gaitmap-mocap")
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval gaitmap: data folder not found ({args.dir or 'PEDNAV_DATA/gaitmap-mocap'})", file=sys.stderr)
+        return 2
+    items = harness.select(harness.gaitmap_recordings(directory), lambda it: f"{it[0].stem}-{it[1]}", args.match,
+                           args.limit)
+    if not items:
+        _nothing_found("gaitmap", directory, args.match)
+    runner = _runner(args.batch_seconds)
+    rows: list[dict[str, Any]] = []
+    failed = 0
+    for f, foot in _progress(items, f"gaitmap {args.mode}"):
+        try:
+            ev = harness.evaluate_gaitmap_recording(load_gaitmap(f, foot=foot), runner, args.mode)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            _log_failure(f, exc)
+            rows.append({"name": f"{f.stem}-{foot}", "error": f"{type(exc).__name__}: {exc}"})
+            failed += 1
+            continue
+        rows.append(ev.row)
+        if args.plot:
+            from clients.evaluation.plots import plot_gaitmap
+
+            plot_gaitmap(args.plot, ev.row, ev.plot)
+    doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows)}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(f"{'recording':<40} {'strides':>7} {'len MAE m':>9} {'len RMSE m':>10} {'dh RMSE m':>9} {'dist %':>7} {'climb m':>8}")
+        for r in rows:
+            if "error" in r:
+                print(f"{r['name']:<40} ERROR {r['error']}")
+                continue
+            print(f"{r['name']:<40} {r['strides_detected']:>7d} {_fmt(r.get('stride_length_mean_abs_err_m'), '9.3f')} "
+                  f"{_fmt(r.get('stride_length_rmse_m'), '10.3f')} {_fmt(r.get('stride_height_rmse_m'), '9.3f')} "
+                  f"{_fmt(r.get('distance_err_pct'), '7.2f')} {r['climb_m']:>8.2f}")
+    return 1 if failed or not items else 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -289,7 +335,8 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("eval", help="evaluate the engine on public datasets (VICON ARMSE, gdin loop/stride errors)")
+    p = sub.add_parser("eval", help="evaluate the engine on public datasets (VICON ARMSE, gdin loop/stride errors, "
+                                    "gaitmap stride lengths against motion capture)")
     esub = p.add_subparsers(dest="dataset", metavar="DATASET", required=True)
     pv = esub.add_parser("vicon", help="University of Toronto VICON trials: authors' ARMSE, behaviour fractions")
     _common(pv)
@@ -305,3 +352,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "leave-one-out = a returning user, profile from walking the other recordings of the same "
                          "sensor/format group in experiment order, never the recording itself")
     pg.set_defaults(func=_run_gdin)
+    pm = esub.add_parser("gaitmap", help="gaitmap example walks and stairs (both feet): stride lengths against optical "
+                                         "motion capture, height climbed")
+    _common(pm)
+    pm.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
+    pm.set_defaults(func=_run_gaitmap)

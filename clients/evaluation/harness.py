@@ -67,6 +67,10 @@ __all__ = [
     "gdin_entries",
     "load_vicon_trial",
     "load_gdin_entry",
+    "gaitmap_recordings",
+    "evaluate_gaitmap_recording",
+    "gaitmap_summary",
+    "GAITMAP_SUMMARY_KEYS",
     "PROFILE_PROTOCOLS",
     "Session",
     "ProfileChain",
@@ -88,6 +92,13 @@ GDIN_SUMMARY_KEYS: tuple[str, ...] = (
     "gyro_on_fraction",
     "mean_rate_hz",
     "pdr_distance_err_pct",
+)
+GAITMAP_SUMMARY_KEYS: tuple[str, ...] = (
+    "stride_length_mean_abs_err_m",
+    "stride_length_rmse_m",
+    "stride_height_rmse_m",
+    "distance_err_pct",
+    "gyro_on_fraction",
 )
 PROFILE_PROTOCOLS: tuple[str, ...] = ("none", "leave-one-out")
 _PROFILE_EVENTS: tuple[str, ...] = (
@@ -314,6 +325,43 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     return Evaluated(row, plot, usable=row["gt_usable"])
 
 
+def evaluate_gaitmap_recording(rec: Recording, runner: Runner, mode: str = "zupt") -> Evaluated:
+    """Stride lengths against optical motion capture, and the height climbed, for one gaitmap foot recording.
+
+    At the foot's still moments of the mocap-derived stride events (``Truth.extra["stance_t_ns"]``) the
+    engine's trace position is compared with the heel marker's (:func:`clients.evaluation.metrics.
+    stride_length_errors`: strides of at least 0.3 m, distance over all of them); the engine's own stance times
+    are not used (it reports a stance at its end, when the heel has already lifted by centimetres). ``climb_m``: height of the last reported stance above the first [m] (stairs: what the flight rose
+    or, negative, fell; there is no truth for it). ``strides_detected``: stance-to-stance intervals reported.
+    """
+    run = runner(rec.batch, mode, None)
+    st = run.stances
+    row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": max(int(st.shape[0]) - 1, 0),
+                           "climb_m": float(st[0, 3] - st[-1, 3]) if st.shape[0] >= 2 else 0.0,
+                           "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
+                           "truth": rec.truth is not None and "stance_t_ns" in rec.truth.extra}
+    plot: dict[str, Any] = {"stances_ned": st[:, 1:4].copy()}
+    if rec.truth is not None and "stance_t_ns" in rec.truth.extra:
+        q = np.asarray(rec.truth.extra["stance_t_ns"], dtype=np.int64)
+        q = q[(q >= rec.truth.t_ns[0]) & (q <= rec.truth.t_ns[-1])]
+        est = positions_at(run.t_ns, run.pos, q)
+        truth = positions_at(rec.truth.t_ns, rec.truth.positions, q)
+        se = metrics.stride_length_errors(est, truth)
+        row.update(stride_length_mean_abs_err_m=se.mean_abs_m, stride_length_rmse_m=se.rmse_m,
+                   stride_height_rmse_m=se.height_rmse_m, strides_compared=se.n, distance_err_pct=se.distance_err_pct)
+        plot["truth_xyz"] = truth
+        plot["est_ned"] = est
+    if rec.meta.notes:
+        row["notes"] = list(rec.meta.notes)
+    return Evaluated(row, plot, usable=rec.truth is not None)
+
+
+def gaitmap_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Per metric ``{"mean", "median", "n"}`` over the rows with motion-capture truth."""
+    ok = [r for r in rows if r.get("truth") and "error" not in r]
+    return {k: metrics.summarise([r.get(k) for r in ok]) for k in GAITMAP_SUMMARY_KEYS}
+
+
 def vicon_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """``{"mean_armse_2d_m", "median_armse_2d_m", "trials"}`` (plus 3-D mean/median) over successful trials."""
     v = [r["armse_2d_m"] for r in rows if r.get("armse_2d_m") is not None]
@@ -348,6 +396,20 @@ def vicon_files(directory: str | Path) -> list[Path]:
 def gdin_entries(directory: str | Path) -> list[GdinEntry]:
     """Every gdin recording under ``directory``, paired with its truth."""
     return find_gdin(directory)
+
+
+def gaitmap_recordings(directory: str | Path) -> list[tuple[Path, str]]:
+    """``(file, foot)`` for every two-sensor gaitmap CSV in ``directory`` (``imu_sample*.csv``: both feet),
+    sorted by file name."""
+    from clients.importers.gaitmap import sniff
+
+    files = sorted(f for f in Path(directory).glob("*.csv") if f.is_file() and sniff(f))
+    out: list[tuple[Path, str]] = []
+    for f in files:
+        with open(f, encoding="utf-8") as fh:
+            two_feet = "left_sensor" in fh.readline()
+        out += [(f, "left"), (f, "right")] if two_feet else [(f, "left")]
+    return out
 
 
 def load_vicon_trial(path: Path) -> Recording:

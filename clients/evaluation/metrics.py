@@ -26,6 +26,8 @@ __all__ = [
     "stride_errors",
     "summarise",
     "segment_distance_error_pct",
+    "StrideLengthErrors",
+    "stride_length_errors",
 ]
 
 
@@ -278,3 +280,63 @@ def summarise(values: list[float | None]) -> dict[str, float | int | None]:
     if v.size == 0:
         return {"mean": None, "median": None, "n": 0}
     return {"mean": float(np.mean(v)), "median": float(np.median(v)), "n": int(v.size)}
+
+
+@dataclass(frozen=True)
+class StrideLengthErrors:
+    """Stance-to-stance errors against a marker that is still at the same stances (:func:`stride_length_errors`).
+
+    Attributes
+    ----------
+    mean_abs_m, rmse_m : float or None
+        Mean absolute and RMS error of the horizontal stride length [m] over the strides whose true length is
+        at least ``min_length_m`` (None when there are none).
+    height_rmse_m : float or None
+        RMS error of the height change per stride [m] over the same strides.
+    n : int
+        Number of those strides.
+    distance_err_pct : float or None
+        :func:`distance_error_pct` of the summed horizontal lengths of all stance-to-stance intervals (None when
+        the truth moved less than ``min_length_m`` in all).
+    """
+
+    mean_abs_m: float | None
+    rmse_m: float | None
+    height_rmse_m: float | None
+    n: int
+    distance_err_pct: float | None
+
+
+def stride_length_errors(est_ned: np.ndarray, truth_xyz_up: np.ndarray, min_length_m: float = 0.3) -> StrideLengthErrors:
+    """Stride lengths and height changes of the estimate against a truth marker at the same stances.
+
+    Lengths and height changes do not depend on where either frame starts or which way its horizontal axes
+    point, so nothing is aligned. A marker on the foot (e.g. the heel) moves with the sensor from one stance to
+    the next except for the foot's turn, which shortens or lengthens a turning stride by the lever arm.
+
+    Parameters
+    ----------
+    est_ned : array_like, shape (K, 3)
+        Estimated positions at K consecutive stances, NED [m].
+    truth_xyz_up : array_like, shape (K, 3)
+        True marker positions at the same stances, horizontal x, y and z up [m].
+    min_length_m : float
+        Strides shorter than this in the truth (steps on the spot, turns) count only towards the distance.
+    """
+    e = _as_xyz(est_ned, "est_ned")
+    g = _as_xyz(truth_xyz_up, "truth_xyz_up")
+    if e.shape != g.shape:
+        raise ValueError(f"est_ned {e.shape} and truth_xyz_up {g.shape}: the same stances are needed")
+    if e.shape[0] < 2:
+        return StrideLengthErrors(None, None, None, 0, None)
+    de, dg = np.diff(e, axis=0), np.diff(g, axis=0)
+    le, lg = np.linalg.norm(de[:, :2], axis=1), np.linalg.norm(dg[:, :2], axis=1)
+    k = lg >= min_length_m
+    n = int(k.sum())
+    dist = distance_error_pct(float(le.sum()), float(lg.sum())) if lg.sum() >= min_length_m else None
+    if n == 0:
+        return StrideLengthErrors(None, None, None, 0, dist)
+    err = le[k] - lg[k]
+    dh = -de[k, 2] - dg[k, 2]  # NED down against z up
+    return StrideLengthErrors(float(np.mean(np.abs(err))), float(np.sqrt(np.mean(err**2))),
+                              float(np.sqrt(np.mean(dh**2))), n, dist)

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["plot_vicon", "plot_gdin"]
+__all__ = ["plot_vicon", "plot_gdin", "plot_gaitmap"]
 
 
 def _figure() -> tuple[Any, Any]:
@@ -87,3 +87,26 @@ def _display_rotation(e: np.ndarray, gcp: np.ndarray, stride_numbers: Any) -> fl
         return 0.0
     idx = np.flatnonzero(m)[:1]  # the first leg only: later corners carry the drift being shown
     return fit_rotation_2d(e[sn[idx]], gcp[idx])
+
+
+def plot_gaitmap(out_dir: str | Path, row: dict[str, Any], plot: dict[str, Any]) -> Path:
+    """Side view: height [m] over the horizontal distance walked [m] of the engine's stances and, where there is
+    motion capture, of the heel marker at the foot's still moments (both from their first point)."""
+    fig, ax = _figure()
+
+    def side(p: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1))])
+        return d, up - up[0]
+
+    st = np.asarray(plot["stances_ned"], dtype=np.float64).reshape(-1, 3)
+    if "truth_xyz" in plot and len(plot["truth_xyz"]):
+        g = np.asarray(plot["truth_xyz"], dtype=np.float64)
+        ax.plot(*side(g, g[:, 2]), "k.-", lw=1.0, ms=3, label="heel marker (motion capture), still moments")
+    if st.shape[0]:
+        ax.plot(*side(st, -st[:, 2]), "C3.-", lw=0.8, ms=3, label="engine, per stance")
+    ax.set_xlabel("horizontal distance walked [m]")
+    ax.set_ylabel("height [m]")
+    mae = row.get("stride_length_mean_abs_err_m")
+    title = f"{row['name']} ({row['mode']}): climb {row['climb_m']:.2f} m" + (
+        f", stride length MAE {mae:.3f} m" if mae is not None else "")
+    return _save(fig, ax, Path(out_dir) / f"{row['name']}.png", title)

@@ -12,7 +12,8 @@ known: ``rate_hz=`` or one of the documented example files in ``KNOWN_RATES_HZ``
 rather than guessing). Xsens normalised magnetometer values (1.0 = field at the calibration site) are
 converted to uT only when ``mag_scale_ut`` is given; otherwise the magnetometer is NOT imported and the
 metadata says so. For imu_sample.csv the synchronised heel-marker trajectory (mocap_sample.csv, 100 Hz, mm)
-is attached as truth (converted to m).
+is attached as truth (converted to m), with the foot's still moments from stride_events_sample.csv
+(``Truth.extra["stance_t_ns"]``).
 """
 
 from __future__ import annotations
@@ -186,8 +187,22 @@ def _mocap_truth(p: Path, foot: str) -> Truth | None:
     pos = a[:, cols] / 1000.0
     ok = np.all(np.isfinite(pos), axis=1)
     k = np.arange(a.shape[0])[ok]
-    return Truth(
-        t_ns=np.round(k / MOCAP_RATE_HZ * 1e9).astype(np.int64),
-        positions=pos[ok],
-        extra={"marker": marker, "frame": "mocap lab frame [m] (from mm)", "rate_hz": MOCAP_RATE_HZ},
-    )
+    extra: dict[str, object] = {"marker": marker, "frame": "mocap lab frame [m] (from mm)", "rate_hz": MOCAP_RATE_HZ}
+    stance = _mid_stances(p.with_name("stride_events_sample.csv"), foot, KNOWN_RATES_HZ[p.name])
+    if stance is not None:
+        extra["stance_t_ns"] = stance
+    return Truth(t_ns=np.round(k / MOCAP_RATE_HZ * 1e9).astype(np.int64), positions=pos[ok], extra=extra)
+
+
+def _mid_stances(path: Path, foot: str, rate_hz: float) -> np.ndarray | None:
+    """Times [ns] of the foot's still moments from gaitmap's mocap-derived stride events (``min_vel``: each
+    stride runs from one to the next; the last stride's ``end`` is the next), sorted; None without the file."""
+    if not path.exists():
+        return None
+    with open(path, encoding="utf-8", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("foot") == foot]
+    try:
+        idx = {float(r["min_vel"]) for r in rows} | {float(r["end"]) for r in rows}
+    except (KeyError, ValueError) as exc:
+        raise ImporterError(path, "min_vel/end", f"stride events unreadable ({exc})") from exc
+    return np.round(np.array(sorted(idx)) / rate_hz * 1e9).astype(np.int64) if idx else None

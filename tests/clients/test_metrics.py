@@ -218,3 +218,31 @@ def test_segment_distance_error_counts_only_the_chosen_strides() -> None:
     assert metrics.segment_distance_error_pct(est, truth, np.zeros(4, dtype=bool)) == (None, 0)
     with pytest.raises(ValueError, match="inside"):
         metrics.segment_distance_error_pct(est, truth, np.ones(3, dtype=bool))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-np.pi, np.pi), st.floats(-50.0, 50.0), st.floats(-50.0, 50.0))
+def test_stride_length_errors_ignore_where_the_frames_start_and_point(theta: float, dx: float, dy: float) -> None:
+    """A perfect estimate in another horizontal frame (NED, turned and shifted) has no stride errors; the truth's
+    z is up, the estimate's d down."""
+    truth = _walk(40)
+    truth[:, 2] = np.linspace(0.0, 3.0, truth.shape[0])  # climbing
+    est = np.column_stack([(truth[:, :2] @ _rot(theta).T) + [dx, dy], -truth[:, 2]])
+    e = metrics.stride_length_errors(est, truth, min_length_m=0.05)
+    assert e.n > 30
+    assert e.mean_abs_m == pytest.approx(0.0, abs=1e-9) and e.height_rmse_m == pytest.approx(0.0, abs=1e-9)
+    assert e.distance_err_pct == pytest.approx(0.0, abs=1e-9)
+
+
+def test_stride_length_errors_of_a_long_and_flat_estimate() -> None:
+    """Strides 10 % long and never climbing: every counted stride errs by a tenth of its length and by its
+    climb; strides under ``min_length_m`` count only towards the distance."""
+    truth = np.array([[0.0, 0, 0], [1.0, 0, 0.2], [2.0, 0, 0.4], [2.1, 0, 0.4], [3.1, 0, 0.6]])
+    est = np.column_stack([truth[:, 0] * 1.1, truth[:, 1], np.zeros(5)])
+    e = metrics.stride_length_errors(est, truth, min_length_m=0.3)
+    assert e.n == 3
+    assert e.mean_abs_m == pytest.approx(0.1) and e.rmse_m == pytest.approx(0.1)
+    assert e.height_rmse_m == pytest.approx(0.2)
+    assert e.distance_err_pct == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="same stances"):
+        metrics.stride_length_errors(est[:4], truth)
