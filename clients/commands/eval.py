@@ -83,6 +83,41 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
+def _evaluate_each(items: list[Any], desc: str, where: Any, evaluate: Any, plot: Any,
+                   plot_dir: str | None) -> tuple[list[dict[str, Any]], int]:
+    """Rows of ``evaluate(item)`` for every item (``where(item)``: the file to log and the row name of a failure,
+    which is listed as ``"error"`` and does not hide the others), a plot each into ``plot_dir`` when given; and
+    the number of failures."""
+    rows: list[dict[str, Any]] = []
+    failed = 0
+    for it in _progress(items, desc):
+        try:
+            ev = evaluate(it)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            path, name = where(it)
+            _log_failure(path, exc)
+            rows.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
+            failed += 1
+            continue
+        rows.append(ev.row)
+        if plot_dir:
+            plot(plot_dir, ev.row, ev.plot)
+    return rows, failed
+
+
+def _print(doc: dict[str, Any], rows: list[dict[str, Any]], as_json: bool, width: int, header: str,
+           line: Any) -> bool:
+    """``doc`` as JSON, or a table: ``header`` and ``line(row)`` per row (a failed row: its name, padded to
+    ``width``, and the error). True when the table was printed."""
+    if as_json:
+        print(json.dumps(doc, indent=2))
+        return False
+    print(header)
+    for r in rows:
+        print(f"{r['name']:<{width}} ERROR {r['error']}" if "error" in r else line(r))
+    return True
+
+
 def _run_vicon(args: argparse.Namespace) -> int:
     from clients.evaluation import harness
 
@@ -94,35 +129,20 @@ def _run_vicon(args: argparse.Namespace) -> int:
     if not files:
         _nothing_found("vicon", directory, args.match)
     runner = _runner(args.batch_seconds)
-    rows: list[dict[str, Any]] = []
-    failed = 0
-    for f in _progress(files, "vicon"):
-        try:
-            ev = harness.evaluate_vicon_recording(harness.load_vicon_trial(f), runner)
-        except Exception as exc:  # noqa: BLE001 - one broken trial must not hide the others
-            _log_failure(f, exc)
-            rows.append({"name": f.stem, "error": f"{type(exc).__name__}: {exc}"})
-            failed += 1
-            continue
-        rows.append(ev.row)
-        if args.plot:
-            from clients.evaluation.plots import plot_vicon
+    from clients.evaluation.plots import plot_vicon
 
-            plot_vicon(args.plot, ev.row, ev.plot)
+    rows, failed = _evaluate_each(files, "vicon", lambda f: (f, f.stem),
+                                  lambda f: harness.evaluate_vicon_recording(harness.load_vicon_trial(f), runner),
+                                  plot_vicon, args.plot)
     doc = {"dataset": "vicon", "mode": "zupt", "trials": rows, "summary": harness.vicon_summary(rows)}
-    if args.json:
-        print(json.dumps(doc, indent=2))
-    else:
-        print(f"{'trial':<22} {'ARMSE2D m':>9} {'ARMSE3D m':>9} {'samples':>7} {'stand':>6} {'walk':>6} {'run':>6} {'other':>6}")
-        for r in rows:
-            if "error" in r:
-                print(f"{r['name']:<22} ERROR {r['error']}")
-                continue
-            b = r["behaviour"]
-            print(
-                f"{r['name']:<22} {r['armse_2d_m']:>9.3f} {r['armse_3d_m']:>9.3f} {r['samples']:>7d} "
-                f"{b['stand']:>6.2f} {b['walk']:>6.2f} {b['run']:>6.2f} {b['other']:>6.2f}"
-            )
+
+    def line(r: dict[str, Any]) -> str:
+        b = r["behaviour"]
+        return (f"{r['name']:<22} {r['armse_2d_m']:>9.3f} {r['armse_3d_m']:>9.3f} {r['samples']:>7d} "
+                f"{b['stand']:>6.2f} {b['walk']:>6.2f} {b['run']:>6.2f} {b['other']:>6.2f}")
+
+    if _print(doc, rows, args.json, 22, f"{'trial':<22} {'ARMSE2D m':>9} {'ARMSE3D m':>9} {'samples':>7} "
+              f"{'stand':>6} {'walk':>6} {'run':>6} {'other':>6}", line):
         s = doc["summary"]
         print(f"\n{s['trials']} trials: mean 2-D ARMSE {_fmt(s['mean_armse_2d_m'], '.3f')} m, "
               f"median {_fmt(s['median_armse_2d_m'], '.3f')} m")
@@ -295,33 +315,21 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     if not items:
         _nothing_found("gaitmap", directory, args.match)
     runner = _runner(args.batch_seconds)
-    rows: list[dict[str, Any]] = []
-    failed = 0
-    for f, foot in _progress(items, f"gaitmap {args.mode}"):
-        try:
-            ev = harness.evaluate_gaitmap_recording(load_gaitmap(f, foot=foot), runner, args.mode)
-        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
-            _log_failure(f, exc)
-            rows.append({"name": f"{f.stem}-{foot}", "error": f"{type(exc).__name__}: {exc}"})
-            failed += 1
-            continue
-        rows.append(ev.row)
-        if args.plot:
-            from clients.evaluation.plots import plot_gaitmap
+    from clients.evaluation.plots import plot_gaitmap
 
-            plot_gaitmap(args.plot, ev.row, ev.plot)
+    rows, failed = _evaluate_each(items, f"gaitmap {args.mode}", lambda it: (it[0], f"{it[0].stem}-{it[1]}"),
+                                  lambda it: harness.evaluate_gaitmap_recording(load_gaitmap(it[0], foot=it[1]),
+                                                                                runner, args.mode),
+                                  plot_gaitmap, args.plot)
     doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows)}
-    if args.json:
-        print(json.dumps(doc, indent=2))
-    else:
-        print(f"{'recording':<40} {'strides':>7} {'len MAE m':>9} {'len RMSE m':>10} {'dh RMSE m':>9} {'dist %':>7} {'climb m':>8}")
-        for r in rows:
-            if "error" in r:
-                print(f"{r['name']:<40} ERROR {r['error']}")
-                continue
-            print(f"{r['name']:<40} {r['strides_detected']:>7d} {_fmt(r.get('stride_length_mean_abs_err_m'), '9.3f')} "
-                  f"{_fmt(r.get('stride_length_rmse_m'), '10.3f')} {_fmt(r.get('stride_height_rmse_m'), '9.3f')} "
-                  f"{_fmt(r.get('distance_err_pct'), '7.2f')} {r['climb_m']:>8.2f}")
+
+    def line(r: dict[str, Any]) -> str:
+        return (f"{r['name']:<40} {r['strides_detected']:>7d} {_fmt(r.get('stride_length_mean_abs_err_m'), '9.3f')} "
+                f"{_fmt(r.get('stride_length_rmse_m'), '10.3f')} {_fmt(r.get('stride_height_rmse_m'), '9.3f')} "
+                f"{_fmt(r.get('distance_err_pct'), '7.2f')} {r['climb_m']:>8.2f}")
+
+    _print(doc, rows, args.json, 40, f"{'recording':<40} {'strides':>7} {'len MAE m':>9} {'len RMSE m':>10} "
+           f"{'dh RMSE m':>9} {'dist %':>7} {'climb m':>8}", line)
     return 1 if failed or not items else 0
 
 
