@@ -9,6 +9,7 @@ which sensors the device should use next (004 Tables 1-3). The complete state se
 
 from __future__ import annotations
 
+import logging
 import math
 from bisect import bisect_right
 from dataclasses import dataclass, field, replace
@@ -31,6 +32,8 @@ from models.heading_deviation import HeadingDeviationKF, wrap_angle
 from models.rotations import dcm_heading, dcm_to_quat, euler_to_dcm
 from models.strapdown import integrate
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-exported from energy.config
 
@@ -330,6 +333,7 @@ class Engine:
         self._pos: np.ndarray | None = None  # last output position [m NED]
         self._head = math.nan  # sensor heading at the last output [rad]
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
+        self._warned_no_heading = False
         self._await_rest = False  # a restarting segment waits for a still foot
         self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
         self._pre_rot = np.zeros(3)  # sum of gyro rate x interval over the segment's samples before it [rad]
@@ -841,6 +845,10 @@ class Engine:
         if not gait.queue:  # nothing to reckon (standing, or every step taken): nothing changes
             return []
         steps = gait.reckon(before_s, self._labels.at)
+        if steps and not gait.has_mag and not self._warned_no_heading:
+            self._warned_no_heading = True  # logging only: not part of the state
+            log.warning("Gait-DR steps from %.1f s with the gyroscope off and no magnetometer: they keep the heading "
+                        "of the last ZUPT-KF stance and cannot see turns", steps[0][0].t_s)
         self._moved = self._moved or bool(steps)
         if steps:
             self._step_s = float(steps[-1][0].t_s)

@@ -71,3 +71,19 @@ def test_pdr_mode_is_chunk_invariant(walk: SensorBatch) -> None:
     whole, chunked = run(None), run(2.7)
     assert whole.shape == chunked.shape
     assert np.abs(whole - chunked).max() <= 1e-9
+
+
+def test_gait_dr_without_a_magnetometer_says_it_cannot_see_turns(walk: SensorBatch, caplog) -> None:
+    """With the gyroscope off and no magnetometer nothing tells a turn: the log says so, once, when Gait-DR places
+    its first step (gaitmap-mag without its field: 200 s of back-and-forth legs came out as one straight line);
+    with a magnetometer it says nothing."""
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="energy.engine"):
+        replay(Engine(mode="pdr", config=EngineConfig(l0_m=20.0)), walk.without("mag"), batch_seconds=1.0)
+    said = [r for r in caplog.records if "no magnetometer" in r.getMessage()]
+    assert len(said) == 1
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="energy.engine"):
+        replay(Engine(mode="pdr", config=EngineConfig(l0_m=20.0)), walk, batch_seconds=1.0)
+    assert not [r for r in caplog.records if "no magnetometer" in r.getMessage()]
