@@ -12,15 +12,25 @@ from typing import Any
 __all__ = ["register", "load_recording", "replay_local", "replay_server"]
 
 
-def load_recording(spec: str):  # type: ignore[no-untyped-def]
-    """A file of any importable format, or a synthetic scenario name (``clients.synth.scenario_names()``)."""
-    if Path(spec).exists():
-        from clients.importers import load
+def load_recording(spec: str, mag_scale_ut: float | None = None):  # type: ignore[no-untyped-def]
+    """A file of any importable format, or a synthetic scenario name (``clients.synth.scenario_names()``).
 
-        return load(spec)
+    ``mag_scale_ut``: the field [uT] a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV files, whose
+    magnetometer is otherwise left out); a ValueError for any other recording."""
+    if Path(spec).exists():
+        from clients.importers import importer_for, load
+
+        if mag_scale_ut is None:
+            return load(spec)
+        m = importer_for(spec)
+        if m is None or m.__name__ != "clients.importers.gaitmap":
+            raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files (gaitmap/Xsens CSV) only")
+        return m.load_gaitmap(spec, mag_scale_ut=mag_scale_ut)
     from clients.synth import scenario_names, synthesize
 
     if spec in scenario_names():
+        if mag_scale_ut is not None:
+            raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files only, not to synthetic scenarios")
         return synthesize(spec)
     raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(scenario_names())})")
 
@@ -60,7 +70,9 @@ def replay_server(rec, server: str, token: str, batch_seconds: float, device: st
 
 def _run(args: argparse.Namespace) -> int:
     try:
-        rec = load_recording(args.file)
+        if args.mag_scale_ut is not None and not args.mag_scale_ut > 0:
+            raise ValueError(f"--mag-scale-ut must be a positive field in uT, got {args.mag_scale_ut}")
+        rec = load_recording(args.file, args.mag_scale_ut)
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -93,5 +105,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", choices=("foot", "phone", "watch"), default="foot", help="device kind of the session")
     p.add_argument("--mode", choices=("auto", "zupt", "pdr"), default="auto",
                    help="local engine mode (the server uses its own configured mode)")
+    p.add_argument("--mag-scale-ut", type=float, default=None, metavar="UT",
+                   help="field [uT] that a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV: the field "
+                        "at their calibration site); without it such a magnetometer is left out")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.set_defaults(func=_run)

@@ -79,3 +79,28 @@ def test_demo_runs_and_writes_plot(capsys, tmp_path: Path) -> None:  # type: ign
     assert back["session_id"] != s["session_id"] and np.isfinite(back["final_error_m"])
     assert back["gyro_duty_cycle"] < s["gyro_duty_cycle"]
     assert Path(back["plot"]).stat().st_size > 10_000 and Path(back["plot"]).parent == plot.parent
+
+
+def _xsens_csv(path: Path, n: int = 400) -> Path:
+    """A gaitmap/Xsens-style CSV (time column [s], acc [m/s^2], gyr [deg/s], normalised magnetometer): a still
+    foot in a field of 0.9 normalised units."""
+    rows = [",acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z,mag_x,mag_y,mag_z"]
+    rows += [f"{k / 100:.2f},0,0,9.81,0,0,0,0.4,0,0.806" for k in range(n)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_replay_takes_a_normalised_magnetometer_only_with_its_scale(capsys, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from clients.commands.replay import load_recording
+
+    f = _xsens_csv(tmp_path / "still.csv")
+    assert load_recording(str(f)).batch.mag.size == 0  # scale unknown: left out
+    mag = load_recording(str(f), 50.0).batch.mag
+    assert np.linalg.norm(mag, axis=1) == pytest.approx(0.9 * 50.0, rel=1e-3)
+    rc, out = _run(capsys, ["replay", str(f), "--mag-scale-ut", "50", "--json"])
+    assert rc == 0 and json.loads(out)["positions"]
+    for argv, said in ((["replay", "walk", "--mag-scale-ut", "50"], "not to synthetic scenarios"),
+                       (["replay", str(f), "--mag-scale-ut", "0"], "must be a positive field")):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert "--mag-scale-ut" in err and said in err, err
