@@ -331,17 +331,20 @@ def evaluate_gaitmap_recording(rec: Recording, runner: Runner, mode: str = "zupt
     At the foot's still moments of the mocap-derived stride events (``Truth.extra["stance_t_ns"]``) the
     engine's trace position is compared with the heel marker's (:func:`clients.evaluation.metrics.
     stride_length_errors`: strides of at least 0.3 m, distance over all of them); the engine's own stance times
-    are not used (it reports a stance at its end, when the heel has already lifted by centimetres). ``climb_m``: height of the last reported stance above the first [m] (stairs: what the flight rose
-    or, negative, fell; there is no truth for it). ``strides_detected``: stance-to-stance intervals reported.
+    are not used (it reports a stance at its end, when the heel has already lifted by centimetres).
+    ``climb_m``: height of the last reported stance above the first [m] (stairs: what the flight rose or,
+    negative, fell; there is no truth for it). ``strides_detected``: stance-to-stance intervals reported.
     """
     run = runner(rec.batch, mode, None)
     st = run.stances
+    has_truth = rec.truth is not None and "stance_t_ns" in rec.truth.extra
     row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": max(int(st.shape[0]) - 1, 0),
                            "climb_m": float(st[0, 3] - st[-1, 3]) if st.shape[0] >= 2 else 0.0,
                            "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
-                           "truth": rec.truth is not None and "stance_t_ns" in rec.truth.extra}
+                           "truth": has_truth}
     plot: dict[str, Any] = {"stances_ned": st[:, 1:4].copy()}
-    if rec.truth is not None and "stance_t_ns" in rec.truth.extra:
+    if has_truth:
+        assert rec.truth is not None
         q = np.asarray(rec.truth.extra["stance_t_ns"], dtype=np.int64)
         q = q[(q >= rec.truth.t_ns[0]) & (q <= rec.truth.t_ns[-1])]
         est = positions_at(run.t_ns, run.pos, q)
@@ -350,10 +353,9 @@ def evaluate_gaitmap_recording(rec: Recording, runner: Runner, mode: str = "zupt
         row.update(stride_length_mean_abs_err_m=se.mean_abs_m, stride_length_rmse_m=se.rmse_m,
                    stride_height_rmse_m=se.height_rmse_m, strides_compared=se.n, distance_err_pct=se.distance_err_pct)
         plot["truth_xyz"] = truth
-        plot["est_ned"] = est
     if rec.meta.notes:
         row["notes"] = list(rec.meta.notes)
-    return Evaluated(row, plot, usable=rec.truth is not None)
+    return Evaluated(row, plot, usable=has_truth)
 
 
 def gaitmap_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -401,15 +403,10 @@ def gdin_entries(directory: str | Path) -> list[GdinEntry]:
 def gaitmap_recordings(directory: str | Path) -> list[tuple[Path, str]]:
     """``(file, foot)`` for every two-sensor gaitmap CSV in ``directory`` (``imu_sample*.csv``: both feet),
     sorted by file name."""
-    from clients.importers.gaitmap import sniff
+    from clients.importers.gaitmap import sensor_feet, sniff
 
     files = sorted(f for f in Path(directory).glob("*.csv") if f.is_file() and sniff(f))
-    out: list[tuple[Path, str]] = []
-    for f in files:
-        with open(f, encoding="utf-8") as fh:
-            two_feet = "left_sensor" in fh.readline()
-        out += [(f, "left"), (f, "right")] if two_feet else [(f, "left")]
-    return out
+    return [(f, foot) for f in files for foot in sensor_feet(f)]
 
 
 def load_vicon_trial(path: Path) -> Recording:

@@ -27,7 +27,7 @@ import numpy as np
 from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, read_csv_rows
 from clients.recording import Recording, RecordingMeta, Truth
 
-__all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "load", "load_gaitmap"]
+__all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,13 @@ def sniff(path: str | Path) -> bool:
     except ImporterError:
         return False
     return all(a in axes for a in _AXES)
+
+
+def sensor_feet(path: str | Path) -> tuple[str, ...]:
+    """The ``foot=`` values :func:`load_gaitmap` accepts for this file: both feet for the two-sensor layout,
+    ``("left",)`` (ignored) for a single sensor."""
+    _, sensors = _headers(Path(path))
+    return ("left", "right") if sensors is not None else ("left",)
 
 
 def load(path: str | Path) -> Recording:
