@@ -38,12 +38,13 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import platform
 import time
 from dataclasses import dataclass, field
 from datetime import date
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -72,6 +73,7 @@ __all__ = [
     "model_bytes",
     "cost_class",
     "position_errors",
+    "step_errors",
     "run_engine",
     "simulate",
     "measure_compute_costs",
@@ -293,6 +295,8 @@ class RunResult:
         One per ``feed`` and the final ``flush``.
     interval_classes : list of str
         Cost class of each interval of ``timeline.intervals``.
+    step_errors : dict
+        :func:`step_errors` of the reported positions against the truth.
     """
 
     mode: str
@@ -305,6 +309,7 @@ class RunResult:
     component_us: dict[str, dict[str, float]] = field(default_factory=dict)
     records: list[BatchRecord] = field(default_factory=list)
     interval_classes: list[str] = field(default_factory=list)
+    step_errors: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def position_errors(t_ns: np.ndarray, est_ne: np.ndarray, truth_t_ns: np.ndarray, truth_ne: np.ndarray) -> dict[str, float]:
@@ -345,6 +350,57 @@ def position_errors(t_ns: np.ndarray, est_ne: np.ndarray, truth_t_ns: np.ndarray
         "max_m": float(np.max(e)),
         "align_deg": float(np.degrees(ang)),
     }
+
+
+def step_errors(t_ns: np.ndarray, est_ne: np.ndarray, modes: Sequence[str], truth_t_ns: np.ndarray,
+                truth_ne: np.ndarray, align_deg: float = 0.0) -> dict[str, dict[str, float]]:
+    """Per navigation mode: how far each reported step's direction and length are from the truth's.
+
+    A step is the displacement between two consecutive reported positions, charged to the mode of the second;
+    it is compared with the truth's displacement between the same times where both are at least a stride
+    (truth >= 0.5 m, estimate >= 0.3 m: starts, stops and shuffles left out). Unlike the position error, where
+    a heading error and a step-length error can cancel along a path, this says how good each step is.
+
+    Parameters
+    ----------
+    t_ns : ndarray of int64, shape (K,)
+        Times of the reported positions [ns].
+    est_ne : ndarray, shape (K, 2)
+        Reported north/east [m].
+    modes : sequence of str, length K
+        Navigation mode of each reported position (``"zupt"``, ``"pdr"``).
+    truth_t_ns : ndarray of int64, shape (N,)
+        Truth sample times [ns].
+    truth_ne : ndarray, shape (N, 2)
+        Truth north/east [m].
+    align_deg : float
+        Rotation of the estimate onto the truth [deg] (:func:`position_errors`' ``align_deg``).
+
+    Returns
+    -------
+    dict
+        ``{mode: {"steps", "direction_err_deg", "length_err_pct"}}``: the number of steps compared, their mean
+        absolute direction error weighted by the true step length [deg] and mean absolute relative length error
+        [%].
+    """
+    out: dict[str, dict[str, float]] = {}
+    if len(t_ns) < 2:
+        return out
+    idx = np.clip(np.searchsorted(truth_t_ns, t_ns), 0, len(truth_t_ns) - 1)
+    est = np.diff(np.asarray(est_ne, dtype=np.float64).reshape(-1, 2), axis=0)
+    tru = np.diff(np.asarray(truth_ne, dtype=np.float64)[idx], axis=0)
+    le, lt = np.hypot(est[:, 0], est[:, 1]), np.hypot(tru[:, 0], tru[:, 1])
+    ang = np.arctan2(est[:, 1], est[:, 0]) + math.radians(align_deg) - np.arctan2(tru[:, 1], tru[:, 0])
+    d_err = np.degrees(np.abs(np.angle(np.exp(1j * ang))))
+    m_of = np.asarray(modes[1:], dtype=object)
+    ok = (lt >= 0.5) & (le >= 0.3)
+    for mode in sorted(set(m_of.tolist())):
+        sel = ok & (m_of == mode)
+        if np.any(sel):
+            out[str(mode)] = {"steps": int(np.sum(sel)),
+                              "direction_err_deg": float(np.sum(d_err[sel] * lt[sel]) / np.sum(lt[sel])),
+                              "length_err_pct": float(100.0 * np.mean(np.abs(le[sel] / lt[sel] - 1.0)))}
+    return out
 
 
 def run_engine(
@@ -421,6 +477,7 @@ def run_engine(
     t = np.array([p.t_ns for p in res.positions], dtype=np.int64)
     ne = np.array([[p.north, p.east] for p in res.positions], dtype=float).reshape(-1, 2)
     errs = position_errors(t, ne, truth_t_ns, truth_pos[:, :2])
+    steps_err = step_errors(t, ne, [p.mode for p in res.positions], truth_t_ns, truth_pos[:, :2], errs["align_deg"])
     comp: dict[str, dict[str, float]] = {}
     if meter is not None:
         for (name, k), ns in meter.ns.items():
@@ -428,7 +485,7 @@ def run_engine(
         for k, us in cpu.items():
             inside = sum(v.get(k, 0.0) for v in comp.values())
             comp.setdefault("engine_other", {})[k] = us - inside
-    return RunResult(mode, res, tl, rep, errs, cpu, samples, comp, eng.records, classes)
+    return RunResult(mode, res, tl, rep, errs, cpu, samples, comp, eng.records, classes, steps_err)
 
 
 def learn_profile(batch: SensorBatch, batch_seconds: float | None = 1.0) -> dict[str, Any]:
@@ -604,6 +661,7 @@ def simulate(
             "mean_rate_hz": float(r.replay.mean_rate_hz),
             "positions": len(r.replay.positions),
             "position_error": r.errors,
+            "step_errors": r.step_errors,
         }
 
     ratio = sched.energy.total_mj / base.energy.total_mj

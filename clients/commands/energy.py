@@ -59,6 +59,10 @@ def _simulate(args: argparse.Namespace) -> int:
     rows.append(
         ("mean position error [m]", f"{doc['position_error_m']['scheduler']:.2f}", f"{doc['position_error_m']['baseline']:.2f}")
     )
+    for mode, name in (("zupt", "ZUPT-KF"), ("pdr", "Gait-DR")):
+        cells = [doc[run]["step_errors"].get(mode) for run in ("scheduler", "baseline")]
+        rows.append((f"{name} step dir err [deg]", *(f"{c['direction_err_deg']:.2f}" if c else "-" for c in cells)))
+        rows.append((f"{name} step len err [%]", *(f"{c['length_err_pct']:.2f}" if c else "-" for c in cells)))
     print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), {args.user} user, profile {profile.name}")
     for r in rows:
         print(f"{r[0]:<26}{r[1]:>12}{r[2]:>12}")

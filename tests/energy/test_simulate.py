@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from energy.simulate import position_errors
+from energy.simulate import position_errors, step_errors
 
 
 @settings(max_examples=30, deadline=None)
@@ -22,6 +22,36 @@ def test_position_errors_remove_only_a_rotation(ang, seed):
     assert e["mean_m"] == pytest.approx(0.0, abs=1e-9)
     scaled = position_errors(t, 1.1 * truth @ rot.T, t, truth)  # a scale error is not aligned away
     assert scaled["mean_m"] == pytest.approx(0.1 * np.mean(np.linalg.norm(truth, axis=1)), rel=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(ang_deg=st.floats(-40.0, 40.0), scale=st.floats(0.8, 1.2), seed=st.integers(0, 1000))
+def test_step_errors_are_each_steps_direction_and_length(ang_deg, scale, seed):
+    """Steps turned by ``ang_deg`` and scaled by ``scale`` read that direction and length error; the fitted
+    alignment of the whole path is not an error of its steps; each step counts for the mode that reported it."""
+    rng = np.random.default_rng(seed)
+    heading = np.cumsum(rng.normal(0.0, 0.3, 40))
+    truth = np.concatenate([[[0.0, 0.0]], np.cumsum(1.3 * np.c_[np.cos(heading), np.sin(heading)], axis=0)])
+    a = np.radians(ang_deg)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    t = np.arange(len(truth), dtype=np.int64) * 10**9
+    modes = ["zupt"] * 11 + ["pdr"] * (len(truth) - 11)
+    e = step_errors(t, scale * truth @ rot.T, modes, t, truth)
+    assert e["zupt"]["steps"] == 10 and e["pdr"]["steps"] == len(truth) - 11
+    for m in ("zupt", "pdr"):
+        assert e[m]["direction_err_deg"] == pytest.approx(abs(ang_deg), abs=1e-6)
+        assert e[m]["length_err_pct"] == pytest.approx(100.0 * abs(scale - 1.0), abs=1e-6)
+    aligned = step_errors(t, truth @ rot.T, modes, t, truth, align_deg=-ang_deg)
+    assert aligned["pdr"]["direction_err_deg"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_step_errors_leave_out_steps_shorter_than_a_stride():
+    t = np.arange(4, dtype=np.int64) * 10**9
+    truth = np.array([[0.0, 0.0], [1.3, 0.0], [1.5, 0.0], [2.8, 0.0]])  # a 0.2-m shuffle between two strides
+    est = truth + np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.3], [0.0, 0.0]])
+    e = step_errors(t, est, ["zupt", "pdr", "pdr", "pdr"], t, truth)
+    assert e["pdr"]["steps"] == 2  # the shuffle is not compared
+    assert step_errors(t[:1], est[:1], ["zupt"], t, truth) == {}
 
 
 @pytest.fixture(scope="module")
