@@ -752,7 +752,7 @@ class GaitPipeline:
                 shape = self.mag.field_shape(acc_st, m)
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
                                                   *shape, self.mag.trusted, self._compass_sigma(),
-                                                  self._settled(shape))
+                                                  self._settled(shape), self._h_ref())
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
@@ -763,6 +763,11 @@ class GaitPipeline:
                     direction = before + 0.5 * wrap_angle(self.heading - before)
             out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
         return out
+
+    def _h_ref(self) -> float:
+        """Horizontal magnitude [uT] of the field the compass is calibrated to (m_n's)."""
+        norm, dip = self.mag.field_reference()
+        return norm * math.cos(dip)
 
     def _compass_sigma(self) -> float:
         """Noise [rad] of one compass reading: the robust scale of its disagreement with the ZUPT-KF on the

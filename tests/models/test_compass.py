@@ -705,3 +705,25 @@ def test_an_established_compass_does_not_lead_while_the_field_magnitude_drifts()
         assert math.degrees(math.remainder(h1 - h, 2 * math.pi)) > 45.0  # taken
     assert out[True] < 1.5  # held
     assert out[False] > 3.0  # followed
+
+
+@pytest.mark.parametrize("dip_deg, taken", [(42.0, True), (85.0, False)])
+def test_a_suspect_compass_takes_a_turn_of_the_foot_in_a_strong_disturbed_field(dip_deg: float, taken: bool) -> None:
+    """A suspect compass (it turned once where the gyroscope did not) on a disturbed field: a stride whose
+    compass turns by 23 deg while the field's magnitude and dip stay put is the foot turning where the field's
+    horizontal part is at least as strong as the Earth's (a disturbance changing by a few uT per stride turns
+    such a field by a few degrees: synthetic steel, 38.5 uT at dip 42 deg, four such strides were a 90-deg
+    turn the follower held through, 92 deg off for 20 strides). Where it is weak (dip 85 deg: 4 uT) the same
+    change may be the field's own turning, and the heading is held (synthetic mixed day seed 27)."""
+    from models.compass import CompassFollower
+
+    earth_norm, earth_dip = 47.4, math.radians(62.3)
+    h_ref = earth_norm * math.cos(earth_dip)
+    f = CompassFollower()
+    f.suspect = True
+    dip = math.radians(dip_deg)
+    heading = f.step(0.0, 0.5, False, 38.5, dip, True, math.radians(0.5), False, h_ref)
+    assert heading == 0.0  # a first disturbed stance: nothing to compare with, held
+    out = f.step(heading, 0.5 + math.radians(-23.0), False, 38.6, dip + 0.002, True, math.radians(0.5), False, h_ref)
+    assert math.degrees(out) == pytest.approx(-23.0 if taken else 0.0, abs=1e-9)
+    assert f.step(out, 0.5 + math.radians(-46.0), False, 38.6, dip, True, math.radians(0.5), False) == out  # no h_ref: held
