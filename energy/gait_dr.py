@@ -567,8 +567,11 @@ class GaitPipeline:
         cal = self.mag if self.own_mag is None else self.own_mag
         n = cal.n_added
         if n >= self._mag_fit_n + max(1, n // (4 if cal.ready and cal.trusted else 10)):
+            was_trusted = cal.ready and cal.trusted
             cal.refit()
             self._mag_fit_n = n
+            if cal is self.mag and cal.trusted and not was_trusted:
+                self.follower.forget()  # readings of the untrusted fit are no previous compass of this one
         own = self.own_mag
         if own is not None and own.ready and (
                 not self.mag.trusted or (own.trusted and own.heading_scale <= self.mag.heading_scale)):
