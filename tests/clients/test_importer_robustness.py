@@ -392,3 +392,14 @@ def test_gaitmap_two_sensor_file_with_only_the_right_foot(tmp_path: Path) -> Non
     rec = load(p)
     assert rec.name == "imu_sample-right" and len(rec.batch) == N
     np.testing.assert_allclose(rec.batch.gyr, rows[:, 4:7], rtol=1e-6, atol=1e-9)
+
+
+def test_format_a_export_of_two_nodes_is_refused_not_mixed(tmp_path: Path) -> None:
+    """SensorConnect can export several nodes into one CSV; the first node's columns were taken silently."""
+    rows = _rows()
+    names = ["Time"] + [f"inertial-{node}:scaled{s}{a}" for node in ("6253.76535", "6253.99999")
+                        for s in ("Accel", "Gyro", "Mag") for a in "XYZ"]
+    p = _csv(tmp_path / "SensorConnectData_89.csv", names, np.column_stack([rows, rows[:, 1:]]))
+    with pytest.raises(ImporterError, match="several sensor nodes") as ei:
+        load(p)
+    assert ei.value.field == "scaledAccelX"
