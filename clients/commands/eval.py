@@ -245,6 +245,8 @@ def _run_gdin(args: argparse.Namespace) -> int:
 def _gt_note(row: dict[str, Any]) -> str:
     if row["gt_usable"]:
         return ""
+    if any("cut short" in n for n in row.get("notes", ())):
+        return "sensor file cut short against its truth: not in summary"
     return "no ground truth: not in summary" if row.get("strides_truth") is None else "GT flagged unusable: not in summary"
 
 

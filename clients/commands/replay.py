@@ -76,6 +76,12 @@ def _run(args: argparse.Namespace) -> int:
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    if len(rec.batch.gyr_t_ns) == 0:
+        # every engine mode starts on the ZUPT-KF, which integrates the gyroscope: without one the replay
+        # would end with no position at all and look like a success
+        print(f"error: {args.file}: the recording has no gyroscope samples; the engine needs a gyroscope to start "
+              "(record or export the gyroscope too)", file=sys.stderr)
+        return 1
     if args.server:
         token = args.token or os.environ.get("PEDNAV_TOKEN")
         if not token:
@@ -84,9 +90,12 @@ def _run(args: argparse.Namespace) -> int:
         doc = replay_server(rec, args.server, token, args.batch_seconds, args.device)
     else:
         doc = replay_local(rec, args.batch_seconds, args.mode)
+    doc["notes"] = list(rec.meta.notes)  # what the importer repaired or left out
     if args.json:
         print(json.dumps(doc))
     else:
+        for note in doc["notes"]:
+            print(f"note: {note}", file=sys.stderr)
         print(f"{rec.name}: {len(doc['positions'])} positions, modes {doc['modes']}, gyro on {doc['gyro_on_fraction']:.0%}")
         if doc["positions"]:
             t, n, e, d = doc["positions"][-1]

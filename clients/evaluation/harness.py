@@ -316,7 +316,8 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     row["strides_truth"] = int(n_truth) if n_truth is not None else int(len(x["gcp_m"]) - 1)
     row["gyro_on_fraction"] = run.gyro_on_fraction
     row["mean_rate_hz"] = run.mean_rate_hz
-    row["gt_usable"] = bool(x.get("gcp_exist_and_correct", True))
+    # a sensor file cut short against its truth (clients.importers.gdin.load_gdin) is not comparable either
+    row["gt_usable"] = bool(x.get("gcp_exist_and_correct", True)) and bool(x.get("truth_covers_recording", True))
     row["format"] = rec.meta.source_format
     row["est_path_m"] = est_len
     row["truth_path_m"] = truth_len

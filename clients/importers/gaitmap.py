@@ -9,7 +9,8 @@ with gravity on +z at rest. Two layouts:
 
 The first column is either a time [s] (then the rate is read from it) or a sample index (then the rate must be
 known: ``rate_hz=`` or one of the documented example files in ``KNOWN_RATES_HZ``; otherwise the import fails
-rather than guessing). Xsens normalised magnetometer values (1.0 = field at the calibration site) are
+rather than guessing). A file without such a column (first column ``acc_x`` ...) is read as consecutive samples
+when the rate is known and refused otherwise. A two-sensor file may hold one foot only; :func:`load` then takes that foot. Xsens normalised magnetometer values (1.0 = field at the calibration site) are
 converted to uT only when ``mag_scale_ut`` is given; otherwise the magnetometer is NOT imported and the
 metadata says so. For imu_sample.csv the synchronised heel-marker trajectory (mocap_sample.csv, 100 Hz, mm)
 is attached as truth (converted to m), with the foot's still moments from stride_events_sample.csv
@@ -71,15 +72,18 @@ def sniff(path: str | Path) -> bool:
 
 
 def sensor_feet(path: str | Path) -> tuple[str, ...]:
-    """The ``foot=`` values :func:`load_gaitmap` accepts for this file: both feet for the two-sensor layout,
-    ``("left",)`` (ignored) for a single sensor."""
+    """The ``foot=`` values :func:`load_gaitmap` accepts for this file: the feet whose sensor the two-sensor
+    layout holds (both, or only one), ``("left",)`` (ignored) for a single sensor."""
     _, sensors = _headers(Path(path))
-    return ("left", "right") if sensors is not None else ("left",)
+    if sensors is None:
+        return ("left",)
+    return tuple(f for f in ("left", "right") if f"{f}_sensor" in sensors)
 
 
 def load(path: str | Path) -> Recording:
-    """Alias of :func:`load_gaitmap` with defaults (left foot)."""
-    return load_gaitmap(path)
+    """:func:`load_gaitmap` with defaults: the left foot, or the only foot a two-sensor file holds."""
+    feet = sensor_feet(path)
+    return load_gaitmap(path, foot=feet[0] if feet else "left")
 
 
 def load_gaitmap(
@@ -124,6 +128,20 @@ def load_gaitmap(
     idx = [col(a) for a in _AXES]
     has_mag = sensors is None and all(m in axes for m in _MAG)
     midx = [col(m) for m in _MAG] if has_mag else []
+    if axes[0] in _AXES + _MAG:
+        # no index/time column (a DataFrame saved without its index): the rows are consecutive samples, which
+        # needs the rate; reading acc_x as a clock would only say "timestamps go backwards"
+        rate0 = rate_hz if rate_hz is not None else KNOWN_RATES_HZ.get(p.name)
+        if rate0 is None:
+            raise ImporterError(p, axes[0], "the first column is a sensor column: the file has no sample index or "
+                                "time [s] column, so the sample times are unknown; add one or pass rate_hz")
+        data = np.column_stack([np.arange(data.shape[0], dtype=np.float64), data])
+        idx, midx = [i + 1 for i in idx], [i + 1 for i in midx]
+        notes.append(f"no index/time column: rows taken as consecutive samples at {rate0:g} Hz")
+        axes = ["row"] + axes
+        if sensors is not None:
+            sensors = [""] + sensors
+        rate_hz = rate0
     tname = axes[0] or "index/time"
     keep, tn = drop_untimed_rows(p, tname, data[:, 0], n_total=n_lines)
     notes += tn

@@ -270,12 +270,33 @@ def _stride_times(rec: Recording, table: dict[str, np.ndarray]) -> tuple[np.ndar
     return t[j].copy(), "timestamp"
 
 
+def _strides_inside(rec: Recording, table: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str | None]:
+    """The stride table's rows whose ``timestamp`` [s] lies within the recording (one sample period of slack),
+    and a note naming what was left out (``None`` when every stride is inside)."""
+    t = rec.batch.acc_t_ns
+    slack_s = 1.0 / rec.meta.rate_hz if rec.meta.rate_hz > 0 else 0.0
+    t0_s, t1_s = float(t[0]) * 1e-9 - slack_s, float(t[-1]) * 1e-9 + slack_s
+    inside = (table["t_s"] >= t0_s) & (table["t_s"] <= t1_s)
+    if inside.all():
+        return table, None
+    note = (f"stride table: {int((~inside).sum())} of {inside.size} strides lie outside the recording "
+            f"({t[0] * 1e-9:.2f}-{t[-1] * 1e-9:.2f} s; the table runs {table['t_s'][0]:.2f}-{table['t_s'][-1]:.2f} s): "
+            "the sensor file is cut short; those strides are left out and the truth path does not match the recording")
+    if not inside[0] and inside.any():  # strides are compared from the first one on: a cut start shifts them all
+        inside[:] = False
+        note += "; the first stride is missing too, so no stride is compared"
+    return {k: v[inside] for k, v in table.items()}, note
+
+
 def load_gdin(entry: GdinEntry) -> Recording:
     """Load a gdin recording with its truth.
 
     ``truth.extra`` keys: ``exp``, the keys of :func:`load_truth_mat` (when a truth .mat exists), and with a
     stride table ``stride_t_ns`` (S,) int64 [ns on the batch clock], ``stride_gcp_xy`` (S, 2) [m, authors'
     frame], ``stride_index`` (S,), ``stride_table_t_s`` (S,) [s], ``stride_mapping`` (``"strideIndex"`` or ``"timestamp"``).
+    A stride table that runs past either end of the recording (a sensor file cut short) keeps only the strides
+    inside it, adds a ``truth_notes`` entry and sets ``truth_covers_recording`` False (the truth path then
+    describes more than was recorded).
     """
     if entry.sensor_path.suffix.lower() == ".mat":
         rec = load_llio_mat(entry.sensor_path, name=entry.name)
@@ -293,6 +314,12 @@ def load_gdin(entry: GdinEntry) -> Recording:
         extra.update(load_truth_mat(entry.truth_path))
     if entry.stride_path is not None:
         table = load_stride_gcp(entry.stride_path)
+        table, cut_note = _strides_inside(rec, table)
+        if cut_note is not None:
+            # the sensor file ends (or starts) inside the walk its truth describes: a stride past its end would
+            # be placed on the last sample, and the truth path is longer than what was recorded
+            extra["truth_notes"] = tuple(extra.get("truth_notes", ())) + (cut_note,)
+            extra["truth_covers_recording"] = False
         t_ns, how = _stride_times(rec, table)
         extra.update(
             stride_t_ns=t_ns,

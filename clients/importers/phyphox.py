@@ -5,38 +5,84 @@ its unit are read from the column names: ``Acceleration`` (with g, m/s^2; the "A
 experiment), ``Linear Acceleration`` (gravity removed: refused, it is not specific force), ``Gyroscope``
 (rad/s) and ``Magnetic field`` (uT). Time is seconds from the start of the experiment; phyphox's
 ``meta/time.csv`` gives the system time of that start, used (when present) to place the samples on the UTC
-epoch. Exports with ``;`` separators (decimal comma) are read too.
+epoch. All of phyphox's CSV flavours are read: comma (decimal point), tab (decimal point or comma) and
+semicolon (decimal comma). Damaged files follow the sample policy of :mod:`clients.importers._common`: a line
+cut mid-write is skipped, an empty cell drops that sample, a header-only gyroscope/magnetometer table is left
+out; all noted.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import logging
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch
+from clients.importers._common import (
+    MAX_DROPPED_ROW_FRACTION,
+    ImporterError,
+    clean_stream,
+    drop_untimed_rows,
+    make_batch,
+)
 from clients.recording import Recording, RecordingMeta
 
 __all__ = ["sniff", "load", "load_phyphox"]
 
+log = logging.getLogger(__name__)
 
-def _parse(text: str, where: str) -> tuple[list[str], np.ndarray]:
+
+def _separator(first_line: str) -> str:
+    """phyphox's CSV flavours: comma (decimal point), tab (decimal point or comma), semicolon (decimal comma)."""
+    if "\t" in first_line:
+        return "\t"
+    return ";" if first_line.count(";") > first_line.count(",") else ","
+
+
+def _cell(c: str, sep: str) -> float:
+    """A cell as float (decimal comma accepted unless comma is the separator); empty/unreadable -> NaN."""
+    try:
+        return float(c.replace(",", ".") if sep != "," else c)
+    except ValueError:
+        return float("nan")
+
+
+def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
+    """Header and data rows of one phyphox CSV.
+
+    Sample policy of :mod:`clients.importers._common`: a line with another number of fields than the header
+    (an export cut mid-write) is skipped and noted; an empty or unreadable cell becomes NaN (dropped per
+    stream later); too many skipped lines: :class:`ImporterError`.
+
+    Returns
+    -------
+    head : list of str
+        Column names.
+    data : ndarray, shape (R, len(head))
+        Values in the file's units (phyphox: s, m/s^2, rad/s, uT); R may be 0 (header only).
+    notes : list of str
+    """
     first = text.splitlines()[0] if text else ""
-    sep = ";" if first.count(";") > first.count(",") else ","
+    sep = _separator(first)
     rows = list(csv.reader(io.StringIO(text), delimiter=sep))
     if not rows:
         raise ImporterError(where, "header", "empty file")
     head = [h.strip() for h in rows[0]]
-    try:
-        data = np.array([[float(c.replace(",", ".")) if sep == ";" else float(c) for c in r] for r in rows[1:] if r])
-    except ValueError as exc:
-        raise ImporterError(where, "row", f"not a number ({exc})") from None
-    if data.size == 0:
-        raise ImporterError(where, head[0] if head else "Time (s)", "no samples (empty file)")
-    return head, data.reshape(len(data), -1)
+    body = [(k + 2, r) for k, r in enumerate(rows[1:]) if any(c.strip() for c in r)]
+    bad = [k for k, r in body if len(r) != len(head)]
+    notes: list[str] = []
+    if bad:
+        shown = ", ".join(str(k) for k in bad[:5]) + (" ..." if len(bad) > 5 else "")
+        notes.append(f"{where}: skipped {len(bad)} line(s) without {len(head)} fields (line {shown})")
+        log.warning("%s", notes[-1])
+        if len(bad) > MAX_DROPPED_ROW_FRACTION * len(body):
+            raise ImporterError(where, "rows", f"{len(bad)} of {len(body)} lines do not have the header's {len(head)} "
+                                f"fields (first: line {bad[0]}): not a phyphox export this importer can trust")
+    data = np.array([[_cell(c, sep) for c in r] for _, r in body if len(r) == len(head)], dtype=np.float64)
+    return head, data.reshape(-1, len(head)), notes
 
 
 def _kind(head: list[str]) -> str | None:
@@ -86,32 +132,54 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
     return out, time_csv
 
 
-def _epoch_ns(time_csv: str | None) -> int:
-    """UTC epoch [ns] of experiment time 0 from meta/time.csv ("START" row, "system time" column)."""
+def _epoch_ns(time_csv: str | None) -> tuple[int, str | None]:
+    """UTC epoch [ns] of experiment time 0 from meta/time.csv ("START" row, "system time" column, any of
+    phyphox's separators), and a note when it cannot be used (0 then: times stay from the experiment start)."""
     if not time_csv:
-        return 0
-    rows = list(csv.DictReader(io.StringIO(time_csv)))
+        return 0, "time: seconds from the experiment start (no meta/time.csv)"
+    sep = _separator(time_csv.splitlines()[0] if time_csv.strip() else "")
+    rows = list(csv.DictReader(io.StringIO(time_csv), delimiter=sep))
     for r in rows:
-        if str(r.get("event", "")).upper() == "START":
-            try:
-                return int(round((float(r["system time"]) - float(r["experiment time"])) * 1e9))
-            except (KeyError, ValueError):
-                return 0
-    return 0
+        r = {str(k).strip().lower(): v for k, v in r.items()}
+        if str(r.get("event", "")).strip().upper() == "START":
+            system, experiment = _cell(str(r.get("system time", "")), sep), _cell(str(r.get("experiment time", "")), sep)
+            if np.isfinite(system) and np.isfinite(experiment):
+                return int(round((system - experiment) * 1e9)), None
+    return 0, "time: seconds from the experiment start (meta/time.csv has no readable START row)"
+
+
+def _is_export_folder(folder: Path) -> bool:
+    """An unpacked phyphox export: ``meta/time.csv`` beside the sensor tables."""
+    return (folder / "meta" / "time.csv").is_file()
 
 
 def load_phyphox(path: str | Path) -> Recording:
-    """Import a phyphox CSV export (single CSV, folder or zip) as SI streams."""
+    """Import a phyphox CSV export (single CSV, folder or zip) as SI streams.
+
+    One CSV of an unpacked export (``meta/time.csv`` beside it) loads the whole export folder, so that the
+    gyroscope and magnetometer tables beside ``Accelerometer.csv`` are not silently left out (noted).
+    """
     p = Path(path)
-    files, time_csv = _files(p)
-    t_epoch = _epoch_ns(time_csv)
-    streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     notes: list[str] = []
+    if p.is_file() and p.suffix.lower() == ".csv" and _is_export_folder(p.parent):
+        notes.append(f"{p.name} is part of the phyphox export {p.parent}: the whole export was loaded")
+        p = p.parent
+    files, time_csv = _files(p)
+    t_epoch, time_note = _epoch_ns(time_csv)
+    streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for where, text in files:
-        head, data = _parse(text, where)
-        kind = _kind(head)
+        first = text.splitlines()[0] if text.strip() else ""
+        kind = _kind([h.strip() for h in next(csv.reader([first], delimiter=_separator(first)), [])])
         if kind is None:
+            continue  # not a sensor table of this importer (e.g. a location export): never parsed
+        head, data, n_parse = _parse(text, where)
+        notes += n_parse
+        if data.shape[0] == 0 and kind != "acc":
+            notes.append(f"{where}: no samples (header only); left out")
+            log.warning("%s", notes[-1])
             continue
+        if data.shape[0] == 0:
+            raise ImporterError(where, head[0] if head else "Time (s)", "no samples (empty file)")
         if kind == "linear":
             if "acc" not in streams:
                 notes.append(f"{where}: linear acceleration (gravity removed) ignored; not specific force")
@@ -126,8 +194,8 @@ def load_phyphox(path: str | Path) -> Recording:
             streams[kind] = (t, v)
     if "acc" not in streams:
         raise ImporterError(p, "Acceleration x (m/s^2)", "no accelerometer with g found (use the 'Acceleration with g' sensor)")
-    if not t_epoch:
-        notes.append("time: seconds from the experiment start (no meta/time.csv)")
+    if time_note:
+        notes.append(time_note)
     batch = make_batch(p, *streams["acc"], *streams.get("gyr", (None, None)), *streams.get("mag", (None, None)))
     return Recording(
         name=p.stem,
@@ -137,9 +205,12 @@ def load_phyphox(path: str | Path) -> Recording:
 
 
 def sniff(path: str | Path) -> bool:
-    """A CSV whose first column is phyphox's ``Time (s)`` and names a supported sensor, or a zip of them."""
+    """A CSV whose first column is phyphox's ``Time (s)`` and names a supported sensor, a zip of them, or an
+    unpacked export folder (``meta/time.csv`` and such CSVs)."""
     p = Path(path)
     try:
+        if p.is_dir():
+            return _is_export_folder(p) and any(sniff(f) for f in sorted(p.glob("*.csv")))
         if p.suffix.lower() == ".csv":
             with open(p, encoding="utf-8-sig") as fh:
                 first = fh.readline()

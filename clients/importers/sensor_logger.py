@@ -13,6 +13,10 @@ accelerometer), or summed with ``Gravity`` when it averages to about zero (gravi
 Logger's ``Accelerometer`` is on iOS and often on Android). A gravity-carrying stream whose median magnitude
 reads about 1.0 is in units of g and is converted (x 9.80665) and said so.
 Gyroscope [rad/s] and magnetometer [uT] are used as recorded.
+
+Damaged files follow the sample policy of :mod:`clients.importers._common`: a line cut mid-write is skipped,
+an empty cell drops that sample, a header-only file (a sensor that delivered nothing) leaves its stream out;
+all noted. Only the accelerometer is required.
 """
 
 from __future__ import annotations
@@ -20,12 +24,13 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import G0, ImporterError, clean_stream, make_batch
+from clients.importers._common import G0, MAX_DROPPED_ROW_FRACTION, ImporterError, clean_stream, make_batch
 from clients.recording import Recording, RecordingMeta
 
 __all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
@@ -33,28 +38,79 @@ __all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
 SENSOR_FILES = ("TotalAcceleration", "Accelerometer", "Gravity", "Gyroscope", "Magnetometer")
 _HEADER = ["time", "seconds_elapsed", "z", "y", "x"]
 
+log = logging.getLogger(__name__)
+
 
 def _is_header(row: list[str]) -> bool:
     cols = [c.strip().lower() for c in row]
     return cols[:2] == ["time", "seconds_elapsed"] and {"x", "y", "z"} <= set(cols)
 
 
-def _read_csv_text(text: str, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """``(t_ns, xyz)`` of one Sensor Logger CSV (columns found by name, so z,y,x order is handled)."""
+def _cell_float(cell: str) -> float:
+    """A value cell as float; an empty or unreadable cell is NaN (the sample policy then drops that sample)."""
+    try:
+        return float(cell)
+    except ValueError:
+        return float("nan")
+
+
+def _cell_time_ns(cell: str) -> int | None:
+    """A ``time`` cell [ns] as int (exact for digit strings), ``None`` when empty or unreadable."""
+    c = cell.strip()
+    if c.lstrip("-").isdigit():
+        return int(c)
+    try:
+        f = float(c)
+    except ValueError:
+        return None
+    return int(round(f)) if np.isfinite(f) else None
+
+
+def _read_csv_text(text: str, where: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """``(t_ns, xyz, notes)`` of one Sensor Logger CSV (columns found by name, so z,y,x order is handled).
+
+    Follows the sample policy of :mod:`clients.importers._common`: a line with another number of fields
+    (the last line of an app stopped mid-write) is skipped, an empty or unreadable value cell becomes NaN
+    (dropped later by :func:`clean_stream`), a row without a readable time is dropped; all noted. Too many
+    such lines or rows: :class:`ImporterError`. A header-only file gives empty arrays (the caller decides
+    whether the stream was required).
+
+    Returns
+    -------
+    t_ns : ndarray of int64, shape (N,)
+        UTC epoch [ns] (``time`` column).
+    xyz : ndarray, shape (N, 3)
+        The x, y, z columns in the file's units.
+    notes : list of str
+    """
     rows = list(csv.reader(io.StringIO(text)))
     if not rows or not _is_header(rows[0]):
         raise ImporterError(where, "header", f"expected {','.join(_HEADER)}, got {rows[0] if rows else 'nothing'}")
     cols = [c.strip().lower() for c in rows[0]]
     it, ix, iy, iz = cols.index("time"), cols.index("x"), cols.index("y"), cols.index("z")
-    body = [r for r in rows[1:] if r]
-    if not body:
-        raise ImporterError(where, "time", "no samples (empty file)")
-    try:
-        t = np.array([int(r[it]) if r[it].strip().lstrip("-").isdigit() else int(round(float(r[it]))) for r in body], dtype=np.int64)
-        v = np.array([[float(r[ix]), float(r[iy]), float(r[iz])] for r in body])
-    except (ValueError, IndexError) as exc:
-        raise ImporterError(where, "row", f"not a number or missing column ({exc})") from None
-    return t, v
+    numbered = [(k + 2, r) for k, r in enumerate(rows[1:]) if any(c.strip() for c in r)]  # line numbers (1-based)
+    notes: list[str] = []
+    bad_lines = [k for k, r in numbered if len(r) != len(cols)]
+    if bad_lines:
+        shown = ", ".join(str(k) for k in bad_lines[:5]) + (" ..." if len(bad_lines) > 5 else "")
+        notes.append(f"{where}: skipped {len(bad_lines)} line(s) without {len(cols)} fields (line {shown})")
+    body = [(k, r) for k, r in numbered if len(r) == len(cols)]
+    times = [_cell_time_ns(r[it]) for _, r in body]
+    untimed = [k for (k, _), ti in zip(body, times) if ti is None]
+    if untimed:
+        notes.append(f"{where}: dropped {len(untimed)} row(s) without a readable time (first line {untimed[0]})")
+    lost = len(bad_lines) + len(untimed)
+    if numbered and lost > MAX_DROPPED_ROW_FRACTION * len(numbered):
+        first = min(bad_lines[:1] + untimed[:1])
+        raise ImporterError(where, "time", f"{lost} of {len(numbered)} lines are malformed or have no readable time "
+                            f"(first: line {first}): not a Sensor Logger CSV this importer can trust")
+    for n in notes:
+        log.warning("%s", n)
+    good = [(ti, r) for ti, (_, r) in zip(times, body) if ti is not None]
+    t = np.array([ti for ti, _ in good], dtype=np.int64)
+    v = np.array([[_cell_float(r[ix]), _cell_float(r[iy]), _cell_float(r[iz])] for _, r in good],
+                 dtype=np.float64).reshape(-1, 3)
+    return t, v, notes
 
 
 def _read_json(obj: object, where: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -79,10 +135,17 @@ def _read_json(obj: object, where: str) -> dict[str, tuple[np.ndarray, np.ndarra
     return out
 
 
-def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, Path]:
-    """Streams by sensor name, the platform (from Metadata.csv when present) and the source path."""
+def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list[str], str, Path]:
+    """Streams by sensor name, what reading them noted, the platform (from Metadata.csv when present) and the
+    source path."""
     streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    notes: list[str] = []
     platform = "unknown"
+
+    def add(name: str, text: str, where: str) -> None:
+        t, v, n = _read_csv_text(text, where)
+        streams[name] = (t, v)
+        notes.extend(n)
     if path.suffix.lower() == ".zip":
         with zipfile.ZipFile(path) as zf:
             for info in zf.infolist():
@@ -91,25 +154,25 @@ def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str,
                     continue
                 text = zf.read(info).decode("utf-8-sig")
                 if stem in SENSOR_FILES:
-                    streams[stem] = _read_csv_text(text, f"{path}:{info.filename}")
+                    add(stem, text, f"{path}:{info.filename}")
                 elif stem.lower() == "metadata":
                     platform = _platform(text)
-        return streams, platform, path
+        return streams, notes, platform, path
     if path.suffix.lower() == ".json":
         try:
             obj = json.loads(path.read_text(encoding="utf-8-sig"))
         except (OSError, ValueError) as exc:
             raise ImporterError(path, "file", f"not readable JSON ({exc})") from None
-        return _read_json(obj, str(path)), platform, path
+        return _read_json(obj, str(path)), notes, platform, path
     folder = path if path.is_dir() else path.parent
     for name in SENSOR_FILES:
         f = folder / f"{name}.csv"
         if f.exists():
-            streams[name] = _read_csv_text(f.read_text(encoding="utf-8-sig"), str(f))
+            add(name, f.read_text(encoding="utf-8-sig"), str(f))
     meta = folder / "Metadata.csv"
     if meta.exists():
         platform = _platform(meta.read_text(encoding="utf-8-sig"))
-    return streams, platform, folder
+    return streams, notes, platform, folder
 
 
 def _platform(text: str) -> str:
@@ -139,8 +202,12 @@ def _to_ms2(name: str, v: np.ndarray, conv: dict[str, str]) -> np.ndarray:
 def load_sensor_logger(path: str | Path) -> Recording:
     """Import a Sensor Logger export (folder, one of its CSVs, zip, or JSON) as SI streams."""
     p = Path(path)
-    streams, platform, src = _collect(p)
-    notes: list[str] = [f"platform: {platform}"]
+    streams, read_notes, platform, src = _collect(p)
+    notes: list[str] = [f"platform: {platform}"] + read_notes
+    for name in [n for n, (t, _) in streams.items() if len(t) == 0]:  # header only: the sensor delivered nothing
+        del streams[name]
+        notes.append(f"{name}: no samples (header only); left out")
+        log.warning("%s: %s", src, notes[-1])
     conv: dict[str, str] = {}
 
     def clean(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -178,7 +245,7 @@ def load_sensor_logger(path: str | Path) -> Recording:
             raise ImporterError(src, "Accelerometer", "gravity removed (mean vector ~ 0) and no TotalAcceleration "
                                 "or Gravity file to restore it; export with TotalAcceleration on")
     else:
-        raise ImporterError(src, "TotalAcceleration", "no accelerometer file (TotalAcceleration.csv or Accelerometer.csv)")
+        raise ImporterError(src, "TotalAcceleration", "no accelerometer file with samples (TotalAcceleration.csv or Accelerometer.csv)")
     gyr_t = gyr = mag_t = mag = None
     if "Gyroscope" in streams:
         gyr_t, gyr = clean("Gyroscope")
@@ -197,8 +264,8 @@ def load_sensor_logger(path: str | Path) -> Recording:
 def sniff(path: str | Path) -> bool:
     """A Sensor Logger CSV (``time,seconds_elapsed,z,y,x``), a zip holding them, or its JSON export."""
     p = Path(path)
-    if p.is_dir():
-        return any((p / f"{n}.csv").exists() for n in ("TotalAcceleration", "Accelerometer"))
+    if p.is_dir():  # by the header too: a phyphox export folder has an Accelerometer.csv as well
+        return any(sniff(p / f"{n}.csv") for n in ("TotalAcceleration", "Accelerometer") if (p / f"{n}.csv").is_file())
     suf = p.suffix.lower()
     try:
         if suf == ".csv":

@@ -8,7 +8,8 @@ The magnetometer is optional (a 6-axis export has no ``scaledMag*`` columns; the
 magnetometer stream and the metadata says so).
 
 Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
-node id or be absent); the time column is ``Time`` [s]. Rows that cannot be read (a line with another number
+node id or be absent; an export of several nodes in one file is refused, never mixed); the time
+column is ``Time`` [s]. Rows that cannot be read (a line with another number
 of fields, e.g. the last line of a logger that was stopped mid-write) and empty cells follow the sample policy
 of :mod:`clients.importers._common`: dropped, logged and noted.
 
@@ -136,6 +137,12 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
         raise ImporterError(p, "header", "neither scaledAccel* (format A) nor estCompensatedAccel* (format B) columns")
     it = cols.index("Time")
     acc_names, gyr_names = (_A_ACC, _A_GYR) if fmt == "A" else (_B_ACC, _B_GYR)
+    twice = [c for c in acc_names + gyr_names + _A_MAG if cols.count(c) > 1]
+    if twice:
+        # several nodes exported into one file (e.g. a sensor on each shoe): taking the first column of each name
+        # would silently mix or drop sensors
+        raise ImporterError(p, twice[0], f"appears {cols.count(twice[0])} times (channels of several sensor nodes in "
+                            "one export); export one node per file")
     ia, ig = _index(p, cols, acc_names), _index(p, cols, gyr_names)
     mag_present = [c for c in _A_MAG if c in cols] if fmt == "A" else []
     im = [cols.index(c) for c in _A_MAG] if len(mag_present) == len(_A_MAG) else []

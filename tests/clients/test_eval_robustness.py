@@ -138,3 +138,40 @@ def test_eval_gdin_on_an_unseen_layout(gdin_dir: Path, tmp_path: Path, capsys: p
     code, doc, _ = _run(capsys, ["eval", "gdin", str(root), "--mode", "zupt", "--json", "--plot", str(tmp_path / "p")])
     assert code == 0  # a recording without truth is listed, not a failure
     assert (tmp_path / "p" / "exp31.png").exists() and not (tmp_path / "p" / "exp34.png").exists()
+
+
+# ---------------------------------------------------------------------------------------------- cut-short sensor file
+def _stride_table(path: Path, t_s: np.ndarray) -> Path:
+    rows = ["strideIndex,timestamp,gcpX,gcpY"] + [f"{round(t * 200)},{t},{1.2 * k},0.0" for k, t in enumerate(t_s.tolist())]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_stride_table_past_the_end_of_the_recording_is_cut_not_piled_on_the_last_sample(tmp_path: Path) -> None:
+    """A sensor file that ends before its truth (logger stopped): strides after its end used to be placed on
+    the last sample, silently; now they are left out, noted, and the truth is not comparable."""
+    from clients.importers.gdin import find_gdin, load_gdin
+    from tests.clients.test_importer_robustness import _rows, write_a
+
+    (tmp_path / "own").mkdir()
+    (tmp_path / "stride_gcp").mkdir()
+    write_a(tmp_path / "own" / "SensorConnectData_88.csv", _rows(n=400))  # 2.0 s at 200 Hz
+    _stride_table(tmp_path / "stride_gcp" / "SensorConnectData_88_strideIndex_timestamp_gcpX_gcpY.csv",
+                  np.array([0.2, 0.9, 1.6, 2.3, 3.0, 3.7]))
+    (e,) = find_gdin(tmp_path)
+    x = load_gdin(e).truth.extra
+    assert len(x["stride_t_ns"]) == 3 and np.all(np.diff(x["stride_t_ns"]) > 0)
+    assert x["truth_covers_recording"] is False
+    assert any("3 of 6 strides lie outside the recording" in n for n in x["truth_notes"])
+
+
+def test_eval_gdin_on_a_sensor_file_cut_short(gdin_dir: Path, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    _copy_exp(gdin_dir, tmp_path, 31)
+    f = tmp_path / "own" / "SensorConnectData_31.csv"
+    f.write_text("\n".join(f.read_text().splitlines()[:6001]) + "\n")  # the first 30 s of 42.7 s
+    code, doc, _ = _run(capsys, ["eval", "gdin", str(tmp_path), "--json"])
+    (r,) = doc["recordings"]
+    assert code == 0 and r["gt_usable"] is False and doc["excluded_from_summary"] == ["exp31"]
+    assert r["stride_mean_err_m"] < 1.0  # before: 1.98 m, the strides after 30 s all compared at the last sample
+    assert any("cut short" in n for n in r["notes"])

@@ -362,3 +362,44 @@ def test_gdin_truth_without_ground_control_points_is_refused_by_name(tmp_path: P
     with pytest.raises(ImporterError, match="GCP_meters") as ei:
         load_truth_mat(_truth(tmp_path / "SensorConnectData_97.mat", ("GCP_meters",)))
     assert "SensorConnectData_97.mat" in str(ei.value)
+
+
+# ---------------------------------------------------------------------------------------------- gaitmap layouts
+def test_gaitmap_without_index_column_says_so_instead_of_reading_acc_x_as_a_clock(tmp_path: Path) -> None:
+    """A gaitmap DataFrame saved without its index: before, "acc_x: timestamps go backwards"."""
+    rows = _rows(mag=False)
+    data = np.column_stack([rows[:, 1:4] * G0, np.rad2deg(rows[:, 4:7])])
+    p = _csv(tmp_path / "no_index.csv", ["acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"], data)
+    with pytest.raises(ImporterError, match="no sample index or time") as ei:
+        load(p)
+    assert ei.value.field == "acc_x" and "no_index.csv" in str(ei.value)
+    rec = load_gaitmap(p, rate_hz=200.0)
+    assert len(rec.batch) == N and rec.meta.rate_hz == pytest.approx(200.0)
+    np.testing.assert_allclose(rec.batch.acc, rows[:, 1:4] * G0, rtol=1e-6)
+    assert "consecutive samples" in _notes(rec)
+
+
+def test_gaitmap_two_sensor_file_with_only_the_right_foot(tmp_path: Path) -> None:
+    """load()/replay took the left foot and failed with "acc_x: column missing for left_sensor"."""
+    from clients.importers.gaitmap import sensor_feet
+
+    rows = _rows(mag=False)
+    data = np.column_stack([np.arange(N), rows[:, 1:4] * G0, np.rad2deg(rows[:, 4:7])])
+    p = tmp_path / "imu_sample.csv"  # a documented name: its rate (204.8 Hz) is known
+    head = "sensor," + ",".join(["right_sensor"] * 6) + "\naxis,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z\n"
+    p.write_text(head + "\n".join(",".join(f"{v:.9g}" for v in r) for r in data) + "\n")
+    assert sensor_feet(p) == ("right",)
+    rec = load(p)
+    assert rec.name == "imu_sample-right" and len(rec.batch) == N
+    np.testing.assert_allclose(rec.batch.gyr, rows[:, 4:7], rtol=1e-6, atol=1e-9)
+
+
+def test_format_a_export_of_two_nodes_is_refused_not_mixed(tmp_path: Path) -> None:
+    """SensorConnect can export several nodes into one CSV; the first node's columns were taken silently."""
+    rows = _rows()
+    names = ["Time"] + [f"inertial-{node}:scaled{s}{a}" for node in ("6253.76535", "6253.99999")
+                        for s in ("Accel", "Gyro", "Mag") for a in "XYZ"]
+    p = _csv(tmp_path / "SensorConnectData_89.csv", names, np.column_stack([rows, rows[:, 1:]]))
+    with pytest.raises(ImporterError, match="several sensor nodes") as ei:
+        load(p)
+    assert ei.value.field == "scaledAccelX"

@@ -122,6 +122,72 @@ def test_sensor_logger_bad_header_and_values(tmp_path: Path) -> None:
     assert importer_for(tmp_path / "nothing.csv") is None
 
 
+def _cut_last_line(text: str) -> str:
+    lines = text.splitlines()
+    lines[-1] = ",".join(lines[-1].split(",")[:2])  # the app stopped mid-write: time and seconds_elapsed only
+    return "\n".join(lines) + "\n"
+
+
+def _empty_cells(text: str, line: int) -> str:
+    lines = text.splitlines()
+    lines[line] = ",".join(lines[line].split(",")[:2] + ["", "", ""])
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("damage", "acc_n", "gyr_n", "words"),
+    [
+        ({"TotalAcceleration": _cut_last_line}, -1, 0, "line 401"),
+        ({"Gyroscope": _cut_last_line}, 0, -1, "line 401"),
+        ({"Gyroscope": lambda s: _empty_cells(s, 20)}, 0, -1, "non-finite"),
+        ({"TotalAcceleration": lambda s: _empty_cells(s, 7)}, -1, 0, "non-finite"),
+    ],
+)
+def test_sensor_logger_cut_line_and_empty_cells_lose_only_those_samples(
+    tmp_path: Path, damage: dict, acc_n: int, gyr_n: int, words: str
+) -> None:
+    """Sample policy of clients.importers._common: a line cut mid-write or an empty cell drops that sample
+    (noted), not the recording."""
+    b = _phone_batch()
+    files = _export(b, "total")
+    for name, f in damage.items():
+        files[name] = f(files[name])
+    rec = load_sensor_logger(_write_folder(tmp_path, files))
+    assert len(rec.batch.acc_t_ns) == len(b.acc_t_ns) + acc_n
+    assert len(rec.batch.gyr_t_ns) == len(b.gyr_t_ns) + gyr_n
+    assert words in " | ".join(rec.meta.notes)
+
+
+def test_sensor_logger_a_file_of_malformed_lines_is_refused_by_name(tmp_path: Path) -> None:
+    b = _phone_batch()
+    files = _export(b, "total")
+    lines = files["Gyroscope"].splitlines()
+    files["Gyroscope"] = "\n".join(lines[:1] + [ln + ",1" if i % 3 == 0 else ln for i, ln in enumerate(lines[1:])])
+    with pytest.raises(ImporterError, match="malformed") as ei:
+        load_sensor_logger(_write_folder(tmp_path, files))
+    assert "Gyroscope.csv" in str(ei.value)
+
+
+@pytest.mark.parametrize("optional", ["Magnetometer", "Gravity", "Gyroscope"])
+def test_sensor_logger_header_only_optional_stream_is_left_out(tmp_path: Path, optional: str) -> None:
+    """A sensor that delivered nothing (Sensor Logger still writes its header) leaves that stream out."""
+    b = _phone_batch()
+    files = _export(b, "total")
+    files[optional] = "time,seconds_elapsed,z,y,x\n"
+    rec = load_sensor_logger(_write_folder(tmp_path, files))
+    assert np.allclose(rec.batch.acc, b.acc)
+    assert f"{optional}: no samples" in " | ".join(rec.meta.notes)
+    if optional != "Gravity":
+        assert len(rec.batch.stream("mag" if optional == "Magnetometer" else "gyr")[0]) == 0
+
+
+def test_sensor_logger_header_only_accelerometer_is_refused(tmp_path: Path) -> None:
+    files = _export(_phone_batch(), "total")
+    files["TotalAcceleration"] = files["Accelerometer"] = "time,seconds_elapsed,z,y,x\n"
+    with pytest.raises(ImporterError, match="no accelerometer file with samples"):
+        load_sensor_logger(_write_folder(tmp_path, files))
+
+
 @pytest.mark.parametrize("sep", [",", ";"])
 def test_phyphox_export(tmp_path: Path, sep: str) -> None:
     b = _phone_batch(seed=2)
@@ -153,6 +219,70 @@ def test_phyphox_export(tmp_path: Path, sep: str) -> None:
     lin.write_text(table("Acceleration", b.acc_t_ns, b.acc).replace("Acceleration", "Linear Acceleration"))
     with pytest.raises(ImporterError):
         load_phyphox(lin)
+
+
+def _phyphox_table(head: str, unit: str, t_s: np.ndarray, v: np.ndarray, sep: str = ",", dec: str = ".") -> str:
+    rows = [sep.join(['"Time (s)"'] + [f'"{head} {a} ({unit})"' for a in "xyz"])]
+    rows += [sep.join(f"{x:.9E}".replace(".", dec) for x in (ti, *r)) for ti, r in zip(t_s.tolist(), v.tolist())]
+    return "\n".join(rows) + "\n"
+
+
+def _phyphox_folder(tmp: Path, b: SensorBatch, sep: str = ",", dec: str = ".", time_csv: bool = True) -> Path:
+    """An unpacked phyphox export: one table per sensor and meta/time.csv."""
+    d = tmp / "phyphox-export"
+    (d / "meta").mkdir(parents=True)
+    t0 = T_EPOCH  # whole seconds: exact in the 10 significant digits phyphox writes
+    for name, head, unit, (t, v) in (("Accelerometer", "Acceleration", "m/s^2", b.stream("acc")),
+                                     ("Gyroscope", "Gyroscope", "rad/s", b.stream("gyr"))):
+        (d / f"{name}.csv").write_text(_phyphox_table(head, unit, (t - t0) / 1e9, v, sep, dec))
+    if time_csv:
+        cells = [["event", "experiment time", "system time"], ["START", "0.000000000E+00", f"{t0 / 1e9:.9E}"]]
+        (d / "meta" / "time.csv").write_text("\n".join(sep.join(f'"{c}"'.replace(".", dec) for c in r) for r in cells) + "\n")
+    return d
+
+
+@pytest.mark.parametrize(("sep", "dec"), [(",", "."), ("\t", "."), ("\t", ","), (";", ",")])
+def test_phyphox_every_csv_flavour_of_the_app(tmp_path: Path, sep: str, dec: str) -> None:
+    """phyphox exports CSV with comma, tab (decimal point or comma) or semicolon separators: same samples,
+    and the same UTC start from meta/time.csv."""
+    b = _phone_batch(seed=3)
+    rec = load_any(_phyphox_folder(tmp_path, b, sep, dec))
+    assert rec.meta.source_format == "phyphox"
+    assert np.allclose(rec.batch.acc, b.acc, atol=1e-8) and np.allclose(rec.batch.gyr, b.gyr, atol=1e-8)
+    assert np.max(np.abs(rec.batch.acc_t_ns - b.acc_t_ns)) < 10_000  # ns: the epoch was read
+    assert not any("experiment start" in n for n in rec.meta.notes)
+
+
+def test_phyphox_one_table_of_an_export_loads_the_export(tmp_path: Path) -> None:
+    """Accelerometer.csv of an unpacked export must not lose the gyroscope table beside it."""
+    b = _phone_batch(seed=4)
+    d = _phyphox_folder(tmp_path, b)
+    rec = load_any(d / "Accelerometer.csv")
+    assert len(rec.batch.gyr_t_ns) == len(b.gyr_t_ns)
+    assert any("whole export" in n for n in rec.meta.notes)
+
+
+@pytest.mark.parametrize("damage", ["cut", "empty-cells", "gyro-header-only"])
+def test_phyphox_damaged_tables_lose_only_the_damaged_samples(tmp_path: Path, damage: str) -> None:
+    b = _phone_batch(seed=5)
+    d = _phyphox_folder(tmp_path, b)
+    name = "Gyroscope.csv" if damage == "gyro-header-only" else "Accelerometer.csv"
+    lines = (d / name).read_text().splitlines()
+    if damage == "cut":
+        lines[-1] = lines[-1][:20]  # the export was cut mid-write
+    elif damage == "empty-cells":
+        lines[10] = lines[10].split(",")[0] + ",,,"
+    else:
+        lines = lines[:1]
+    (d / name).write_text("\n".join(lines) + "\n")
+    rec = load_phyphox(d)
+    notes = " | ".join(rec.meta.notes)
+    if damage == "gyro-header-only":
+        assert len(rec.batch.gyr_t_ns) == 0 and "no samples (header only)" in notes
+        assert len(rec.batch.acc_t_ns) == len(b.acc_t_ns)
+    else:
+        assert len(rec.batch.acc_t_ns) == len(b.acc_t_ns) - 1
+        assert ("line 401" if damage == "cut" else "non-finite") in notes
 
 
 # ---------------------------------------------------------------- HTTP push

@@ -1,0 +1,49 @@
+"""``pednav replay FILE`` on recordings the engine cannot or can only partly use: a clear refusal (non-zero
+exit, no traceback) or a replay that reports what the importer noted."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clients.cli import main
+
+
+def _phyphox_acc_only(path: Path, n: int = 600) -> Path:
+    """phyphox's "Acceleration with g" export: one table, no gyroscope."""
+    rows = ['"Time (s)","Acceleration x (m/s^2)","Acceleration y (m/s^2)","Acceleration z (m/s^2)"']
+    rows += [f"{k / 100:.2f},0.1,0.2,9.80" for k in range(n)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _gaitmap_with_mag(path: Path, n: int = 400) -> Path:
+    rows = [",acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z,mag_x,mag_y,mag_z"]
+    rows += [f"{k / 100:.2f},0,0,9.81,0,0,0,0.4,0,0.806" for k in range(n)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("mode", ["auto", "zupt", "pdr"])
+def test_replay_of_a_recording_without_gyroscope_is_refused_not_empty(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], mode: str
+) -> None:
+    """Before: exit 0 with "0 positions, gyro on 100%"; the engine cannot start without a gyroscope."""
+    f = _phyphox_acc_only(tmp_path / "Raw Data.csv")
+    assert main(["replay", str(f), "--mode", mode]) == 1
+    cap = capsys.readouterr()
+    assert "Raw Data.csv" in cap.err and "no gyroscope" in cap.err and "Traceback" not in cap.err
+    assert cap.out == ""
+
+
+def test_replay_reports_what_the_importer_noted(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    f = _gaitmap_with_mag(tmp_path / "still.csv")
+    assert main(["replay", str(f), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert any("magnetometer" in n and "left out" in n for n in doc["notes"])
+    assert main(["replay", str(f)]) == 0
+    assert "note: magnetometer" in capsys.readouterr().err
+    assert np.isfinite(doc["gyro_on_fraction"])
