@@ -80,7 +80,7 @@ class SessionCreate(BaseModel):
     """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres."""
 
     device_kind: DeviceKind
-    device_id: int | None = None
+    device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0)

@@ -333,3 +333,39 @@ def test_json_safe_stores_what_an_engine_profile_may_hold() -> None:
     out = json_safe(doc)
     assert out == {"a": [[1.0, None], [2.0, 3.0]], "b": 0.5, "c": [3, None], "d": "x"}
     json.dumps(out, allow_nan=False)
+
+
+# ---------------------------------------------------------------- ids beyond the database's integers
+BIG = 2**63  # one past int64: no row can have this id, and the database driver cannot even bind it
+
+
+@pytest.mark.parametrize(
+    "method, path, field",
+    [
+        ("get", f"/v1/sessions/{BIG}", "session_id"),
+        ("post", f"/v1/sessions/{BIG}/close", "session_id"),
+        ("post", f"/v1/sessions/{BIG}/reprocess", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/trajectory", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/events", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/batches", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/batches/0/raw", "session_id"),
+        ("get", f"/v1/sessions/1/batches/{BIG}/raw", "seq"),
+        ("put", f"/v1/sessions/{BIG}/batches/0", "session_id"),
+        ("get", f"/v1/devices/{BIG}", "device_id"),
+        ("get", f"/v1/sessions?offset={BIG}", "offset"),
+    ],
+)
+def test_ids_beyond_int64_are_422_naming_the_field(client, make_user, method, path, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    kw = {"content": encode_msgpack(still_batch(T0)), "headers": {**auth(a), "content-type": MSGPACK_TYPE}} if method == "put" \
+        else {"headers": auth(a)}
+    r = getattr(client, method)(path, **kw)
+    assert r.status_code == 422, r.text
+    assert r.json()["field"].endswith(field) and "less than or equal" in r.json()["detail"]
+
+
+def test_device_id_beyond_int64_is_422_and_starts_nothing(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.post("/v1/sessions", json={"device_kind": "foot", "device_id": BIG}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == "device_id", r.text
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
