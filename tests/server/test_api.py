@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -201,13 +202,34 @@ def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make
         (b'{"baro": {}}', "application/json", "baro"),
         (b"\xc1", MSGPACK_TYPE, "body"),
         (b"abc", "text/plain", "content-type"),
+        # these four answered 500 (OverflowError, RecursionError, TypeError escaped the decoder)
+        (b'{"acc": {"t_ns": [1], "xyz": [[1%s, 0, 0]]}}' % (b"0" * 400), "application/json", "acc.xyz"),
+        (b"[" * 100_000 + b"]" * 100_000, "application/json", "body"),
+        (msgpack.packb({"v": 1, "acc": {"n": 1, "t0": 2**64 - 1, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.t0"),
+        (msgpack.packb({"v": 1, "acc": {"n": True, "t0": 0, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.n"),
     ],
+    ids=["not-json", "rows-mismatch", "float-time", "unknown-stream", "not-msgpack", "text-plain", "int-beyond-float64",
+         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool"],
 )
 def test_malformed_bodies_are_422(client, make_user, body, ctype, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a)
     r = client.put(f"/v1/sessions/{sid}/batches/0", content=body, headers={**auth(a), "content-type": ctype})
     assert r.status_code == 422 and r.json()["field"] == field, r.text
+
+
+def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """``{"t_ns": [], "xyz": []}`` is what a device whose gyroscope is off sends for it; the msgpack form (``n: 0``)
+    was accepted while the JSON form got 422 "must be 0 rows of [x, y, z], got shape [0]"."""
+    _, a = make_user()
+    sid = _start(client, a)
+    b = still_batch(T0)
+    doc = {"acc": {"t_ns": b.acc_t_ns.tolist(), "xyz": b.acc.tolist()}, "gyr": {"t_ns": [], "xyz": []}}
+    r = client.put(f"/v1/sessions/{sid}/batches/0", json=doc, headers=auth(a))
+    assert r.status_code == 200, r.text
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()[0]["n_gyr"] == 0
 
 
 def test_payload_limits_are_413(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
