@@ -57,6 +57,7 @@ def current_user(
     401 for a missing, invalid, revoked or expired token; 429 when the token exceeds its rate limit.
     """
     token = cred.credentials if cred is not None else request.query_params.get("token")
+    request.state.token = token  # the token this request was authenticated with (DELETE /v1/tokens/current)
     try:
         user_id = authenticate(db, token, request.app.state.limiter)
         user = db.get(User, user_id)
