@@ -232,6 +232,28 @@ def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make
     assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()[0]["n_gyr"] == 0
 
 
+@pytest.mark.parametrize("path", ["/v1/profiles/walk", "/v1/sensorlogger"])
+def test_streamed_bodies_over_the_limit_are_413_on_every_route(client, make_user, settings, path) -> None:  # type: ignore[no-untyped-def]
+    """A chunked body (no Content-Length) was counted only by the batch upload: a 3 MB profile or Sensor Logger
+    push against a 2 MB limit was parsed and stored whole."""
+    _, a = make_user()
+
+    def chunks():  # type: ignore[no-untyped-def]
+        if path == "/v1/sensorlogger":
+            yield b'{"messageId": 1, "sessionId": "big", "payload": [{"name": "pad", "time": 1, "values": {"x": "'
+        else:
+            yield b'{"data": {"n_steps": 1, "step_model": {"pad": "'
+        for _ in range(settings.max_body_bytes // 65536 + 2):
+            yield b"x" * 65536
+        yield b'"}}]}' if path == "/v1/sensorlogger" else b'"}}}'
+
+    method = client.post if path == "/v1/sensorlogger" else client.put
+    r = method(path, content=chunks(), headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["detail"], r.text[:200]
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
+
+
 def test_payload_limits_are_413(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a)
