@@ -286,6 +286,13 @@ def _calibration(step: float = 0.7) -> dict:  # type: ignore[type-arg]
             "heading_deviation_var": 0.01, "n_steps": 40, "calibrated": True}
 
 
+def _nested(depth: int) -> dict:  # type: ignore[type-arg]
+    d: dict = {"a": 1}  # type: ignore[type-arg]
+    for _ in range(depth):
+        d = {"a": d}
+    return d
+
+
 def test_profiles_replace_read_reset_history_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     _, b = make_user()
@@ -322,12 +329,27 @@ def test_profiles_replace_read_reset_history_and_isolation(client, make_user) ->
         ("walk", {"n_steps": -1}, "data"),
         ("walk", {"bogus": 1}, "data"),
         ("swim", {}, "behaviour"),
+        # accepted before, and then every session start of the user answered 500 (the engine could not load them)
+        ("walk", {**_calibration(), "heading_deviation_rad": "0.1"}, "data: heading_deviation_rad"),
+        ("walk", {**_calibration(), "heading_deviation_var": [0.01]}, "data: heading_deviation_var"),
+        ("walk", {**_calibration(), "step_model": {"calibrator": {"pairs": "x"}}}, "data: the engine cannot load"),
+        # accepted and stored as given: a string "no" read as calibrated, 3.5 steps, a float beyond float64
+        ("walk", {**_calibration(), "calibrated": "no"}, "data: calibrated"),
+        ("walk", {**_calibration(), "n_steps": 3.5}, "data: n_steps"),
+        ("walk", {**_calibration(), "sigma_d_m": 10**400}, "data: sigma_d_m"),
+        # 500 (RecursionError) before
+        ("walk", {**_calibration(), "step_model": _nested(900)}, "data: nested too deeply"),
     ],
+    ids=["negative-steps", "unknown-field", "unknown-behaviour", "string-deviation", "list-variance",
+         "malformed-calibrator", "string-calibrated", "fractional-steps", "beyond-float64", "nested-too-deep"],
 )
 def test_profile_validation(client, make_user, behaviour, data, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     r = client.put(f"/v1/profiles/{behaviour}", json={"data": data}, headers=auth(a))
-    assert r.status_code == 422 and r.json()["detail"].startswith(field)
+    assert r.status_code == 422 and r.json()["detail"].startswith(field), r.text
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    assert client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(a)).status_code == 201
+
 
 
 # ---------------------------------------------------------------- trajectories
