@@ -181,16 +181,19 @@ class GaitSummaryOut(BaseModel):
         "event, behaviour, heading_deviation_rad, heading_deviation_var")
 
 
+_INT64 = {"ge": -(2**63), "le": 2**63 - 1}  # stored as BIGINT: a larger number made the driver fail (HTTP 500)
+
+
 class SensorLoggerItem(BaseModel):
     name: str
-    time: int
+    time: int = Field(**_INT64)
     values: dict[str, Any]
 
 
 class SensorLoggerPush(BaseModel):
-    messageId: int  # noqa: N815 - Sensor Logger's own field names
-    sessionId: str  # noqa: N815
-    deviceId: str = ""  # noqa: N815
+    messageId: int = Field(**_INT64)  # noqa: N815 - Sensor Logger's own field names
+    sessionId: str = Field(max_length=100)  # noqa: N815 - columns of 100 characters (PostgreSQL refused longer: 500)
+    deviceId: str = Field(default="", max_length=100)  # noqa: N815
     payload: list[SensorLoggerItem]
 
 
