@@ -178,8 +178,12 @@ def test_batch_sequence_conflicts_say_what_is_expected(client, make_user) -> Non
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns[::-1].copy(), acc=b.acc), "acc_t_ns"),
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=np.where(np.arange(len(b.acc))[:, None] == 3, np.nan, b.acc)), "acc"),
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, mag_t_ns=b.mag_t_ns, mag=b.mag / 100.0), "mag"),
+        # one sample no sensor can report in an otherwise plausible batch: the engine raised LinAlgError (500)
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=np.where(np.arange(len(b.acc))[:, None] == 50, 1e300, b.acc)), "acc"),
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, mag_t_ns=b.mag_t_ns,
+                               mag=np.where(np.arange(len(b.mag))[:, None] == 50, 1e30, b.mag)), "mag"),
     ],
-    ids=["acc-in-g", "gyr-in-deg", "time-reversed", "nan", "mag-in-gauss"],
+    ids=["acc-in-g", "gyr-in-deg", "time-reversed", "nan", "mag-in-gauss", "acc-beyond-any-sensor", "mag-beyond-any-sensor"],
 )
 def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make_user, mutate, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
