@@ -39,6 +39,8 @@ class _Out(BaseModel):
 
 
 class UserCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.@-]+$")
 
 
@@ -65,6 +67,8 @@ class TokenOut(BaseModel):
 
 
 class DeviceCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     kind: DeviceKind
     name: str = Field(default="", max_length=100)
 
@@ -77,7 +81,12 @@ class DeviceOut(_Out):
 
 
 class SessionCreate(BaseModel):
-    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres."""
+    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
+
+    Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
+    """
+
+    model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
     device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
@@ -156,6 +165,8 @@ class BatchResponse(BaseModel):
 
 
 class ProfileIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     data: dict[str, Any]
 
 

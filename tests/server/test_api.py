@@ -74,6 +74,23 @@ def test_tokens_are_stored_hashed(app, make_user) -> None:  # type: ignore[no-un
 
 
 # ---------------------------------------------------------------- devices
+@pytest.mark.parametrize(
+    "method, path, body, field",
+    [
+        ("post", "/v1/devices", {"kind": "watch", "colour": "red"}, "colour"),
+        ("put", "/v1/profiles/walk", {"data": {"n_steps": 1}, "behaviour": "run"}, "behaviour"),
+        ("post", "/v1/users", {"name": "carol", "is_admin": True}, "is_admin"),
+    ],
+)
+def test_unknown_fields_are_422_naming_them(client, make_user, method, path, body, field) -> None:  # type: ignore[no-untyped-def]
+    """Unknown fields were ignored with 201/200 (a new user asked to be an admin was created as a plain one)."""
+    _, admin = make_user(admin=True)
+    r = getattr(client, method)(path, json=body, headers=auth(admin))
+    assert r.status_code == 422 and r.json()["field"] == field, r.text
+    assert client.get("/v1/devices", headers=auth(admin)).json() == []
+    assert client.get("/v1/profiles", headers=auth(admin)).json() == []
+
+
 def test_devices_crud_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     _, b = make_user()
@@ -111,6 +128,8 @@ def test_session_lifecycle(client, make_user) -> None:  # type: ignore[no-untype
         ({"device_kind": "phone", "latitude_deg": 91.0, "longitude_deg": 0.0}, "latitude_deg"),
         ({"device_kind": "phone", "latitude_deg": 10.0}, "latitude_deg"),
         ({}, "device_kind"),
+        # a misspelt field was ignored: 201 and a session without its geodetic start (GeoJSON export: 409)
+        ({"device_kind": "phone", "latitude": 43.66, "longitude": -79.39}, "latitude"),
     ],
 )
 def test_session_start_validation_names_the_field(client, make_user, body, field) -> None:  # type: ignore[no-untyped-def]
