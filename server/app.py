@@ -120,12 +120,24 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         return JSONResponse(status_code=409, content={"detail": exc.message, "expected_seq": exc.expected_seq})
 
     @app.exception_handler(RequestValidationError)
-    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errs = exc.errors()
-        fields = [".".join(str(p) for p in e.get("loc", ()) if p != "body") for e in errs]
-        msg = "; ".join(f"{f}: {e.get('msg')}" for f, e in zip(fields, errs))
+        fields, problems = [], []
+        for e in errs:
+            loc = tuple(e.get("loc", ()))
+            problem = str(e.get("msg"))
+            if e.get("type") == "json_invalid":  # loc ("body", <char>): the field was the character offset "1"
+                loc = ("body",)
+                problem = f"not valid JSON: {(e.get('ctx') or {}).get('error', problem)} (char {e['loc'][-1]})"
+            field = ".".join(str(p) for p in loc if p != "body") or "body"  # the body as a whole: not ""
+            ctype = request.headers.get("content-type", "")
+            if field == "body" and loc == ("body",) and "json" not in ctype:
+                problem += f"; send JSON with Content-Type: application/json (got {ctype or 'none'!r})"
+            fields.append(field)
+            problems.append(problem)
+        msg = "; ".join(f"{f}: {p}" for f, p in zip(fields, problems))
         return JSONResponse(status_code=422, content={"detail": msg, "field": fields[0] if fields else None, "errors": [
-            {"field": f, "problem": e.get("msg")} for f, e in zip(fields, errs)]})
+            {"field": f, "problem": p} for f, p in zip(fields, problems)]})
 
     for r in (auth, users, devices, sessions, batches, profiles, trajectories, sensorlogger):
         app.include_router(r.router, prefix="/v1")

@@ -91,6 +91,25 @@ def test_unknown_fields_are_422_naming_them(client, make_user, method, path, bod
     assert client.get("/v1/profiles", headers=auth(admin)).json() == []
 
 
+@pytest.mark.parametrize(
+    "content, ctype, problem",
+    [
+        (b'{"kind": "watch",', "application/json", "not valid JSON"),
+        (b'{"kind": "watch"}', "text/plain", "Content-Type: application/json"),
+        (b'{"kind": "watch"}', None, "Content-Type: application/json"),
+    ],
+    ids=["truncated-json", "text-plain", "no-content-type"],
+)
+def test_unreadable_bodies_are_422_naming_the_body(client, make_user, content, ctype, problem) -> None:  # type: ignore[no-untyped-def]
+    """A JSON syntax error was reported as field "17" (the character offset) and a body sent without the JSON
+    content type as field "" ("Input should be a valid dictionary ...")."""
+    _, a = make_user()
+    headers = {**auth(a), **({"content-type": ctype} if ctype else {})}
+    r = client.post("/v1/devices", content=content, headers=headers)
+    assert r.status_code == 422 and r.json()["field"] == "body", r.text
+    assert r.json()["detail"].startswith("body: ") and problem in r.json()["detail"]
+
+
 def test_devices_crud_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     _, b = make_user()
