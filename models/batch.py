@@ -26,11 +26,15 @@ _MAG_RANGE = (5.0, 200.0)  # uT, median |m| (Earth 20-70 uT, indoor disturbances
 
 _MEDIAN_NORM, _MAX_ABS = 0, 1  # statistic _scan returns for the unit check of each stream
 _STAT = {"acc": _MEDIAN_NORM, "gyr": _MAX_ABS, "mag": _MEDIAN_NORM}
+# |value| no sensor of the kind can report (about 1000 g, 570 000 deg/s, 0.1 T), whatever the unit check says:
+# a single such sample in an otherwise plausible batch (1e30 m/s^2) made the ZUPT-KF raise LinAlgError
+_ABS_MAX = {"acc": 1e4, "gyr": 1e4, "mag": 1e5}
+_SENSOR = {"acc": ("accelerometer", "m/s^2"), "gyr": ("gyroscope", "rad/s"), "mag": ("magnetometer", "uT")}
 
 
-def _scan_py(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
-    """Checks of one stream in one pass: ``(first non-finite row, first duplicated timestamp, first
-    backwards timestamp, statistic)``, indices -1 when there is none.
+def _scan_py(t: np.ndarray, v: np.ndarray, stat: int, lim: float) -> tuple[int, int, int, float]:
+    """Checks of one stream in one pass: ``(first row that is non-finite or has a value beyond +-lim, first
+    duplicated timestamp, first backwards timestamp, statistic)``, indices -1 when there is none.
 
     The statistic is the median of the row norms ``|v|`` (``stat == _MEDIAN_NORM``) or the largest absolute
     value (``_MAX_ABS``), over all rows (meaningful only without non-finite rows). Timestamp steps are
@@ -40,7 +44,7 @@ def _scan_py(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, fl
     n = v.shape[0]
     bad = -1
     for i in range(n):
-        if not (np.isfinite(v[i, 0]) and np.isfinite(v[i, 1]) and np.isfinite(v[i, 2])):
+        if not (abs(v[i, 0]) <= lim and abs(v[i, 1]) <= lim and abs(v[i, 2]) <= lim):  # False for NaN too
             bad = i
             break
     dup = -1
@@ -69,7 +73,7 @@ def _scan_py(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, fl
 _SCAN: Any = None
 
 
-def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float]:
+def _scan(t: np.ndarray, v: np.ndarray, stat: int, lim: float) -> tuple[int, int, int, float]:
     """:func:`_scan_py` compiled (numba, on first use: importing this module does not load numba, so the
     API process that only decodes batches stays small; the engine's processes load it anyway)."""
     global _SCAN
@@ -77,7 +81,7 @@ def _scan(t: np.ndarray, v: np.ndarray, stat: int) -> tuple[int, int, int, float
         from numba import njit
 
         _SCAN = njit(cache=True)(_scan_py)
-    return _SCAN(t, v, stat)  # type: ignore[no-any-return]
+    return _SCAN(t, v, stat, lim)  # type: ignore[no-any-return]
 
 
 class BatchError(ValueError):
@@ -263,16 +267,20 @@ class SensorBatch:
     def validate(self, *, check_units: bool = True) -> SensorBatch:
         """Raise :class:`BatchError` naming the field and the problem; return ``self`` when valid.
 
-        Checks: finite values, strictly increasing timestamps per stream (duplicates and reversals are
-        errors), and with ``check_units`` plausible magnitudes (accelerometer in m/s^2 not g, gyroscope in
-        rad/s not deg/s, magnetometer in uT not gauss or nT).
+        Checks: finite values within the range of any sensor of the kind, strictly increasing timestamps per
+        stream (duplicates and reversals are errors), and with ``check_units`` plausible magnitudes
+        (accelerometer in m/s^2 not g, gyroscope in rad/s not deg/s, magnetometer in uT not gauss or nT).
         """
         scans = []
         for name in STREAMS:
             t, v = self.stream(name)
-            bad, dup, back, stat = _scan(t, v, _STAT[name])  # one compiled pass, no temporaries
+            bad, dup, back, stat = _scan(t, v, _STAT[name], _ABS_MAX[name])  # one compiled pass, no temporaries
             if bad >= 0:
-                raise BatchError(name, f"sample {bad} is not finite (NaN or inf)")
+                if not np.all(np.isfinite(v[bad])):
+                    raise BatchError(name, f"sample {bad} is not finite (NaN or inf)")
+                sensor, unit = _SENSOR[name]
+                raise BatchError(name, f"sample {bad} ({float(np.max(np.abs(v[bad]))):.3g} {unit}) is beyond the range "
+                                       f"of any {sensor} (|value| <= {_ABS_MAX[name]:g} {unit})")
             if dup >= 0:
                 raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(t[dup])} at sample {dup}")
             if back >= 0:

@@ -7,7 +7,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
@@ -23,22 +23,40 @@ __all__ = ["create_app", "BodyLimit"]
 
 
 class BodyLimit:
-    """Pure ASGI middleware: 413 for a declared ``Content-Length`` above ``max_bytes`` (streamed bodies are
-    counted by the routes that read them)."""
+    """Pure ASGI middleware: 413 for a body above ``max_bytes``, refused before it is read when its
+    ``Content-Length`` says so, else (a streamed, chunked body) as soon as the bytes read exceed the limit.
+
+    Only the batch upload counted streamed bodies before, so a chunked body of any size reached every other
+    route that reads one (Sensor Logger pushes, profiles) and was parsed and stored whole.
+    """
 
     def __init__(self, app: Any, max_bytes: int) -> None:
         self.app = app
         self.max_bytes = max_bytes
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
-        if scope["type"] == "http":
-            for k, v in scope["headers"]:
-                if k == b"content-length" and v.isdigit() and int(v) > self.max_bytes:
-                    resp = JSONResponse(status_code=413, content={
-                        "detail": f"body of {int(v)} bytes exceeds the limit of {self.max_bytes} bytes"})
-                    await resp(scope, receive, send)
-                    return
-        await self.app(scope, receive, send)
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        for k, v in scope["headers"]:
+            if k == b"content-length" and v.isdigit() and int(v) > self.max_bytes:
+                resp = JSONResponse(status_code=413, content={
+                    "detail": f"body of {int(v)} bytes exceeds the limit of {self.max_bytes} bytes"})
+                await resp(scope, receive, send)
+                return
+        size = 0
+
+        async def counted() -> Any:
+            nonlocal size
+            msg = await receive()
+            if msg["type"] == "http.request":
+                size += len(msg.get("body", b""))
+                if size > self.max_bytes:
+                    # an HTTPException passes FastAPI's body parsing untouched and is answered by its handler
+                    raise HTTPException(413, f"body exceeds the limit of {self.max_bytes} bytes")
+            return msg
+
+        await self.app(scope, counted, send)
 
 
 def create_app(settings: Settings | None = None, engine_cls: Any | None = None) -> FastAPI:
@@ -102,12 +120,24 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         return JSONResponse(status_code=409, content={"detail": exc.message, "expected_seq": exc.expected_seq})
 
     @app.exception_handler(RequestValidationError)
-    async def _validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errs = exc.errors()
-        fields = [".".join(str(p) for p in e.get("loc", ()) if p != "body") for e in errs]
-        msg = "; ".join(f"{f}: {e.get('msg')}" for f, e in zip(fields, errs))
+        fields, problems = [], []
+        for e in errs:
+            loc = tuple(e.get("loc", ()))
+            problem = str(e.get("msg"))
+            if e.get("type") == "json_invalid":  # loc ("body", <char>): the field was the character offset "1"
+                loc = ("body",)
+                problem = f"not valid JSON: {(e.get('ctx') or {}).get('error', problem)} (char {e['loc'][-1]})"
+            field = ".".join(str(p) for p in loc if p != "body") or "body"  # the body as a whole: not ""
+            ctype = request.headers.get("content-type", "")
+            if field == "body" and loc == ("body",) and "json" not in ctype:
+                problem += f"; send JSON with Content-Type: application/json (got {ctype or 'none'!r})"
+            fields.append(field)
+            problems.append(problem)
+        msg = "; ".join(f"{f}: {p}" for f, p in zip(fields, problems))
         return JSONResponse(status_code=422, content={"detail": msg, "field": fields[0] if fields else None, "errors": [
-            {"field": f, "problem": e.get("msg")} for f, e in zip(fields, errs)]})
+            {"field": f, "problem": p} for f, p in zip(fields, problems)]})
 
     for r in (auth, users, devices, sessions, batches, profiles, trajectories, sensorlogger):
         app.include_router(r.router, prefix="/v1")

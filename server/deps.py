@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, Path, Query, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
@@ -14,7 +14,15 @@ from server.ingest import EngineHost
 from server.models import User
 from server.settings import Settings
 
-__all__ = ["SessionDep", "CurrentUser", "SettingsDep", "HostDep", "get_db", "current_user"]
+__all__ = ["INT64_MAX", "OffsetQuery", "PathId", "SessionDep", "CurrentUser", "SettingsDep", "HostDep", "get_db", "current_user"]
+
+INT64_MAX = 2**63 - 1
+"""Largest id, sequence number or offset the database can bind (SQLite INTEGER, PostgreSQL bigint); a larger
+one made the driver raise OverflowError (HTTP 500) before the query could answer "not found"."""
+
+# an id or sequence number in the path: 422 naming the parameter beyond int64, never a driver error
+PathId = Annotated[int, Path(ge=-INT64_MAX - 1, le=INT64_MAX)]
+OffsetQuery = Annotated[int, Query(le=INT64_MAX)]
 
 _bearer = HTTPBearer(auto_error=False)
 
@@ -49,6 +57,7 @@ def current_user(
     401 for a missing, invalid, revoked or expired token; 429 when the token exceeds its rate limit.
     """
     token = cred.credentials if cred is not None else request.query_params.get("token")
+    request.state.token = token  # the token this request was authenticated with (DELETE /v1/tokens/current)
     try:
         user_id = authenticate(db, token, request.app.state.limiter)
         user = db.get(User, user_id)

@@ -40,6 +40,7 @@ __all__ = [
 JSON_TYPE = "application/json"
 MSGPACK_TYPE = "application/msgpack"
 _I32 = np.iinfo(np.int32)
+_I64 = np.iinfo(np.int64)
 
 
 class PayloadTooLarge(ValueError):
@@ -98,10 +99,14 @@ def _from_json(doc: Any, limit: int) -> SensorBatch:
         if not isinstance(ts, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in ts):
             raise BatchError(f"{name}.t_ns", "must be a list of integer nanoseconds")
         _check_n(name, len(ts), limit)
+        if not ts and xyz == []:
+            continue  # an empty stream is a stream the device did not sample (as msgpack's n = 0)
         try:
             v = np.asarray(xyz, dtype=np.float64)
         except (TypeError, ValueError):
             raise BatchError(f"{name}.xyz", "must be a list of [x, y, z] numbers") from None
+        except OverflowError:
+            raise BatchError(f"{name}.xyz", "a value is beyond the float64 range") from None
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] != len(ts):
             raise BatchError(f"{name}.xyz", f"must be {len(ts)} rows of [x, y, z], got shape {list(v.shape)}")
         try:
@@ -128,7 +133,7 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
         if not isinstance(s, dict):
             raise BatchError(name, "must be a map")
         n = s.get("n")
-        if not isinstance(n, int) or n < 0:
+        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
             raise BatchError(f"{name}.n", "must be a non-negative integer")
         _check_n(name, n, limit)
         dtype = s.get("dtype")
@@ -147,6 +152,8 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
             t0, dt = s.get("t0"), s.get("dt")
             if n and (not isinstance(t0, int) or not isinstance(dt, bytes) or len(dt) != 4 * (n - 1)):
                 raise BatchError(f"{name}.dt", f"needs integer t0 and {max(n - 1, 0)} packed <i4 deltas")
+            if n and not _I64.min <= t0 <= _I64.max:
+                raise BatchError(f"{name}.t0", "timestamp outside int64")
             if n == 0:
                 t = np.zeros(0, dtype=np.int64)
             else:
@@ -178,6 +185,8 @@ def decode_batch(body: bytes, content_type: str | None, max_samples: int) -> Sen
             doc = json.loads(body)
         except (ValueError, UnicodeDecodeError) as exc:
             raise BatchError("body", f"not valid JSON: {exc}") from None
+        except RecursionError:
+            raise BatchError("body", "JSON nested too deeply") from None
         return _from_json(doc, max_samples)
     raise BatchError("content-type", f"unsupported {ctype!r}; use {JSON_TYPE} or {MSGPACK_TYPE}")
 

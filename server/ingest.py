@@ -202,11 +202,46 @@ def _calibration_in(data: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def validate_calibration(behaviour: str, data: dict[str, Any]) -> None:
-    """Raise ``ValueError`` naming the problem when ``data`` is not a valid calibration of ``behaviour``."""
-    from energy.profile import Profile
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
-    Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
+
+def validate_calibration(behaviour: str, data: dict[str, Any], host: EngineHost | None = None) -> None:
+    """Raise ``ValueError`` naming the problem when ``data`` is not a valid calibration of ``behaviour``.
+
+    Checks the field types (numbers or null for the floats, an integer ``n_steps``, a boolean ``calibrated``),
+    then with ``host`` that an engine takes the calibration in its stored form as a session start would hand
+    it over: a profile accepted with a string ``heading_deviation_rad`` or a malformed ``step_model`` made every
+    later session start of its user fail with HTTP 500.
+    """
+    from energy.profile import BehaviourCalibration, Profile
+
+    for f in dataclasses.fields(BehaviourCalibration):
+        if f.name not in data:
+            continue
+        v = data[f.name]
+        if f.type in ("float", float) and v is not None:
+            if not _is_number(v):
+                raise ValueError(f"{f.name}: must be a number or null, got {type(v).__name__}")
+            try:
+                float(v)
+            except OverflowError:
+                raise ValueError(f"{f.name}: beyond the float64 range") from None
+        elif f.name == "n_steps" and not (isinstance(v, int) and not isinstance(v, bool)):
+            raise ValueError(f"n_steps: must be an integer, got {type(v).__name__}")
+        elif f.name == "calibrated" and not isinstance(v, bool):
+            raise ValueError(f"calibrated: must be true or false, got {type(v).__name__}")
+    try:
+        Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
+        if host is not None:
+            stored = json_safe(data)  # what is stored; a session start reads it back through _calibration_in
+            host.new("auto", {"version": 1, "behaviours": {behaviour: _calibration_in(stored)}})  # "auto" loads it
+    except ValueError:
+        raise
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
+    except Exception as exc:  # noqa: BLE001 - whatever the engine cannot load is a client error here
+        raise ValueError(f"the engine cannot load this calibration ({type(exc).__name__}: {exc})") from None
 
 
 def engine_profile_from_stored(profile: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session
 
 from models.batch import BatchError
 from server.formats import MSGPACK_TYPE, decode_batch
-from server.ingest import EngineHost, _update_dict
+from server.ingest import EngineHost, _update_dict, engine_profile_from_stored
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state
 
@@ -65,8 +65,12 @@ class ReprocessResult:
 
 def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] | None, raws: list[Any],
          closed: bool, next_seq: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any] | None, bytes]:
-    """Feed the stored batches to a fresh engine; returns (position rows, event rows, last answer, state)."""
-    engine = host.new(mode, profile)
+    """Feed the stored batches to a fresh engine; returns (position rows, event rows, last answer, state).
+
+    ``profile`` is the session's stored ``profile_in`` (nulls where the engine had NaN), given to the engine in
+    its own form as the session's first upload did (the stored form failed with TypeError: HTTP 500).
+    """
+    engine = host.new(mode, engine_profile_from_stored(profile))
     positions: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
     last: dict[str, Any] | None = None

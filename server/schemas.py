@@ -39,6 +39,8 @@ class _Out(BaseModel):
 
 
 class UserCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.@-]+$")
 
 
@@ -65,6 +67,8 @@ class TokenOut(BaseModel):
 
 
 class DeviceCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     kind: DeviceKind
     name: str = Field(default="", max_length=100)
 
@@ -77,10 +81,15 @@ class DeviceOut(_Out):
 
 
 class SessionCreate(BaseModel):
-    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres."""
+    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
+
+    Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
+    """
+
+    model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
-    device_id: int | None = None
+    device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0)
@@ -156,6 +165,8 @@ class BatchResponse(BaseModel):
 
 
 class ProfileIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
     data: dict[str, Any]
 
 
@@ -181,16 +192,19 @@ class GaitSummaryOut(BaseModel):
         "event, behaviour, heading_deviation_rad, heading_deviation_var")
 
 
+_INT64 = {"ge": -(2**63), "le": 2**63 - 1}  # stored as BIGINT: a larger number made the driver fail (HTTP 500)
+
+
 class SensorLoggerItem(BaseModel):
     name: str
-    time: int
+    time: int = Field(**_INT64)
     values: dict[str, Any]
 
 
 class SensorLoggerPush(BaseModel):
-    messageId: int  # noqa: N815 - Sensor Logger's own field names
-    sessionId: str  # noqa: N815
-    deviceId: str = ""  # noqa: N815
+    messageId: int = Field(**_INT64)  # noqa: N815 - Sensor Logger's own field names
+    sessionId: str = Field(max_length=100)  # noqa: N815 - columns of 100 characters (PostgreSQL refused longer: 500)
+    deviceId: str = Field(default="", max_length=100)  # noqa: N815
     payload: list[SensorLoggerItem]
 
 

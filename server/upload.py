@@ -30,7 +30,7 @@ from fastapi import HTTPException, status
 from models.batch import BatchError, SensorBatch
 from server.auth import RateLimiter, admit, require_token
 from server.formats import canonical_bytes, decode_batch, digest
-from server.ingest import EngineHost, Fed, IngestConflict, feed_engine, pool_feed
+from server.ingest import EngineHost, Fed, IngestConflict, engine_profile_from_stored, feed_engine, pool_feed
 from server.security import hash_token
 from server.statecodec import pack_state
 from server.timing import phase, since
@@ -335,7 +335,9 @@ class Uploader:
 
         def stored_state() -> bytes:
             blob, mode, profile = load_state()  # a session that never stored a state gets a new engine
-            return pack_state(self.host.new(mode, profile).to_bytes()) if blob is None else blob
+            if blob is not None:
+                return blob
+            return pack_state(self.host.new(mode, engine_profile_from_stored(profile)).to_bytes())  # null -> NaN
 
         host = self.host
         engine = None

@@ -47,8 +47,8 @@ def new_token(db: SessionDep, user: CurrentUser, settings: SettingsDep, body: To
 @router.delete("/tokens/current", status_code=status.HTTP_204_NO_CONTENT)
 def revoke_current(request: Request, db: SessionDep, user: CurrentUser) -> None:
     """Revoke the token used for this request."""
-    auth = request.headers.get("authorization", "")
-    token = auth.split(" ", 1)[1] if " " in auth else request.query_params.get("token", "")
-    row = db.query(Token).filter(Token.token_hash == hash_token(token), Token.user_id == user.id).one()
+    # the token current_user authenticated, not the header parsed again (another scheme with ``?token=``, or
+    # extra blanks after "Bearer", named a token that does not exist: HTTP 500)
+    row = db.query(Token).filter(Token.token_hash == hash_token(request.state.token), Token.user_id == user.id).one()
     row.revoked = True
     db.commit()

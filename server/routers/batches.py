@@ -13,7 +13,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from models.batch import BatchError
 from server import crud
 from server.auth import authenticate
-from server.deps import CurrentUser, SessionDep
+from server.deps import INT64_MAX, CurrentUser, PathId, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
 from server.timing import Phases, phase
@@ -96,7 +96,8 @@ class UploadFastPath:
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         m = _UPLOAD_PATH.match(scope["path"]) if scope["type"] == "http" and scope["method"] == "PUT" else None
-        if m is None:
+        if m is None or not all(-INT64_MAX - 1 <= int(g) <= INT64_MAX for g in m.groups()):
+            # not an upload, or an id beyond int64: the route answers (its validation names the parameter)
             await self.app(scope, receive, send)
             return
         app = self.fastapi_app
@@ -142,7 +143,7 @@ class UploadFastPath:
     response_model=BatchResponse,
     openapi_extra={"requestBody": {"required": True, "content": {"application/json": {}, MSGPACK_TYPE: {}}}},
 )
-async def put_batch(session_id: int, seq: int, body: Annotated[bytes, Depends(_body)], request: Request) -> Response:
+async def put_batch(session_id: PathId, seq: PathId, body: Annotated[bytes, Depends(_body)], request: Request) -> Response:
     """Upload batch number ``seq`` (0, 1, 2, ...) of a session (``Authorization: Bearer``).
 
     Idempotent: a retry with the same number and content gets the same answer (header
@@ -159,7 +160,7 @@ async def put_batch(session_id: int, seq: int, body: Annotated[bytes, Depends(_b
 
 
 @router.get("")
-def list_batches(session_id: int, db: SessionDep, user: CurrentUser) -> list[dict[str, Any]]:
+def list_batches(session_id: PathId, db: SessionDep, user: CurrentUser) -> list[dict[str, Any]]:
     """Stored raw batches of a session (metadata)."""
     sess = crud.get_session(db, user, session_id)
     if sess is None:
@@ -172,7 +173,7 @@ def list_batches(session_id: int, db: SessionDep, user: CurrentUser) -> list[dic
 
 
 @router.get("/{seq}/raw", response_class=Response)
-def raw_batch(session_id: int, seq: int, db: SessionDep, user: CurrentUser) -> Response:
+def raw_batch(session_id: PathId, seq: PathId, db: SessionDep, user: CurrentUser) -> Response:
     """The stored batch in the lossless msgpack format (for re-processing with a newer engine)."""
     sess = crud.get_session(db, user, session_id)
     rec = crud.get_batch(db, sess.id, seq) if sess is not None else None

@@ -7,7 +7,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, status
 
 from server import crud
-from server.deps import CurrentUser, SessionDep
+from server.deps import CurrentUser, PathId, SessionDep
 from server.schemas import DeviceCreate, DeviceOut
 
 __all__ = ["router"]
@@ -28,7 +28,7 @@ def list_devices(db: SessionDep, user: CurrentUser) -> Any:
 
 
 @router.get("/{device_id}", response_model=DeviceOut)
-def get_device(device_id: int, db: SessionDep, user: CurrentUser) -> Any:
+def get_device(device_id: PathId, db: SessionDep, user: CurrentUser) -> Any:
     dev = crud.get_device(db, user, device_id)
     if dev is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"device {device_id} not found")

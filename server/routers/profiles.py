@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException, status
 
 from server import crud
 from energy.profile import PROFILE_BEHAVIOURS
-from server.deps import CurrentUser, SessionDep
+from server.deps import CurrentUser, HostDep, SessionDep
 from server.ingest import json_safe, validate_calibration
 from server.schemas import ProfileIn, ProfileOut
 
@@ -43,11 +43,11 @@ def get_profile(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
 
 
 @router.put("/{behaviour}", response_model=ProfileOut)
-def replace_profile(behaviour: str, body: ProfileIn, db: SessionDep, user: CurrentUser) -> Any:
+def replace_profile(behaviour: str, body: ProfileIn, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
     """Replace the profile (a new version; the old ones stay in the history). Used by new sessions."""
     _check(behaviour)
     try:
-        validate_calibration(behaviour, body.data)
+        validate_calibration(behaviour, body.data, host)
     except ValueError as exc:
         raise HTTPException(422, f"data: {exc}") from None
     row = crud.add_profile_version(db, user, behaviour, json_safe(body.data), source="api")

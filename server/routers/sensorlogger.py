@@ -21,7 +21,7 @@ from sqlalchemy.exc import IntegrityError
 from models.batch import BatchError, SensorBatch
 from server import crud
 from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
-from server.ingest import apply_batch, engine_profile_in, json_safe
+from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
 from server.statecodec import pack_state
@@ -73,6 +73,34 @@ def samples_to_batch(items: list[dict[str, Any]]) -> SensorBatch:
     return SensorBatch(acc_t_ns=acc_t, acc=acc, gyr_t_ns=g_t, gyr=g, mag_t_ns=m_t, mag=m)
 
 
+_FLOAT_MAX = int(np.finfo(np.float64).max)
+_SL_NAME = {"gyr": "gyroscope", "mag": "magnetometer"}
+
+
+def _check_samples(items: list[dict[str, Any]]) -> None:
+    """Refuse (422, nothing stored) a push whose own samples the engine would refuse: non-finite values or
+    implausible units (a gyroscope in deg/s, a magnetometer in gauss).
+
+    A message is stored before its samples are fed, and every later push feeds the held-back samples of all
+    stored messages together: one such message, acknowledged with 200, made every later push of the session
+    and its flush fail with 422 for good. (A message with only ``accelerometer`` samples is still taken: its
+    samples are used when ``gravity`` or ``totalacceleration`` samples of other messages come with them.)
+    """
+    try:
+        batch = samples_to_batch(items)
+        acc_name = "totalacceleration" if any(it["name"] == "totalacceleration" for it in items) else "accelerometer"
+    except BatchError as exc:
+        if exc.field != "payload.accelerometer":
+            raise
+        batch = samples_to_batch([it for it in items if it["name"] != "accelerometer"])
+        acc_name = "totalacceleration"
+    try:
+        batch.validate()
+    except BatchError as exc:
+        stream = exc.field.removesuffix("_t_ns")
+        raise BatchError(f"payload.{_SL_NAME.get(stream, acc_name)}", exc.problem) from None
+
+
 def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, host: Any) -> SensorLoggerLink:
     link = db.execute(
         select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)
@@ -119,22 +147,31 @@ def _feed_ready(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, h
 @router.post("")
 def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
     """Receive one Sensor Logger push message; returns the session and any new positions."""
-    link = _link(db, user, body, settings, host)
     items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
     for it in items:
         it["name"] = it["name"].lower()
         for k in ("x", "y", "z"):
-            if not isinstance(it["values"].get(k), (int, float)):
+            v = it["values"].get(k)
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
                 raise BatchError(f"payload.{it['name']}.values.{k}", "missing or not a number")
+            if isinstance(v, int) and not -_FLOAT_MAX <= v <= _FLOAT_MAX:
+                raise BatchError(f"payload.{it['name']}.values.{k}", "beyond the float64 range")
+    _check_samples(items)
+    link = _link(db, user, body, settings, host)
     t_max = max((int(it["time"]) for it in items), default=0)
     late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
     db.add(SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items))
     try:
-        db.commit()
+        db.flush()
     except IntegrityError:
         db.rollback()
         return {"session_id": link.session_id, "duplicate": True, "late_samples": link.late_samples, "positions": [],
                 "behaviour": None}
+    sess = crud.get_session(db, user, link.session_id)
+    if sess is not None and sess.status != "open":  # refused: not stored (it would never be fed)
+        db.rollback()
+        raise IngestConflict(f"session {link.session_id} is closed; no more batches accepted", sess.next_seq)
+    db.commit()
     if late:
         link.late_samples += late
         db.commit()

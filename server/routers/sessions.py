@@ -7,7 +7,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, HTTPException, Query, status
 
 from server import crud
-from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.deps import CurrentUser, HostDep, OffsetQuery, PathId, SessionDep, SettingsDep
 from server.ingest import close_session, engine_profile_in, json_safe
 from server.reprocess import ReprocessConflict, reprocess_session
 from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut
@@ -40,13 +40,13 @@ def start_session(body: SessionCreate, db: SessionDep, user: CurrentUser, settin
 
 @router.get("", response_model=list[SessionOut])
 def list_sessions(
-    db: SessionDep, user: CurrentUser, status_: Annotated[Literal["open", "closed"] | None, Query(alias="status")] = None, limit: int = 100, offset: int = 0
+    db: SessionDep, user: CurrentUser, status_: Annotated[Literal["open", "closed"] | None, Query(alias="status")] = None, limit: int = 100, offset: OffsetQuery = 0
 ) -> Any:
     return crud.list_sessions(db, user, status_, min(max(limit, 1), 1000), max(offset, 0))
 
 
 @router.get("/{session_id}", response_model=SessionOut)
-def get_session(session_id: int, db: SessionDep, user: CurrentUser) -> Any:
+def get_session(session_id: PathId, db: SessionDep, user: CurrentUser) -> Any:
     sess = crud.get_session(db, user, session_id)
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
@@ -54,7 +54,7 @@ def get_session(session_id: int, db: SessionDep, user: CurrentUser) -> Any:
 
 
 @router.post("/{session_id}/close", response_model=SessionOut)
-def close(session_id: int, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
+def close(session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
     """Close: drain the engine's held-back positions, store the updated calibration profiles."""
     sess = close_session(db, host, user, session_id)
     if sess is None:
@@ -64,7 +64,7 @@ def close(session_id: int, db: SessionDep, user: CurrentUser, host: HostDep) -> 
 
 @router.post("/{session_id}/reprocess", response_model=ReprocessOut)
 def reprocess(
-    session_id: int, db: SessionDep, user: CurrentUser, host: HostDep, body: ReprocessIn | None = None
+    session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep, body: ReprocessIn | None = None
 ) -> Any:
     """Re-process the session with the server's current engine from its stored raw batches (owner only).
 

@@ -10,7 +10,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Response, status
 
 from server import crud
-from server.deps import CurrentUser, SessionDep
+from server.deps import CurrentUser, PathId, SessionDep
 
 __all__ = ["router", "to_geojson", "to_csv"]
 
@@ -54,7 +54,7 @@ def to_csv(rows: list[dict[str, Any]]) -> str:
 
 @router.get("/trajectory")
 def trajectory(
-    session_id: int, db: SessionDep, user: CurrentUser, format: Literal["json", "geojson", "csv"] = "json"  # noqa: A002
+    session_id: PathId, db: SessionDep, user: CurrentUser, format: Literal["json", "geojson", "csv"] = "json"  # noqa: A002
 ) -> Any:
     """Positions in the session's NED frame [m] (origin at the first stance); GeoJSON needs a geodetic start."""
     sess = crud.get_session(db, user, session_id)
@@ -74,7 +74,7 @@ def trajectory(
 
 
 @router.get("/events")
-def events(session_id: int, db: SessionDep, user: CurrentUser) -> list[dict[str, Any]]:
+def events(session_id: PathId, db: SessionDep, user: CurrentUser) -> list[dict[str, Any]]:
     sess = crud.get_session(db, user, session_id)
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -73,6 +74,42 @@ def test_tokens_are_stored_hashed(app, make_user) -> None:  # type: ignore[no-un
 
 
 # ---------------------------------------------------------------- devices
+@pytest.mark.parametrize(
+    "method, path, body, field",
+    [
+        ("post", "/v1/devices", {"kind": "watch", "colour": "red"}, "colour"),
+        ("put", "/v1/profiles/walk", {"data": {"n_steps": 1}, "behaviour": "run"}, "behaviour"),
+        ("post", "/v1/users", {"name": "carol", "is_admin": True}, "is_admin"),
+    ],
+)
+def test_unknown_fields_are_422_naming_them(client, make_user, method, path, body, field) -> None:  # type: ignore[no-untyped-def]
+    """Unknown fields were ignored with 201/200 (a new user asked to be an admin was created as a plain one)."""
+    _, admin = make_user(admin=True)
+    r = getattr(client, method)(path, json=body, headers=auth(admin))
+    assert r.status_code == 422 and r.json()["field"] == field, r.text
+    assert client.get("/v1/devices", headers=auth(admin)).json() == []
+    assert client.get("/v1/profiles", headers=auth(admin)).json() == []
+
+
+@pytest.mark.parametrize(
+    "content, ctype, problem",
+    [
+        (b'{"kind": "watch",', "application/json", "not valid JSON"),
+        (b'{"kind": "watch"}', "text/plain", "Content-Type: application/json"),
+        (b'{"kind": "watch"}', None, "Content-Type: application/json"),
+    ],
+    ids=["truncated-json", "text-plain", "no-content-type"],
+)
+def test_unreadable_bodies_are_422_naming_the_body(client, make_user, content, ctype, problem) -> None:  # type: ignore[no-untyped-def]
+    """A JSON syntax error was reported as field "17" (the character offset) and a body sent without the JSON
+    content type as field "" ("Input should be a valid dictionary ...")."""
+    _, a = make_user()
+    headers = {**auth(a), **({"content-type": ctype} if ctype else {})}
+    r = client.post("/v1/devices", content=content, headers=headers)
+    assert r.status_code == 422 and r.json()["field"] == "body", r.text
+    assert r.json()["detail"].startswith("body: ") and problem in r.json()["detail"]
+
+
 def test_devices_crud_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     _, b = make_user()
@@ -110,6 +147,8 @@ def test_session_lifecycle(client, make_user) -> None:  # type: ignore[no-untype
         ({"device_kind": "phone", "latitude_deg": 91.0, "longitude_deg": 0.0}, "latitude_deg"),
         ({"device_kind": "phone", "latitude_deg": 10.0}, "latitude_deg"),
         ({}, "device_kind"),
+        # a misspelt field was ignored: 201 and a session without its geodetic start (GeoJSON export: 409)
+        ({"device_kind": "phone", "latitude": 43.66, "longitude": -79.39}, "latitude"),
     ],
 )
 def test_session_start_validation_names_the_field(client, make_user, body, field) -> None:  # type: ignore[no-untyped-def]
@@ -177,8 +216,12 @@ def test_batch_sequence_conflicts_say_what_is_expected(client, make_user) -> Non
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns[::-1].copy(), acc=b.acc), "acc_t_ns"),
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=np.where(np.arange(len(b.acc))[:, None] == 3, np.nan, b.acc)), "acc"),
         (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, mag_t_ns=b.mag_t_ns, mag=b.mag / 100.0), "mag"),
+        # one sample no sensor can report in an otherwise plausible batch: the engine raised LinAlgError (500)
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=np.where(np.arange(len(b.acc))[:, None] == 50, 1e300, b.acc)), "acc"),
+        (lambda b: SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, mag_t_ns=b.mag_t_ns,
+                               mag=np.where(np.arange(len(b.mag))[:, None] == 50, 1e30, b.mag)), "mag"),
     ],
-    ids=["acc-in-g", "gyr-in-deg", "time-reversed", "nan", "mag-in-gauss"],
+    ids=["acc-in-g", "gyr-in-deg", "time-reversed", "nan", "mag-in-gauss", "acc-beyond-any-sensor", "mag-beyond-any-sensor"],
 )
 def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make_user, mutate, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
@@ -201,13 +244,56 @@ def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make
         (b'{"baro": {}}', "application/json", "baro"),
         (b"\xc1", MSGPACK_TYPE, "body"),
         (b"abc", "text/plain", "content-type"),
+        # these four answered 500 (OverflowError, RecursionError, TypeError escaped the decoder)
+        (b'{"acc": {"t_ns": [1], "xyz": [[1%s, 0, 0]]}}' % (b"0" * 400), "application/json", "acc.xyz"),
+        (b"[" * 100_000 + b"]" * 100_000, "application/json", "body"),
+        (msgpack.packb({"v": 1, "acc": {"n": 1, "t0": 2**64 - 1, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.t0"),
+        (msgpack.packb({"v": 1, "acc": {"n": True, "t0": 0, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.n"),
     ],
+    ids=["not-json", "rows-mismatch", "float-time", "unknown-stream", "not-msgpack", "text-plain", "int-beyond-float64",
+         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool"],
 )
 def test_malformed_bodies_are_422(client, make_user, body, ctype, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a)
     r = client.put(f"/v1/sessions/{sid}/batches/0", content=body, headers={**auth(a), "content-type": ctype})
     assert r.status_code == 422 and r.json()["field"] == field, r.text
+
+
+def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """``{"t_ns": [], "xyz": []}`` is what a device whose gyroscope is off sends for it; the msgpack form (``n: 0``)
+    was accepted while the JSON form got 422 "must be 0 rows of [x, y, z], got shape [0]"."""
+    _, a = make_user()
+    sid = _start(client, a)
+    b = still_batch(T0)
+    doc = {"acc": {"t_ns": b.acc_t_ns.tolist(), "xyz": b.acc.tolist()}, "gyr": {"t_ns": [], "xyz": []}}
+    r = client.put(f"/v1/sessions/{sid}/batches/0", json=doc, headers=auth(a))
+    assert r.status_code == 200, r.text
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()[0]["n_gyr"] == 0
+
+
+@pytest.mark.parametrize("path", ["/v1/profiles/walk", "/v1/sensorlogger"])
+def test_streamed_bodies_over_the_limit_are_413_on_every_route(client, make_user, settings, path) -> None:  # type: ignore[no-untyped-def]
+    """A chunked body (no Content-Length) was counted only by the batch upload: a 3 MB profile or Sensor Logger
+    push against a 2 MB limit was parsed and stored whole."""
+    _, a = make_user()
+
+    def chunks():  # type: ignore[no-untyped-def]
+        if path == "/v1/sensorlogger":
+            yield b'{"messageId": 1, "sessionId": "big", "payload": [{"name": "pad", "time": 1, "values": {"x": "'
+        else:
+            yield b'{"data": {"n_steps": 1, "step_model": {"pad": "'
+        for _ in range(settings.max_body_bytes // 65536 + 2):
+            yield b"x" * 65536
+        yield b'"}}]}' if path == "/v1/sensorlogger" else b'"}}}'
+
+    method = client.post if path == "/v1/sensorlogger" else client.put
+    r = method(path, content=chunks(), headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["detail"], r.text[:200]
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
 
 
 def test_payload_limits_are_413(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
@@ -240,6 +326,13 @@ def test_raw_batch_is_kept_losslessly(client, make_user) -> None:  # type: ignor
 def _calibration(step: float = 0.7) -> dict:  # type: ignore[type-arg]
     return {"step_model": {"kind": "test", "a": step}, "sigma_d_m": 0.05, "heading_deviation_rad": 0.1,
             "heading_deviation_var": 0.01, "n_steps": 40, "calibrated": True}
+
+
+def _nested(depth: int) -> dict:  # type: ignore[type-arg]
+    d: dict = {"a": 1}  # type: ignore[type-arg]
+    for _ in range(depth):
+        d = {"a": d}
+    return d
 
 
 def test_profiles_replace_read_reset_history_and_isolation(client, make_user) -> None:  # type: ignore[no-untyped-def]
@@ -278,12 +371,27 @@ def test_profiles_replace_read_reset_history_and_isolation(client, make_user) ->
         ("walk", {"n_steps": -1}, "data"),
         ("walk", {"bogus": 1}, "data"),
         ("swim", {}, "behaviour"),
+        # accepted before, and then every session start of the user answered 500 (the engine could not load them)
+        ("walk", {**_calibration(), "heading_deviation_rad": "0.1"}, "data: heading_deviation_rad"),
+        ("walk", {**_calibration(), "heading_deviation_var": [0.01]}, "data: heading_deviation_var"),
+        ("walk", {**_calibration(), "step_model": {"calibrator": {"pairs": "x"}}}, "data: the engine cannot load"),
+        # accepted and stored as given: a string "no" read as calibrated, 3.5 steps, a float beyond float64
+        ("walk", {**_calibration(), "calibrated": "no"}, "data: calibrated"),
+        ("walk", {**_calibration(), "n_steps": 3.5}, "data: n_steps"),
+        ("walk", {**_calibration(), "sigma_d_m": 10**400}, "data: sigma_d_m"),
+        # 500 (RecursionError) before
+        ("walk", {**_calibration(), "step_model": _nested(900)}, "data: nested too deeply"),
     ],
+    ids=["negative-steps", "unknown-field", "unknown-behaviour", "string-deviation", "list-variance",
+         "malformed-calibrator", "string-calibrated", "fractional-steps", "beyond-float64", "nested-too-deep"],
 )
 def test_profile_validation(client, make_user, behaviour, data, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     r = client.put(f"/v1/profiles/{behaviour}", json={"data": data}, headers=auth(a))
-    assert r.status_code == 422 and r.json()["detail"].startswith(field)
+    assert r.status_code == 422 and r.json()["detail"].startswith(field), r.text
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    assert client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(a)).status_code == 201
+
 
 
 # ---------------------------------------------------------------- trajectories
@@ -333,3 +441,39 @@ def test_json_safe_stores_what_an_engine_profile_may_hold() -> None:
     out = json_safe(doc)
     assert out == {"a": [[1.0, None], [2.0, 3.0]], "b": 0.5, "c": [3, None], "d": "x"}
     json.dumps(out, allow_nan=False)
+
+
+# ---------------------------------------------------------------- ids beyond the database's integers
+BIG = 2**63  # one past int64: no row can have this id, and the database driver cannot even bind it
+
+
+@pytest.mark.parametrize(
+    "method, path, field",
+    [
+        ("get", f"/v1/sessions/{BIG}", "session_id"),
+        ("post", f"/v1/sessions/{BIG}/close", "session_id"),
+        ("post", f"/v1/sessions/{BIG}/reprocess", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/trajectory", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/events", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/batches", "session_id"),
+        ("get", f"/v1/sessions/{BIG}/batches/0/raw", "session_id"),
+        ("get", f"/v1/sessions/1/batches/{BIG}/raw", "seq"),
+        ("put", f"/v1/sessions/{BIG}/batches/0", "session_id"),
+        ("get", f"/v1/devices/{BIG}", "device_id"),
+        ("get", f"/v1/sessions?offset={BIG}", "offset"),
+    ],
+)
+def test_ids_beyond_int64_are_422_naming_the_field(client, make_user, method, path, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    kw = {"content": encode_msgpack(still_batch(T0)), "headers": {**auth(a), "content-type": MSGPACK_TYPE}} if method == "put" \
+        else {"headers": auth(a)}
+    r = getattr(client, method)(path, **kw)
+    assert r.status_code == 422, r.text
+    assert r.json()["field"].endswith(field) and "less than or equal" in r.json()["detail"]
+
+
+def test_device_id_beyond_int64_is_422_and_starts_nothing(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.post("/v1/sessions", json={"device_kind": "foot", "device_id": BIG}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == "device_id", r.text
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []

@@ -95,6 +95,21 @@ def test_open_session_continues_exactly_after_reprocessing(client, app, make_use
     assert again.status_code == 200 and again.headers["x-pednav-replayed"] == "true"
 
 
+def test_returning_user_with_a_null_in_the_profile_is_reprocessed(client, app, make_user) -> None:  # type: ignore[no-untyped-def]
+    """A stored profile holds null for each NaN float (JSON has none). Uploads hand the engine the profile through
+    engine_profile_from_stored (null -> NaN); re-processing handed it the stored form, and float(None) in
+    GaitPipeline.load_calibration answered 500 for every session started on such a profile."""
+    _, tok = make_user()
+    cal = {"step_model": {"kind": "test", "a": 0.7}, "sigma_d_m": None, "heading_deviation_rad": 0.1,
+           "heading_deviation_var": None, "n_steps": 40, "calibrated": True}
+    assert client.put("/v1/profiles/walk", json={"data": cal}, headers=auth(tok)).status_code == 200
+    sid = _still_session(client, tok, 3)
+    for dry in (True, False):
+        r = client.post(f"/v1/sessions/{sid}/reprocess", json={"dry_run": dry}, headers=auth(tok))
+        assert r.status_code == 200, r.text
+        assert r.json()["identical"] is True and r.json()["stored"] is not dry
+
+
 class ShiftedEngine(Engine):
     """A "newer engine": every position 1 m further north."""
 

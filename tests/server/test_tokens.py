@@ -75,6 +75,22 @@ def test_token_refusals_say_which(client, make_user) -> None:  # type: ignore[no
     assert r.status_code == 422 and r.json()["field"] == "lifetime"
 
 
+@pytest.mark.parametrize("how", ["query-with-other-scheme", "extra-blank"])
+def test_revoking_the_current_token_revokes_the_one_that_authenticated(client, make_user, how) -> None:  # type: ignore[no-untyped-def]
+    """DELETE /v1/tokens/current parsed the Authorization header again: with another scheme and ``?token=`` (or
+    two blanks after "Bearer") it looked up a token that does not exist and answered 500, revoking nothing."""
+    _, tok = make_user()
+    second = client.post("/v1/tokens", headers=auth(tok)).json()["token"]
+    if how == "query-with-other-scheme":
+        r = client.delete(f"/v1/tokens/current?token={second}", headers={"Authorization": "Basic dXNlcjpwdw=="})
+    else:
+        r = client.delete("/v1/tokens/current", headers={"Authorization": f"Bearer  {second}"})
+    assert r.status_code == 204, r.text
+    r = client.get("/v1/users/me", headers=auth(second))
+    assert r.status_code == 401 and r.json()["detail"] == "token revoked"
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200
+
+
 @pytest.fixture()
 def limited(settings):  # type: ignore[no-untyped-def]
     a = create_app(settings.model_copy(update={"migrate_on_startup": False, "rate_limit_per_s": 2.0, "rate_limit_burst": 3}))

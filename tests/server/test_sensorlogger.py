@@ -1,0 +1,93 @@
+"""POST /v1/sensorlogger refusals: a push the engine would refuse is refused before it is stored (it poisoned
+every later push of its session), out-of-range numbers and over-long names are 422, not 500."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from tests.server.conftest import auth
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _items(t0: int, n: int = 200, dt: int = 10_000_000, gyr: float = 0.001) -> list[dict[str, Any]]:
+    """``n`` samples of a phone lying still: total acceleration [m/s^2], gyroscope [rad/s], magnetometer [uT]."""
+    out = []
+    for k in range(n):
+        t = t0 + k * dt
+        out += [{"name": "totalacceleration", "time": t, "values": {"x": 0.01, "y": 0.0, "z": 9.81}},
+                {"name": "gyroscope", "time": t, "values": {"x": gyr, "y": 0.0, "z": 0.0}},
+                {"name": "magnetometer", "time": t, "values": {"x": 20.0, "y": 0.0, "z": 40.0}}]
+    return out
+
+
+def _push(client, tok: str, mid: int, payload: list[dict[str, Any]], sl_id: str = "phone-1"):  # type: ignore[no-untyped-def]
+    return client.post("/v1/sensorlogger", json={"messageId": mid, "sessionId": sl_id, "deviceId": "d",
+                                                 "payload": payload}, headers=auth(tok))
+
+
+def test_a_push_in_wrong_units_is_refused_and_does_not_block_the_session(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    for k in range(3):
+        assert _push(client, a, k, _items(T0 + 2 * k * 10**9)).status_code == 200
+    r = _push(client, a, 3, _items(T0 + 6 * 10**9, gyr=100.0))  # deg/s
+    assert r.status_code == 422 and r.json()["field"] == "payload.gyroscope" and "deg/s" in r.json()["detail"]
+    # before: message 3 was stored with 200, and every later push and the flush answered this 422 for good
+    for k in (4, 5):
+        r = _push(client, a, k, _items(T0 + 2 * k * 10**9))
+        assert r.status_code == 200, r.text
+    assert r.json()["positions"]
+    sid = r.json()["session_id"]
+    assert client.post("/v1/sensorlogger/phone-1/flush", headers=auth(a)).status_code == 200
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] >= 2
+
+
+@pytest.mark.parametrize(
+    "mutate, field",
+    [
+        (lambda m: {**m, "messageId": 2**63}, "messageId"),
+        (lambda m: {**m, "sessionId": "s" * 101}, "sessionId"),
+        (lambda m: {**m, "deviceId": "d" * 101}, "deviceId"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "time": 2**63}] + m["payload"][1:]}, "payload.0.time"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "values": {"x": 10**400, "y": 0, "z": 9.8}}] + m["payload"][1:]},
+         "payload.totalacceleration.values.x"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "values": {"x": True, "y": 0, "z": 9.8}}] + m["payload"][1:]},
+         "payload.totalacceleration.values.x"),
+    ],
+    ids=["message-id-beyond-int64", "long-session-id", "long-device-id", "time-beyond-int64", "value-beyond-float64",
+         "boolean-value"],
+)
+def test_out_of_range_pushes_are_422_naming_the_field_and_store_nothing(client, make_user, mutate, field) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    msg = {"messageId": 1, "sessionId": "phone-2", "deviceId": "d", "payload": _items(T0, n=20)}
+    r = client.post("/v1/sensorlogger", json=mutate(msg), headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == field, r.text
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
+
+
+def test_a_non_finite_sample_is_refused_before_it_is_stored(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    body = (b'{"messageId": 1, "sessionId": "phone-3", "payload": [{"name": "totalacceleration", '
+            b'"time": 1700000000000000000, "values": {"x": NaN, "y": 0, "z": 9.8}}]}')
+    r = client.post("/v1/sensorlogger", content=body, headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 422 and r.json()["field"] == "payload.totalacceleration" and "finite" in r.json()["detail"]
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
+    assert _push(client, a, 2, _items(T0), sl_id="phone-3").status_code == 200
+
+
+def test_a_push_to_a_closed_session_is_409_and_not_stored(client, make_user, app) -> None:  # type: ignore[no-untyped-def]
+    from sqlalchemy import func, select
+
+    from server.models import SensorLoggerMessage
+
+    _, a = make_user()
+    sid = _push(client, a, 1, _items(T0), sl_id="phone-4").json()["session_id"]
+    assert client.post(f"/v1/sessions/{sid}/close", headers=auth(a)).status_code == 200
+    r = _push(client, a, 2, _items(T0 + 2 * 10**9), sl_id="phone-4")
+    assert r.status_code == 409 and "closed" in r.json()["detail"]
+    assert _push(client, a, 1, _items(T0), sl_id="phone-4").json()["duplicate"] is True  # a retry is still answered
+    with app.state.sessionmaker() as db:
+        n = db.execute(select(func.count()).select_from(SensorLoggerMessage).where(SensorLoggerMessage.session_id == sid))
+        assert n.scalar_one() == 1
