@@ -40,6 +40,8 @@ __all__ = [
     "LSM9DS1_SHOE",
     "scenario_names",
     "get_scenario",
+    "random_day",
+    "RANDOM_DAY",
     "synthesize",
 ]
 
@@ -249,17 +251,44 @@ _SCENARIOS: dict[str, Scenario] = {
 }
 
 
+RANDOM_DAY = "random-day"
+
+
+def random_day(seed: int) -> Scenario:
+    """A day laid out from ``seed``, unlike the fixed ones: a held-out check that what was tuned on the mixed
+    day carries over (the product meets recordings it has not seen).
+
+    After 20 s of standing, 14 gait segments of 15-45 s (walk three times in six, slow walk, fast walk and run
+    once each), each turning by 0, +-45, +-90 or 180 deg mid-segment and passing steel one time in four, a stop
+    of 2-40 s after about a third of them, and 20 s of standing at the end; the start heading is uniform. The
+    layout comes from its own generator (``seed`` + 10000), so the synthesiser's draws for the same seed are
+    those of any other scenario.
+    """
+    rng = np.random.default_rng(10_000 + int(seed))
+    segs = [Segment("stand", 20.0)]
+    for _ in range(14):
+        kind = str(rng.choice(["walk", "walk", "walk", "walk_slow", "walk_fast", "run"]))
+        turn = float(rng.choice([0.0, 90.0, -90.0, 45.0, -45.0, 180.0]))
+        segs.append(Segment(kind, float(rng.uniform(15.0, 45.0)), turn, bool(rng.random() < 0.25)))
+        if rng.random() < 0.35:
+            segs.append(Segment("stand", float(rng.uniform(2.0, 40.0))))
+    segs.append(Segment("stand", 20.0))
+    return Scenario(RANDOM_DAY, tuple(segs), float(rng.uniform(0.0, 360.0)))
+
+
 def scenario_names() -> list[str]:
-    """Names accepted by :func:`synthesize`."""
-    return list(_SCENARIOS)
+    """Names accepted by :func:`synthesize` (``random-day``: laid out from the seed, :func:`random_day`)."""
+    return [*_SCENARIOS, RANDOM_DAY]
 
 
-def get_scenario(name: str) -> Scenario:
-    """The named scenario (``KeyError`` listing the names when unknown)."""
+def get_scenario(name: str, seed: int = 0) -> Scenario:
+    """The named scenario (``KeyError`` listing the names when unknown); ``seed`` lays out ``random-day``."""
+    if name == RANDOM_DAY:
+        return random_day(seed)
     try:
         return _SCENARIOS[name]
     except KeyError:
-        raise KeyError(f"unknown scenario {name!r}; known: {', '.join(_SCENARIOS)}") from None
+        raise KeyError(f"unknown scenario {name!r}; known: {', '.join(scenario_names())}") from None
 
 
 # ---------------------------------------------------------------------------------------------- profiles
@@ -394,7 +423,8 @@ def synthesize(
     scenario : str or Scenario
         A name from :func:`scenario_names` or a custom :class:`Scenario`.
     seed : int
-        Seed of every random choice (stride variability, noise, biases): same seed, same recording.
+        Seed of every random choice (stride variability, noise, biases; the layout of ``random-day``): same
+        seed, same recording.
     rate_hz : float
         Accelerometer and gyroscope rate [Hz].
     errors : SensorErrors
@@ -411,7 +441,7 @@ def synthesize(
         ``attitude_euler`` (N, 3) [rad], and per stride ``step_t_s`` (heel strikes), ``step_lengths_m``,
         plus ``segments`` (t0, t1, label) and ``steel_intervals``.
     """
-    scn = get_scenario(scenario) if isinstance(scenario, str) else scenario
+    scn = get_scenario(scenario, seed) if isinstance(scenario, str) else scenario
     rng = np.random.default_rng(seed)
     st, labels, steel, duration = _plan(scn, rng)
     n = int(np.floor(duration * rate_hz)) + 1

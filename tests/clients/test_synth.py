@@ -52,6 +52,24 @@ def test_segments_do_not_overlap(name):
         assert stance_s.min() >= 0.15, (seed, stance_s.min())
 
 
+@pytest.mark.parametrize("seed", [0, 5])
+def test_random_day_is_laid_out_from_the_seed(seed):
+    """``random-day``: the same seed gives the same layout and recording, another seed another layout; 14 gait
+    segments of 15-45 s between 20 s of standing, turns from the stated set."""
+    from clients.synth import RANDOM_DAY, random_day
+
+    assert RANDOM_DAY in scenario_names()
+    scn = random_day(seed)
+    assert scn == random_day(seed) and scn != random_day(seed + 1)
+    gait = [g for g in scn.segments if g.kind != "stand"]
+    assert len(gait) == 14 and all(15.0 <= g.duration_s <= 45.0 for g in gait)
+    assert {g.turn_deg for g in gait} <= {0.0, 90.0, -90.0, 45.0, -45.0, 180.0}
+    assert scn.segments[0] == scn.segments[-1] == Segment("stand", 20.0)
+    a, b = synthesize(RANDOM_DAY, seed=seed), synthesize(scn, seed=seed)
+    np.testing.assert_array_equal(a.batch.acc, b.batch.acc)
+    np.testing.assert_array_equal(a.truth.positions, b.truth.positions)
+
+
 @pytest.mark.parametrize("seed", [0, 7])
 def test_deterministic_from_seed(seed):
     a, b = synthesize("demo", seed=seed), synthesize("demo", seed=seed)
