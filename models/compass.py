@@ -69,6 +69,11 @@ _MAX_SHAPE_DIP = math.radians(2.0)
 # An untrusted fit is tried again on the newest half, then quarter, of its stances (at least this many): a walk
 # that began in steel has its Earth-field stances after it, and a fit on all of them stays untrusted
 _RECENT_MIN = 20
+# A gradual turn (CompassFollower.rotation): up to this many strides, each changing the compass by at least this,
+# the field's shape kept within this fraction of a single stride's tolerances
+_RUN_STRIDES = 4
+_RUN_STEP = math.radians(6.0)
+_RUN_SHAPE = 0.5
 _DIP_STANCES = 300  # latest stances whose dip estimates a session's tilt offset (MagCalibrator.observe_dip)
 _SESSION_TILT_STD = math.radians(0.8)  # prior of a session's tilt offset against the fitting session's [rad]:
 # the change of the accelerometer's turn-on offset between two power-ons (10 mg each, the synthesiser's
@@ -257,6 +262,7 @@ class CompassFollower:
         self.consistent_run = 0  # consecutive stances consistent again while suspect
         # (compass, ZUPT-KF heading) [rad] at the segment's stance the later ones are tested against
         self.gyro_ref: tuple[float, float] | None = None
+        self.run: list[float] | None = None  # a gradual turn's run of compass changes (rotation)
 
     def observe(self, compass: float, clean: bool, norm: float, dip: float, psi: float | None = None,
                 sigma: float = math.nan) -> None:
@@ -291,6 +297,7 @@ class CompassFollower:
         """A step without a usable field reading, or a restart from another heading: no previous compass."""
         self.prev = None
         self.gyro_ref = None
+        self.run = None
 
     def restart(self) -> None:
         """Gait-DR restarts from the heading of the ZUPT-KF stance observed last: a suspect compass, or one on an
@@ -316,9 +323,38 @@ class CompassFollower:
         return self.clean_run >= self.reanchor_stances and not self.suspect
 
     def rotation(self, compass: float, norm: float, dip: float) -> float:
-        """Compass change since the previous stance [rad] if it is a turn of the foot, else 0."""
+        """Compass change since the previous stance [rad] if it is a turn of the foot, else 0.
+
+        A change beyond ``min_turn`` with the field's shape unchanged is one. So is a run of up to
+        ``_RUN_STRIDES`` changes of one sign, each at least ``_RUN_STEP``, once together they pass ``min_turn``
+        and the field's shape is still that at the run's start (within ``_RUN_SHAPE`` of ``rot_mag_tol`` and
+        ``rot_dip_tol``: a field turned by steel drifts in magnitude or dip as it turns): a walking turn of
+        45 deg takes four strides of about 11 deg, none a turn on its own (held-out synthetic days: every 45-deg
+        turn inside steel was missed). The part of the run not yet taken is returned.
+        """
         dc = self.turn_since(compass, norm, dip)
-        return dc if (dc is not None and abs(dc) > self.min_turn) else 0.0
+        if dc is None or abs(dc) < _RUN_STEP:
+            self.run = None
+            return 0.0
+        if abs(dc) > self.min_turn:
+            self.run = None
+            return dc
+        assert self.prev is not None  # turn_since compared with it
+        if self.run is None or self.run[4] >= _RUN_STRIDES or math.copysign(1.0, dc) != math.copysign(1.0, self.run[0]):
+            self.run = [0.0, 0.0, self.prev[1], self.prev[2], 0]  # [accumulated, taken, |m|, dip at start, strides]
+        self.run[0] += dc
+        self.run[4] += 1
+        n0, d0 = self.run[2], self.run[3]
+        same_field = (abs(norm - n0) <= _RUN_SHAPE * self.rot_mag_tol * max(n0, 1e-9)
+                      and abs(dip - d0) <= _RUN_SHAPE * self.rot_dip_tol)
+        if not same_field:
+            self.run = None  # the field changed along the run: the field's own turning
+            return 0.0
+        if abs(self.run[0]) <= self.min_turn:
+            return 0.0
+        out = self.run[0] - self.run[1]
+        self.run[1] = self.run[0]
+        return out
 
     def step(self, heading: float, compass: float, clean: bool, norm: float, dip: float, trusted: bool = True,
              sigma: float = math.nan, settled: bool = True, h_ref: float = math.nan) -> float:
@@ -377,7 +413,8 @@ class CompassFollower:
                            self.strong_h],
                 "clean_run": self.clean_run, "prev": None if self.prev is None else list(self.prev),
                 "suspect": self.suspect, "consistent_run": self.consistent_run,
-                "gyro_ref": None if self.gyro_ref is None else list(self.gyro_ref)}
+                "gyro_ref": None if self.gyro_ref is None else list(self.gyro_ref),
+                "run": None if self.run is None else list(self.run)}
 
     @classmethod
     def from_state(cls, d: dict) -> CompassFollower:
@@ -398,6 +435,8 @@ class CompassFollower:
         obj.consistent_run = int(d.get("consistent_run", 0))
         gr = d.get("gyro_ref")
         obj.gyro_ref = None if gr is None else (float(gr[0]), float(gr[1]))
+        run = d.get("run")  # absent in states stored before gradual turns: no run
+        obj.run = None if run is None else [float(run[0]), float(run[1]), float(run[2]), float(run[3]), int(run[4])]
         return obj
 
 
