@@ -332,7 +332,10 @@ class CompassFollower:
         45 deg takes four strides of about 11 deg, none a turn on its own (held-out synthetic days: every 45-deg
         turn inside steel was missed). The part of the run not yet taken is returned.
         """
-        dc = self.turn_since(compass, norm, dip)
+        return self._rotation(self.turn_since(compass, norm, dip), norm, dip)
+
+    def _rotation(self, dc: float | None, norm: float, dip: float) -> float:
+        """:meth:`rotation` from the compass change since the previous stance [rad] (None: not comparable)."""
         if dc is None or abs(dc) < _RUN_STEP:
             self.run = None
             return 0.0
@@ -386,8 +389,8 @@ class CompassFollower:
         h_ref : float
             Horizontal magnitude of the Earth's field [uT] (m_n's); NaN: unknown.
         """
-        turned = self.rotation(compass, norm, dip)
         dc = self.turn_since(compass, norm, dip)
+        turned = self._rotation(dc, norm, dip)
         steady = self.prev is None or abs(norm - self.prev[1]) <= self.steady_tol * max(self.prev[1], 1e-9)
         if self.suspect and math.isfinite(sigma):
             tol = self._tol(sigma)
