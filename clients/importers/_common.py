@@ -46,6 +46,7 @@ __all__ = [
     "clean_stream",
     "check_rate",
     "read_csv_rows",
+    "skipped_lines_message",
     "make_batch",
 ]
 
@@ -286,6 +287,13 @@ def check_rate(path: str | Path, field: str, t_ns: np.ndarray) -> None:
             f"({lo:g}-{hi:g} Hz): the times look like {hint}, not seconds; refusing to guess")
 
 
+def skipped_lines_message(bad_lines: list[int], n_fields: int) -> str:
+    """What a note says of data lines skipped for not having the header's ``n_fields`` fields (the first five
+    line numbers, 1-based)."""
+    shown = ", ".join(str(k) for k in bad_lines[:5]) + (" ..." if len(bad_lines) > 5 else "")
+    return f"skipped {len(bad_lines)} line(s) without {n_fields} fields (line {shown})"
+
+
 def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[np.ndarray, list[str], int]:
     """The data rows of a comma-separated file with ``n_cols`` fields per line, as floats.
 
@@ -320,8 +328,7 @@ def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[
     bad = [k for k, ln in numbered if ln.count(",") != n_cols - 1]
     notes: list[str] = []
     if bad:
-        shown = ", ".join(str(k) for k in bad[:5]) + (" ..." if len(bad) > 5 else "")
-        msg = f"skipped {len(bad)} line(s) without {n_cols} fields (line {shown})"
+        msg = skipped_lines_message(bad, n_cols)
         log.warning("%s: %s", p, msg)
         notes.append(msg)
     if len(bad) > MAX_DROPPED_ROW_FRACTION * max(len(numbered), 1):

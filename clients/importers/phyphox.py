@@ -27,6 +27,7 @@ from clients.importers._common import (
     clean_stream,
     drop_untimed_rows,
     make_batch,
+    skipped_lines_message,
 )
 from clients.recording import Recording, RecordingMeta
 
@@ -75,8 +76,7 @@ def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
     bad = [k for k, r in body if len(r) != len(head)]
     notes: list[str] = []
     if bad:
-        shown = ", ".join(str(k) for k in bad[:5]) + (" ..." if len(bad) > 5 else "")
-        notes.append(f"{where}: skipped {len(bad)} line(s) without {len(head)} fields (line {shown})")
+        notes.append(f"{where}: {skipped_lines_message(bad, len(head))}")
         log.warning("%s", notes[-1])
         if len(bad) > MAX_DROPPED_ROW_FRACTION * len(body):
             raise ImporterError(where, "rows", f"{len(bad)} of {len(body)} lines do not have the header's {len(head)} "

@@ -30,7 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import G0, MAX_DROPPED_ROW_FRACTION, ImporterError, clean_stream, make_batch
+from clients.importers._common import (
+    G0,
+    MAX_DROPPED_ROW_FRACTION,
+    ImporterError,
+    clean_stream,
+    make_batch,
+    skipped_lines_message,
+)
 from clients.recording import Recording, RecordingMeta
 
 __all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
@@ -92,8 +99,7 @@ def _read_csv_text(text: str, where: str) -> tuple[np.ndarray, np.ndarray, list[
     notes: list[str] = []
     bad_lines = [k for k, r in numbered if len(r) != len(cols)]
     if bad_lines:
-        shown = ", ".join(str(k) for k in bad_lines[:5]) + (" ..." if len(bad_lines) > 5 else "")
-        notes.append(f"{where}: skipped {len(bad_lines)} line(s) without {len(cols)} fields (line {shown})")
+        notes.append(f"{where}: {skipped_lines_message(bad_lines, len(cols))}")
     body = [(k, r) for k, r in numbered if len(r) == len(cols)]
     times = [_cell_time_ns(r[it]) for _, r in body]
     untimed = [k for (k, _), ti in zip(body, times) if ti is None]
