@@ -25,15 +25,8 @@ router = APIRouter(prefix="/sessions/{session_id}/batches", tags=["batches"])
 
 
 async def _body(request: Request) -> bytes:
-    limit = request.app.state.settings.max_body_bytes
-    chunks: list[bytes] = []
-    size = 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > limit:
-            raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE, f"body exceeds the limit of {limit} bytes")
-        chunks.append(chunk)
-    return b"".join(chunks)
+    """The request body (its size is bounded by :class:`server.app.BodyLimit`, declared or streamed)."""
+    return await request.body()
 
 
 def _upload_sync(app: Any, token: str | None, ctype: str | None, session_id: int, seq: int, body: bytes,
@@ -102,19 +95,13 @@ class UploadFastPath:
             return
         app = self.fastapi_app
         try:
-            limit = app.state.settings.max_body_bytes
-            chunks: list[bytes] = []
-            size = 0
+            chunks: list[bytes] = []  # bounded by BodyLimit, which wraps this middleware (413 past the limit)
             more = True
             while more:
                 msg = await receive()
                 if msg["type"] == "http.disconnect":
                     return
-                chunk = msg.get("body", b"")
-                size += len(chunk)
-                if size > limit:
-                    raise HTTPException(status.HTTP_413_REQUEST_ENTITY_TOO_LARGE, f"body exceeds the limit of {limit} bytes")
-                chunks.append(chunk)
+                chunks.append(msg.get("body", b""))
                 more = msg.get("more_body", False)
             auth, ctype = "", None
             for k, v in scope["headers"]:

@@ -274,6 +274,21 @@ def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make
     assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()[0]["n_gyr"] == 0
 
 
+def test_a_streamed_batch_upload_over_the_limit_is_413_and_not_stored(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    """The upload's own size count went when BodyLimit came to count streamed bodies on every route: a chunked
+    upload past the limit is still refused before it is decoded, and nothing is stored."""
+    _, a = make_user()
+    sid = _start(client, a)
+
+    def chunks():  # type: ignore[no-untyped-def]
+        for _ in range(settings.max_body_bytes // 65536 + 2):
+            yield b"x" * 65536
+
+    r = client.put(f"/v1/sessions/{sid}/batches/0", content=chunks(), headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 413 and "limit" in r.json()["detail"], r.text[:200]
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json() == []
+
+
 @pytest.mark.parametrize("path", ["/v1/profiles/walk", "/v1/sensorlogger"])
 def test_streamed_bodies_over_the_limit_are_413_on_every_route(client, make_user, settings, path) -> None:  # type: ignore[no-untyped-def]
     """A chunked body (no Content-Length) was counted only by the batch upload: a 3 MB profile or Sensor Logger
