@@ -57,7 +57,8 @@ class TokenCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     label: str = Field(default="api", max_length=100)
-    ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s]; default: the server's token_ttl_s")
+    ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s], at most the remaining lifetime of the minting token "
+                                  "(422 beyond); default: the server's token_ttl_s, ending no later than the minting token")
 
 
 class TokenOut(BaseModel):

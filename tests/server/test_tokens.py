@@ -75,6 +75,57 @@ def test_token_refusals_say_which(client, make_user) -> None:  # type: ignore[no
     assert r.status_code == 422 and r.json()["field"] == "lifetime"
 
 
+def _token_count(app, uid: int) -> int:  # type: ignore[no-untyped-def]
+    from sqlalchemy import func, select
+
+    with app.state.sessionmaker() as db:
+        return db.execute(select(func.count()).select_from(Token).where(Token.user_id == uid)).scalar_one()
+
+
+@pytest.mark.parametrize("ttl_s", [365 * 86_400, 3601, 7200])
+def test_a_token_cannot_mint_a_token_that_outlives_it(client, app, make_user, ttl_s) -> None:  # type: ignore[no-untyped-def]
+    """A one-hour token minted a 365-day one: whoever held a short-lived token could keep the account for a year."""
+    uid, tok = make_user()
+    short = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+    n = _token_count(app, uid)
+    r = client.post("/v1/tokens", json={"ttl_s": ttl_s}, headers=auth(short["token"]))
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("ttl_s: at most 3") and "cannot outlive the token that mints it" in detail, detail
+    assert _token_count(app, uid) == n  # nothing minted
+
+
+def test_a_token_mints_shorter_tokens_and_the_default_ends_with_it(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    short = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+    short_exp = datetime.fromisoformat(short["expires_at"])
+    r = client.post("/v1/tokens", json={"ttl_s": 600}, headers=auth(short["token"]))
+    assert r.status_code == 201
+    assert abs((datetime.fromisoformat(r.json()["expires_at"]) - datetime.now(timezone.utc)).total_seconds() - 600) < 30
+    # no ttl_s: the server's default lifetime (30 days here) would outlive the minting token: it ends with it
+    assert settings.token_ttl_s > 3600
+    r = client.post("/v1/tokens", headers=auth(short["token"]))
+    assert r.status_code == 201 and datetime.fromisoformat(r.json()["expires_at"]) == short_exp
+    assert client.get("/v1/users/me", headers=auth(r.json()["token"])).status_code == 200
+    # a token that never expires (the admin bootstrap) still mints up to token_max_ttl_s
+    r = client.post("/v1/tokens", json={"ttl_s": settings.token_max_ttl_s}, headers=auth(tok))
+    assert r.status_code == 201
+
+
+def test_a_token_cannot_outlive_its_minter_when_tokens_never_expire(settings, make_user) -> None:  # type: ignore[no-untyped-def]
+    """``PEDNAV_TOKEN_TTL_S=0`` (default lifetime: never) from a token that expires: the new one ends with it."""
+    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "token_ttl_s": 0}))
+    try:
+        with TestClient(a) as c:
+            _, tok = make_user()
+            short = c.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+            r = c.post("/v1/tokens", headers=auth(short["token"]))
+            assert r.status_code == 201 and r.json()["expires_at"] == short["expires_at"]
+            assert c.post("/v1/tokens", headers=auth(tok)).json()["expires_at"] is None
+    finally:
+        a.state.db_engine.dispose()
+
+
 @pytest.mark.parametrize("how", ["query-with-other-scheme", "extra-blank"])
 def test_revoking_the_current_token_revokes_the_one_that_authenticated(client, make_user, how) -> None:  # type: ignore[no-untyped-def]
     """DELETE /v1/tokens/current parsed the Authorization header again: with another scheme and ``?token=`` (or
