@@ -6,7 +6,10 @@ ns times; messages may arrive out of order and more than once. Each message is s
 session's engine in time order as ordinary sequenced batches (stored raw like any other batch). Samples that
 arrive behind what was already fed are counted as late and dropped.
 
-Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``).
+Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``). This push
+is the only route that takes ``?token=`` (the app cannot set headers); every other route, the flush below
+included, refuses it with 401 (URLs end up in access logs). Give the app a token of its own (``POST /v1/tokens``
+with a label), so it can be revoked alone.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from sqlalchemy.exc import IntegrityError
 
 from models.batch import BatchError, SensorBatch
 from server import crud
-from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
 from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
@@ -145,7 +148,7 @@ def _feed_ready(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, h
 
 
 @router.post("")
-def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
+def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
     """Receive one Sensor Logger push message; returns the session and any new positions."""
     items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
     for it in items:

@@ -129,17 +129,61 @@ def test_a_token_cannot_outlive_its_minter_when_tokens_never_expire(settings, ma
 @pytest.mark.parametrize("how", ["query-with-other-scheme", "extra-blank"])
 def test_revoking_the_current_token_revokes_the_one_that_authenticated(client, make_user, how) -> None:  # type: ignore[no-untyped-def]
     """DELETE /v1/tokens/current parsed the Authorization header again: with another scheme and ``?token=`` (or
-    two blanks after "Bearer") it looked up a token that does not exist and answered 500, revoking nothing."""
+    two blanks after "Bearer") it looked up a token that does not exist and answered 500, revoking nothing.
+    (``?token=`` is now refused outside the Sensor Logger push: 401, and nothing is revoked.)"""
     _, tok = make_user()
     second = client.post("/v1/tokens", headers=auth(tok)).json()["token"]
     if how == "query-with-other-scheme":
         r = client.delete(f"/v1/tokens/current?token={second}", headers={"Authorization": "Basic dXNlcjpwdw=="})
+        assert r.status_code == 401 and "query string" in r.json()["detail"], r.text
+        assert client.get("/v1/users/me", headers=auth(second)).status_code == 200
+        r = client.delete("/v1/tokens/current", headers=auth(second))
     else:
         r = client.delete("/v1/tokens/current", headers={"Authorization": f"Bearer  {second}"})
     assert r.status_code == 204, r.text
     r = client.get("/v1/users/me", headers=auth(second))
     assert r.status_code == 401 and r.json()["detail"] == "token revoked"
     assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200
+
+
+@pytest.mark.parametrize("with_header", [False, True], ids=["query-only", "query-and-header"])
+@pytest.mark.parametrize("method, path", [
+    ("get", "/v1/users/me"),
+    ("get", "/v1/sessions"),
+    ("get", "/v1/sessions/{sid}/trajectory"),
+    ("get", "/v1/profiles"),
+    ("post", "/v1/tokens"),
+    ("delete", "/v1/tokens/current"),
+    ("put", "/v1/sessions/{sid}/batches/0"),  # the upload fast path
+    ("post", "/v1/sensorlogger/phone-q/flush"),
+])
+def test_a_query_token_is_refused_outside_the_sensor_logger_push(client, make_user, method, path, with_header) -> None:  # type: ignore[no-untyped-def]
+    """``?token=`` was taken on every route, so tokens ended up in access logs; only the Sensor Logger push (the
+    app cannot set headers) takes it now. Everything else answers 401 naming the query string and does nothing."""
+    _, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    kw: dict = {"headers": auth(tok) if with_header else {}}  # type: ignore[type-arg]
+    if method == "put":
+        kw = {"content": encode_msgpack(still_batch(T0)), "headers": {**kw["headers"], "content-type": MSGPACK_TYPE}}
+    r = getattr(client, method)(path.format(sid=sid) + f"?token={tok}", **kw)
+    assert r.status_code == 401, r.text
+    assert "query string" in r.json()["detail"] and "Authorization: Bearer" in r.json()["detail"]
+    assert r.headers["www-authenticate"] == "Bearer"
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200  # not revoked
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()["next_seq"] == 0  # nothing uploaded
+
+
+def test_the_sensor_logger_push_takes_a_query_token(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    msg = {"messageId": 1, "sessionId": "phone-q", "deviceId": "d", "payload": [
+        {"name": "totalacceleration", "time": T0, "values": {"x": 0.0, "y": 0.0, "z": 9.81}}]}
+    r = client.post(f"/v1/sensorlogger?token={tok}", json=msg)
+    assert r.status_code == 200 and r.json()["duplicate"] is False, r.text
+    r = client.post("/v1/sensorlogger?token=pn_nonsense", json={**msg, "messageId": 2})
+    assert r.status_code == 401 and r.json()["detail"] == "invalid token"
+    # the push's header still wins over its query parameter
+    r = client.post("/v1/sensorlogger?token=pn_nonsense", json={**msg, "messageId": 3}, headers=auth(tok))
+    assert r.status_code == 200
 
 
 @pytest.fixture()
