@@ -409,6 +409,80 @@ def test_profile_validation(client, make_user, behaviour, data, field) -> None: 
 
 
 
+def test_a_profile_beyond_the_size_limit_is_413_and_not_stored(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    """A step_model was limited only by the 2 MB body: every session start then copied it into the session row."""
+    _, a = make_user()
+    pad = "x" * (settings.max_profile_bytes + 1)
+    r = client.put("/v1/profiles/walk", json={"data": {**_calibration(), "step_model": {"kind": "test", "a": 0.7, "pad": pad}}},
+                   headers=auth(a))
+    assert r.status_code == 413, r.text[:300]
+    assert r.json()["detail"].startswith("data: calibration of ") and f"limit of {settings.max_profile_bytes} bytes" in r.json()["detail"]
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    # just under the limit (engine-sized profiles are far below it) is stored
+    small = {**_calibration(), "step_model": {"kind": "test", "a": 0.7, "pad": "x" * (settings.max_profile_bytes - 1000)}}
+    assert client.put("/v1/profiles/walk", json={"data": small}, headers=auth(a)).status_code == 200
+
+
+@pytest.fixture()
+def few_versions(settings):  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+
+    app = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_profile_versions": 3}))
+    with TestClient(app) as c:
+        yield c
+    app.state.db_engine.dispose()
+
+
+def test_profile_history_keeps_the_newest_versions(few_versions, make_user) -> None:  # type: ignore[no-untyped-def]
+    """Every replace, reset and session close added a version and none was ever deleted: the history grew
+    without bound. The newest max_profile_versions (3 here) of each behaviour are kept; numbering goes on."""
+    c = few_versions
+    _, a = make_user()
+    _, b = make_user()
+    assert c.put("/v1/profiles/walk", json={"data": _calibration(0.5)}, headers=auth(b)).status_code == 200
+    assert c.put("/v1/profiles/run", json={"data": _calibration(1.2)}, headers=auth(a)).status_code == 200
+    for k in range(5):
+        assert c.put("/v1/profiles/walk", json={"data": _calibration(0.6 + 0.01 * k)}, headers=auth(a)).status_code == 200
+    hist = c.get("/v1/profiles/walk/history", headers=auth(a)).json()
+    assert [h["version"] for h in hist] == [3, 4, 5]
+    assert c.get("/v1/profiles/walk", headers=auth(a)).json()["data"]["step_model"]["a"] == pytest.approx(0.64)
+    assert c.delete("/v1/profiles/walk", headers=auth(a)).json()["version"] == 6  # a reset is a version too
+    assert [h["version"] for h in c.get("/v1/profiles/walk/history", headers=auth(a)).json()] == [4, 5, 6]
+    # other behaviours and other users keep theirs
+    assert [h["version"] for h in c.get("/v1/profiles/run/history", headers=auth(a)).json()] == [1]
+    assert [h["version"] for h in c.get("/v1/profiles/walk/history", headers=auth(b)).json()] == [1]
+
+
+def test_a_session_close_keeps_the_newest_profile_versions(app, make_user) -> None:  # type: ignore[no-untyped-def]
+    """The session close stores its profile through the same bound (here with a stand-in engine profile)."""
+    from types import SimpleNamespace
+
+    from server import crud
+    from server.ingest import close_session
+    from server.models import User
+
+    uid, a = make_user()
+    with app.state.sessionmaker() as db:
+        user = db.get(User, uid)
+        for k in range(4):
+            crud.add_profile_version(db, user, "walk", _calibration(0.5 + 0.01 * k), source="api", keep=2)
+        db.commit()
+        assert [p.version for p in crud.profile_history(db, user, "walk")] == [3, 4]
+
+        upd = SimpleNamespace(positions=[], events=[], behaviour="stand", mode="idle",
+                              sensor_config=SimpleNamespace(to_dict=dict))
+        engine = SimpleNamespace(flush=lambda: upd, to_bytes=lambda: b"state",  # hands out a new walk calibration
+                                 profile_dict=lambda: {"behaviours": {"walk": _calibration(0.9)}})
+        sid = crud.create_session(db, user, device_kind="foot").id
+        db.commit()
+        host = SimpleNamespace(lock=app.state.host.lock, write_lock=app.state.host.write_lock,
+                               forget=lambda _sid: None, restore=lambda _sess: engine)
+        close_session(db, host, user, sid, keep_versions=2)
+        assert [(p.version, p.source) for p in crud.profile_history(db, user, "walk")] == [(4, "api"), (5, f"session:{sid}")]
+
+
 # ---------------------------------------------------------------- trajectories
 def test_trajectory_formats(client, make_user, app) -> None:  # type: ignore[no-untyped-def]
     from server.models import PositionRecord

@@ -244,6 +244,8 @@ def test_rate_limiter_refills_at_the_rate() -> None:
     ({"PEDNAV_RATE_LIMIT_PER_S": "nan"}, "PEDNAV_RATE_LIMIT_PER_S"),
     ({"PEDNAV_RATE_LIMIT_BURST": "0"}, "PEDNAV_RATE_LIMIT_BURST"),
     ({"PEDNAV_RATE_LIMIT_BURST": "many"}, "PEDNAV_RATE_LIMIT_BURST"),
+    ({"PEDNAV_MAX_PROFILE_BYTES": "1000"}, "PEDNAV_MAX_PROFILE_BYTES"),  # below what the engine hands out
+    ({"PEDNAV_MAX_PROFILE_VERSIONS": "0"}, "PEDNAV_MAX_PROFILE_VERSIONS"),  # the current version must stay
 ])
 def test_bad_settings_fail_fast_naming_the_variable(monkeypatch, env, problem) -> None:  # type: ignore[no-untyped-def]
     for k, v in env.items():
