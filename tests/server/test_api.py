@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 
 import msgpack
 import numpy as np
@@ -251,15 +252,36 @@ def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make
                                         "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.t0"),
         (msgpack.packb({"v": 1, "acc": {"n": True, "t0": 0, "dt": b"", "dtype": "<f8",
                                         "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.n"),
+        (msgpack.packb({"v": 1, "acc": {"n": 1, "t0": True, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.dt"),
     ],
     ids=["not-json", "rows-mismatch", "float-time", "unknown-stream", "not-msgpack", "text-plain", "int-beyond-float64",
-         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool"],
+         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool", "msgpack-t0-bool"],
 )
 def test_malformed_bodies_are_422(client, make_user, body, ctype, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a)
     r = client.put(f"/v1/sessions/{sid}/batches/0", content=body, headers={**auth(a), "content-type": ctype})
     assert r.status_code == 422 and r.json()["field"] == field, r.text
+
+
+@pytest.mark.parametrize("value, got", [('"1.5"', "string '1.5'"), ("true", "boolean True"), ("null", "null None"),
+                                        ('[1.5]', "array [1.5]")],
+                         ids=["string", "boolean", "null", "array"])
+@pytest.mark.parametrize("stream", ["acc", "gyr", "mag"])
+def test_sample_values_must_be_json_numbers(client, make_user, stream, value, got) -> None:  # type: ignore[no-untyped-def]
+    """The JSON upload read sample values through numpy: the string "1.5" was taken as 1.5 and true as 1.0."""
+    _, a = make_user()
+    sid = _start(client, a)
+    b = still_batch(T0)
+    doc = {name: {"t_ns": b.stream(name)[0].tolist(), "xyz": b.stream(name)[1].tolist()} for name in ("acc", "gyr", "mag")}
+    doc[stream]["xyz"][4][0] = json.loads(value)
+    text = json.dumps(doc)
+    r = client.put(f"/v1/sessions/{sid}/batches/0", content=text, headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert r.json()["field"] == f"{stream}.xyz"
+    assert r.json()["detail"] == f"{stream}.xyz: row 4, value 0: must be a number, got {got}"
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 0
 
 
 def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make_user) -> None:  # type: ignore[no-untyped-def]

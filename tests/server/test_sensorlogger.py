@@ -55,9 +55,15 @@ def test_a_push_in_wrong_units_is_refused_and_does_not_block_the_session(client,
          "payload.totalacceleration.values.x"),
         (lambda m: {**m, "payload": [{**m["payload"][0], "values": {"x": True, "y": 0, "z": 9.8}}] + m["payload"][1:]},
          "payload.totalacceleration.values.x"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "values": {"x": "0.01", "y": 0, "z": 9.8}}] + m["payload"][1:]},
+         "payload.totalacceleration.values.x"),
+        # lax integers: a time as a string, a float or a boolean was taken as nanoseconds
+        (lambda m: {**m, "payload": [{**m["payload"][0], "time": str(T0)}] + m["payload"][1:]}, "payload.0.time"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "time": float(T0)}] + m["payload"][1:]}, "payload.0.time"),
+        (lambda m: {**m, "payload": [{**m["payload"][0], "time": True}] + m["payload"][1:]}, "payload.0.time"),
     ],
     ids=["message-id-beyond-int64", "long-session-id", "long-device-id", "time-beyond-int64", "value-beyond-float64",
-         "boolean-value"],
+         "boolean-value", "string-value", "string-time", "float-time", "boolean-time"],
 )
 def test_out_of_range_pushes_are_422_naming_the_field_and_store_nothing(client, make_user, mutate, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
