@@ -34,6 +34,7 @@ from sqlalchemy.exc import IntegrityError
 from models.batch import BatchError, SensorBatch
 from server import crud
 from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
+from server.formats import PayloadTooLarge
 from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
@@ -87,6 +88,7 @@ def samples_to_batch(items: list[dict[str, Any]]) -> SensorBatch:
 
 
 _FLOAT_MAX = int(np.finfo(np.float64).max)
+_I64_MAX = int(np.iinfo(np.int64).max)
 _SL_NAME = {"gyr": "gyroscope", "mag": "magnetometer"}
 _UNIT_CHECK_MIN = 10  # SensorBatch.validate checks units on streams of at least this many samples
 
@@ -100,6 +102,17 @@ def _refusal(exc: BatchError, acc_name: str, suffix: str = "") -> BatchError:
     """A batch's refusal named by the Sensor Logger sensor (``payload.gyroscope`` for ``gyr``)."""
     stream = exc.field.removesuffix("_t_ns")
     return BatchError(f"payload.{_SL_NAME.get(stream, acc_name)}", exc.problem + suffix)
+
+
+def _check_size(items: list[dict[str, Any]], limit: int) -> None:
+    """413 (nothing stored) for a message with more than ``limit`` samples of one sensor (``max_samples_per_stream``,
+    the limit of an uploaded batch, which pushes escaped: their windows reached the engine as batches of any size)."""
+    counts: dict[str, int] = {}
+    for it in items:
+        counts[it["name"]] = counts.get(it["name"], 0) + 1
+    for name, n in sorted(counts.items()):
+        if n > limit:
+            raise PayloadTooLarge(f"payload.{name}: {n} samples exceed the limit of {limit} per stream and message")
 
 
 def _check_samples(items: list[dict[str, Any]]) -> None:
@@ -159,11 +172,34 @@ def _window(msgs: list[SensorLoggerMessage], lo_ns: int, hi_ns: int) -> SensorBa
     return SensorBatch(**kw)
 
 
-def _window_problem(batch: SensorBatch) -> BatchError | None:
-    try:
-        batch.validate()
-    except BatchError as exc:
-        return exc
+def _pieces(batch: SensorBatch, lo_ns: int, hi_ns: int, limit: int) -> list[tuple[SensorBatch, int]]:
+    """The window ``batch`` (samples with ``lo_ns < time <= hi_ns``) cut in time order into pieces of at most
+    ``limit`` samples per stream (``max_samples_per_stream``, as any uploaded batch); ``(piece, its end)`` each,
+    a piece holding the samples after the previous end up to and including its own."""
+    out: list[tuple[SensorBatch, int]] = []
+    start = lo_ns
+    while True:
+        ends = []
+        for name in ("acc", "gyr", "mag"):
+            t, _ = batch.stream(name)
+            i = int(np.searchsorted(t, start, side="right"))
+            if t.size - i > limit:
+                ends.append(int(t[i + limit - 1]))
+        if not ends:
+            out.append((batch.time_slice(start + 1, None) if start > lo_ns else batch, hi_ns))
+            return out
+        end = min(ends)
+        out.append((batch.time_slice(start + 1, end + 1 if end < _I64_MAX else None), end))
+        start = end
+
+
+def _window_problem(pieces: list[tuple[SensorBatch, int]]) -> BatchError | None:
+    """The first refusal of a piece of a window, or None."""
+    for piece, _ in pieces:
+        try:
+            piece.validate()
+        except BatchError as exc:
+            return exc
     return None
 
 
@@ -196,33 +232,41 @@ def _unfed(db: SessionDep, link: SensorLoggerLink) -> list[SensorLoggerMessage]:
     ).scalars())
 
 
-def _feed(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, batch: SensorBatch, horizon_ns: int,
-          acc_name: str) -> tuple[dict[str, Any] | None, dict[str, Any]]:
-    """Feed the window ``batch`` (the held-back samples up to ``horizon_ns``) and move the watermark there, in the
-    batch's own write transaction; a window the engine would refuse is skipped instead (watermark moved, nothing
-    fed). Returns (the batch's answer or None, ``{"skipped_samples", "skipped"}``)."""
+def _feed(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, pieces: list[tuple[SensorBatch, int]],
+          acc_name: str) -> tuple[list[dict[str, Any]], str | None, dict[str, Any]]:
+    """Feed the pieces of a window as sequenced batches, each moving the watermark to its end in its own write
+    transaction (fed samples are never fed again); a piece the engine would refuse is skipped instead (watermark
+    moved, nothing fed). Returns (new positions, the last behaviour or None, ``{"skipped_samples", "skipped"}``)."""
+    positions: list[dict[str, Any]] = []
+    behaviour = None
     skipped: dict[str, Any] = {"skipped_samples": 0, "skipped": None}
     link_id = link.id
+    for piece, end_ns in pieces:
+        if piece.is_empty:
+            continue
+        try:
+            piece.validate()
+        except BatchError as problem:
+            exc = _refusal(problem, acc_name)
+            skipped["skipped_samples"] += int(len(piece.acc_t_ns) + len(piece.gyr_t_ns) + len(piece.mag_t_ns))
+            skipped["skipped"] = skipped["skipped"] or {"field": exc.field, "problem": exc.problem}
+            with host.write_lock:
+                db.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
+                db.commit()
+            continue
 
-    def advance(tx: Any) -> None:  # in the batch's own write transaction: fed samples are never fed again
-        tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=horizon_ns))
+        def advance(tx: Any, end_ns: int = end_ns) -> None:
+            tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
 
-    if batch.is_empty:
-        return None, skipped
-    problem = _window_problem(batch)
-    if problem is not None:
-        exc = _refusal(problem, acc_name)
-        skipped = {"skipped_samples": int(len(batch.acc_t_ns) + len(batch.gyr_t_ns) + len(batch.mag_t_ns)),
-                   "skipped": {"field": exc.field, "problem": exc.problem}}
-        link.watermark_ns = horizon_ns
-        db.commit()
-        return None, skipped
-    sess = crud.get_session(db, user, link.session_id)
-    assert sess is not None
-    next_seq = sess.next_seq
-    db.rollback()
-    out = apply_batch(db, host, user.id, link.session_id, next_seq, batch, also=advance)
-    return (out[0] if out else None), skipped
+        sess = crud.get_session(db, user, link.session_id)
+        assert sess is not None
+        next_seq = sess.next_seq
+        db.rollback()
+        out = apply_batch(db, host, user.id, link.session_id, next_seq, piece, also=advance)
+        if out:
+            positions += out[0]["positions"]
+            behaviour = out[0]["behaviour"]
+    return positions, behaviour, skipped
 
 
 @router.post("")
@@ -242,6 +286,7 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
                 raise BatchError(f"payload.{it['name']}.values.{k}", "missing or not a number")
             if isinstance(v, int) and not -_FLOAT_MAX <= v <= _FLOAT_MAX:
                 raise BatchError(f"payload.{it['name']}.values.{k}", "beyond the float64 range")
+    _check_size(items, settings.max_samples_per_stream)
     _check_samples(items)
     link = _link(db, user, body, settings, host)
     t_max = max((int(it["time"]) for it in items), default=0)
@@ -263,28 +308,30 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
         .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
     ).scalar_one()
     horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
-    window, acc_name = None, _acc_name(items)
+    pieces, acc_name = None, _acc_name(items)
     if horizon > link.watermark_ns:
         # the window this push feeds, checked before the message is stored: refused when its samples spoil it
         unfed = _unfed(db, link)
         acc_name = _acc_name(it for m in unfed for it in m.payload)
-        window = _window(unfed, link.watermark_ns, horizon)
-        problem = _window_problem(window)
-        if problem is not None and _window_problem(
-                _window([m for m in unfed if m.id != msg.id], link.watermark_ns, horizon)) is None:
+        limit = settings.max_samples_per_stream
+        pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, limit)
+        problem = _window_problem(pieces)
+        if problem is not None and _window_problem(_pieces(
+                _window([m for m in unfed if m.id != msg.id], link.watermark_ns, horizon), link.watermark_ns, horizon,
+                limit)) is None:
             db.rollback()
             raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
     if late:
         link.late_samples += late
     db.commit()  # the message is stored before it is answered
-    resp, skipped = _feed(db, user, link, host, window, horizon, acc_name) if window is not None else (
-        None, {"skipped_samples": 0, "skipped": None})
+    positions, behaviour, skipped = _feed(db, user, link, host, pieces, acc_name) if pieces is not None else (
+        [], None, {"skipped_samples": 0, "skipped": None})
     return {"session_id": link.session_id, "duplicate": False, "late_samples": link.late_samples,
-            "positions": resp["positions"] if resp else [], "behaviour": resp["behaviour"] if resp else None, **skipped}
+            "positions": positions, "behaviour": behaviour, **skipped}
 
 
 @router.post("/{sl_session_id}/flush")
-def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep) -> dict[str, Any]:
+def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> dict[str, Any]:
     """Feed every held-back sample of a Sensor Logger session now (call before closing the session).
     ``skipped_samples`` / ``skipped`` as for the push."""
     link = db.execute(
@@ -292,8 +339,8 @@ def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep) 
     ).scalar_one_or_none()
     if link is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"Sensor Logger session {sl_session_id!r} not found")
-    horizon = int(np.iinfo(np.int64).max)
+    horizon = _I64_MAX
     unfed = _unfed(db, link)
-    resp, skipped = _feed(db, user, link, host, _window(unfed, link.watermark_ns, horizon), horizon,
-                          _acc_name(it for m in unfed for it in m.payload))
-    return {"session_id": link.session_id, "positions": resp["positions"] if resp else [], **skipped}
+    pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, settings.max_samples_per_stream)
+    positions, _, skipped = _feed(db, user, link, host, pieces, _acc_name(it for m in unfed for it in m.payload))
+    return {"session_id": link.session_id, "positions": positions, **skipped}

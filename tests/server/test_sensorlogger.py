@@ -190,3 +190,48 @@ def test_held_back_samples_unusable_together_are_skipped_not_blocking(client, ap
     assert r.status_code == 200 and r.json()["skipped"] is None
     sid = r.json()["session_id"]
     assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 4  # A's first 4 s, then 3 windows
+
+
+# ---------------------------------------------------------------- sample limits
+@pytest.fixture()
+def small_limit(settings):  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+
+    app = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_samples_per_stream": 150,
+                                                 "sensorlogger_hold_s": 10.0}))
+    with TestClient(app) as c:
+        yield app, c
+    app.state.db_engine.dispose()
+
+
+def test_a_push_beyond_the_sample_limit_is_413_and_stores_nothing(small_limit, make_user) -> None:  # type: ignore[no-untyped-def]
+    """max_samples_per_stream bounded uploaded batches only: a push of any number of samples (up to the body
+    limit) was stored and reached the engine whole."""
+    app, c = small_limit
+    uid, a = make_user()
+    r = _push(c, a, 1, _items(T0, n=151), sl_id="big")
+    assert r.status_code == 413, r.text
+    assert r.json()["detail"] == "payload.gyroscope: 151 samples exceed the limit of 150 per stream and message"
+    assert _stored(app, uid) == 0 and c.get("/v1/sessions", headers=auth(a)).json() == []
+    assert _push(c, a, 2, _items(T0, n=150), sl_id="big").status_code == 200
+
+
+def test_held_back_samples_are_fed_in_batches_within_the_sample_limit(small_limit, make_user) -> None:  # type: ignore[no-untyped-def]
+    """Messages held back (hold 10 s here) were fed as ONE batch however many samples they held (1000 per stream
+    once a push moved the horizon 20 s on); now in pieces of at most max_samples_per_stream, none lost."""
+    _, c = small_limit
+    _, a = make_user()
+    for k in range(11):
+        assert _push(c, a, k, _items(T0 + k * S, n=100), sl_id="held").status_code == 200
+    r = _push(c, a, 11, _items(T0 + 30 * S, n=100), sl_id="held")  # the horizon moves to T0 + 21 s
+    assert r.status_code == 200 and r.json()["skipped"] is None, r.text
+    sid = r.json()["session_id"]
+    batches = c.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()
+    assert max(b["n_acc"] for b in batches) <= 150 and max(b["n_gyr"] for b in batches) <= 150
+    assert sum(b["n_acc"] for b in batches) == 1100  # the 11 first messages, every sample once
+    r = c.post("/v1/sensorlogger/held/flush", headers=auth(a))
+    assert r.status_code == 200 and r.json()["skipped"] is None
+    batches = c.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()
+    assert sum(b["n_acc"] for b in batches) == 1200 and max(b["n_mag"] for b in batches) <= 150
