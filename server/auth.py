@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session
 from server.models import Token
 from server.security import hash_token
 
-__all__ = ["RateLimiter", "admit", "authenticate", "require_token"]
+__all__ = ["QUERY_TOKEN_ROUTE", "RateLimiter", "admit", "authenticate", "query_token_refused", "require_token"]
 
 _T = Token.__table__
 
@@ -76,6 +76,20 @@ class RateLimiter:
 
 def _unauthorized(detail: str) -> HTTPException:
     return HTTPException(status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"})
+
+
+QUERY_TOKEN_ROUTE = "POST /v1/sensorlogger"
+"""The only route that takes its token as the ``token`` query parameter: the Sensor Logger app cannot set headers.
+Everywhere else a token in the URL would end up in access logs (of this server and of every proxy on the way)."""
+
+
+def query_token_refused() -> HTTPException:
+    """401 for a request that carries ``?token=`` on a route other than :data:`QUERY_TOKEN_ROUTE` (refused even
+    with a valid ``Authorization`` header: the client is told before its tokens spread through more logs)."""
+    return _unauthorized(
+        "token in the query string (?token=) is refused on this route: URLs end up in access logs; send the header "
+        f"'Authorization: Bearer <token>' (only {QUERY_TOKEN_ROUTE} takes ?token=, for the Sensor Logger app)"
+    )
 
 
 def require_token(token: str | None) -> str:

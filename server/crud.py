@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from server.models import (
@@ -154,13 +154,21 @@ def profile_history(db: Session, user: User, behaviour: str) -> list[ProfileVers
     return list(db.execute(q.order_by(ProfileVersion.version)).scalars())
 
 
-def add_profile_version(db: Session, user: User, behaviour: str, data: dict[str, Any] | None, source: str) -> ProfileVersion:
+def add_profile_version(db: Session, user: User, behaviour: str, data: dict[str, Any] | None, source: str,
+                        keep: int | None = None) -> ProfileVersion:
+    """Add the next version of ``user``'s profile of ``behaviour``; with ``keep``, delete all but the newest
+    ``keep`` versions of it (versions are consecutive numbers, so these are the ones below ``version - keep + 1``).
+    """
     last = db.execute(
         select(func.max(ProfileVersion.version)).where(ProfileVersion.user_id == user.id, ProfileVersion.behaviour == behaviour)
     ).scalar_one()
     row = ProfileVersion(user_id=user.id, behaviour=behaviour, version=(last or 0) + 1, data=data, source=source)
     db.add(row)
     db.flush()
+    if keep is not None:
+        db.execute(delete(ProfileVersion).where(
+            ProfileVersion.user_id == user.id, ProfileVersion.behaviour == behaviour,
+            ProfileVersion.version <= row.version - keep))
     return row
 
 

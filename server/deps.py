@@ -9,12 +9,12 @@ from fastapi import Depends, HTTPException, Path, Query, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from server.auth import authenticate
+from server.auth import authenticate, query_token_refused
 from server.ingest import EngineHost
 from server.models import User
 from server.settings import Settings
 
-__all__ = ["INT64_MAX", "OffsetQuery", "PathId", "SessionDep", "CurrentUser", "SettingsDep", "HostDep", "get_db", "current_user"]
+__all__ = ["INT64_MAX", "OffsetQuery", "PathId", "SessionDep", "CurrentUser", "SensorLoggerUser", "SettingsDep", "HostDep", "get_db", "current_user", "sensorlogger_user"]
 
 INT64_MAX = 2**63 - 1
 """Largest id, sequence number or offset the database can bind (SQLite INTEGER, PostgreSQL bigint); a larger
@@ -47,16 +47,7 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 HostDep = Annotated[EngineHost, Depends(get_host)]
 
 
-def current_user(
-    db: SessionDep,
-    request: Request,
-    cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> User:
-    """The user owning the bearer token (``Authorization: Bearer ...``; ``?token=`` for Sensor Logger).
-
-    401 for a missing, invalid, revoked or expired token; 429 when the token exceeds its rate limit.
-    """
-    token = cred.credentials if cred is not None else request.query_params.get("token")
+def _user_of(db: Session, request: Request, token: str | None) -> User:
     request.state.token = token  # the token this request was authenticated with (DELETE /v1/tokens/current)
     try:
         user_id = authenticate(db, token, request.app.state.limiter)
@@ -71,4 +62,30 @@ def current_user(
     return user
 
 
+def current_user(
+    db: SessionDep,
+    request: Request,
+    cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> User:
+    """The user owning the bearer token (``Authorization: Bearer ...``).
+
+    401 for a missing, invalid, revoked or expired token, and for a request with a ``token`` query parameter
+    (only the Sensor Logger push takes one, :func:`sensorlogger_user`); 429 when the token exceeds its rate limit.
+    """
+    if "token" in request.query_params:
+        raise query_token_refused()
+    return _user_of(db, request, cred.credentials if cred is not None else None)
+
+
+def sensorlogger_user(
+    db: SessionDep,
+    request: Request,
+    cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> User:
+    """:func:`current_user` for ``POST /v1/sensorlogger``: the token may also come as ``?token=`` (the Sensor
+    Logger app cannot set headers); a bearer header wins."""
+    return _user_of(db, request, cred.credentials if cred is not None else request.query_params.get("token"))
+
+
 CurrentUser = Annotated[User, Depends(current_user)]
+SensorLoggerUser = Annotated[User, Depends(sensorlogger_user)]

@@ -82,6 +82,34 @@ def _check_n(field: str, n: int, limit: int) -> None:
         raise PayloadTooLarge(f"{field}: {n} samples exceed the limit of {limit} per stream and batch")
 
 
+_NUMBER = (int, float)  # the Python types json.loads gives JSON numbers (bool, a subclass of int, is not one)
+
+
+def _json_name(v: Any) -> str:
+    return {str: "string", bool: "boolean", type(None): "null", list: "array", dict: "object"}.get(type(v), type(v).__name__)
+
+
+def _check_numbers(name: str, xyz: Any) -> None:
+    """``BatchError`` naming ``<name>.xyz``, the row and the value when a sample value is not a JSON number.
+
+    ``np.asarray(..., dtype=float64)`` reads the string "1.5" as 1.5 and ``true`` as 1.0: a client that
+    sent its numbers as strings got them taken. Rows that are not three values are left to the shape check.
+    """
+    try:
+        if all(type(a) in _NUMBER and type(b) in _NUMBER and type(c) in _NUMBER for a, b, c in xyz):
+            return
+    except (TypeError, ValueError):
+        pass  # not rows of three values: named by the shape check, unless a row holds a non-number first
+    if not isinstance(xyz, list):
+        return
+    for i, row in enumerate(xyz):
+        if not isinstance(row, list):
+            continue
+        for j, v in enumerate(row):
+            if type(v) not in _NUMBER:
+                raise BatchError(f"{name}.xyz", f"row {i}, value {j}: must be a number, got {_json_name(v)} {v!r:.40}")
+
+
 def _from_json(doc: Any, limit: int) -> SensorBatch:
     if not isinstance(doc, dict):
         raise BatchError("body", "must be a JSON object with streams acc/gyr/mag")
@@ -101,6 +129,7 @@ def _from_json(doc: Any, limit: int) -> SensorBatch:
         _check_n(name, len(ts), limit)
         if not ts and xyz == []:
             continue  # an empty stream is a stream the device did not sample (as msgpack's n = 0)
+        _check_numbers(name, xyz)
         try:
             v = np.asarray(xyz, dtype=np.float64)
         except (TypeError, ValueError):
@@ -150,7 +179,7 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
             t = np.frombuffer(tb, dtype="<i8").astype(np.int64)
         else:
             t0, dt = s.get("t0"), s.get("dt")
-            if n and (not isinstance(t0, int) or not isinstance(dt, bytes) or len(dt) != 4 * (n - 1)):
+            if n and (not isinstance(t0, int) or isinstance(t0, bool) or not isinstance(dt, bytes) or len(dt) != 4 * (n - 1)):
                 raise BatchError(f"{name}.dt", f"needs integer t0 and {max(n - 1, 0)} packed <i4 deltas")
             if n and not _I64.min <= t0 <= _I64.max:
                 raise BatchError(f"{name}.t0", "timestamp outside int64")

@@ -514,10 +514,12 @@ def _apply_once(
         return resp, False
 
 
-def close_session(db: Session, host: EngineHost, user: User, session_id: int) -> TrackSession | None:
+def close_session(db: Session, host: EngineHost, user: User, session_id: int,
+                  keep_versions: int | None = None) -> TrackSession | None:
     """Flush the engine, store the last positions and the updated calibration profiles, mark closed.
 
-    Closing an already closed session changes nothing.
+    Closing an already closed session changes nothing. ``keep_versions``: profile versions kept per behaviour
+    (the newest; ``Settings.max_profile_versions``).
     """
     with host.lock(session_id):
         sess = crud.get_session(db, user, session_id, for_update=True)
@@ -530,7 +532,7 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int) ->
         for behaviour, data in _profiles_out(engine).items():
             cur = crud.current_profiles(db, user).get(behaviour)
             if cur is None or cur.data != data:
-                crud.add_profile_version(db, user, behaviour, data, source=f"session:{sess.id}")
+                crud.add_profile_version(db, user, behaviour, data, source=f"session:{sess.id}", keep=keep_versions)
         sess.engine_state = pack_state(engine.to_bytes())
         sess.status = "closed"
         sess.closed_at = utcnow()

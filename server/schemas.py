@@ -57,7 +57,8 @@ class TokenCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     label: str = Field(default="api", max_length=100)
-    ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s]; default: the server's token_ttl_s")
+    ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s], at most the remaining lifetime of the minting token "
+                                  "(422 beyond); default: the server's token_ttl_s, ending no later than the minting token")
 
 
 class TokenOut(BaseModel):
@@ -197,7 +198,9 @@ _INT64 = {"ge": -(2**63), "le": 2**63 - 1}  # stored as BIGINT: a larger number 
 
 class SensorLoggerItem(BaseModel):
     name: str
-    time: int = Field(**_INT64)
+    # strict: a string "1700000000000000000", a float 1.7e18 or true was read as a time [ns]; the values
+    # x, y, z are checked as numbers (not strings, not booleans) by the route
+    time: int = Field(strict=True, **_INT64)
     values: dict[str, Any]
 
 

@@ -8,7 +8,10 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy.engine import make_url
 
-__all__ = ["Settings", "SettingsError", "load_settings"]
+__all__ = ["MIN_PROFILE_BYTES", "Settings", "SettingsError", "load_settings"]
+
+MIN_PROFILE_BYTES = 256 * 1024
+"""Smallest ``max_profile_bytes``: a profile the engine hands out (and a client may put back) stays below it."""
 
 
 class Settings(BaseSettings):
@@ -46,6 +49,14 @@ class Settings(BaseSettings):
         Sustained requests per second allowed per token (per server process); 0 = no limit.
     rate_limit_burst : int
         Requests a token may make at once after being idle.
+    max_profile_bytes : int
+        Largest calibration profile a client may store (``PUT /v1/profiles/{behaviour}``), as compact JSON
+        [bytes]; larger gets HTTP 413. At least 256 kB: a profile the engine hands out reaches about 180 kB at its
+        bounds (300 calibration pairs per behaviour; 300 compass rows and dip stances, 600 swing samples), and a
+        client may put it back. ``max_body_bytes`` still bounds the whole body.
+    max_profile_versions : int
+        Versions of a user's profile kept per behaviour (the newest; every replace, reset and session close adds
+        one, and the older ones are deleted beyond this).
     pg_one_statement_writes : bool
         PostgreSQL: write an upload (session update, raw batch, positions, events) as one atomic statement in
         autocommit mode, on a driver connection (2 round trips per upload: token and session read, write);
@@ -68,6 +79,8 @@ class Settings(BaseSettings):
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
     rate_limit_burst: int = Field(default=200, ge=1)
+    max_profile_bytes: int = Field(default=512 * 1024, ge=MIN_PROFILE_BYTES)
+    max_profile_versions: int = Field(default=50, ge=1, le=100_000)
     pg_one_statement_writes: bool = True
 
     @model_validator(mode="after")

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
+
 from fastapi import APIRouter, HTTPException, Request, status
+from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
 from server import crud
@@ -32,14 +35,43 @@ def create_user(body: UserCreate, db: SessionDep, user: CurrentUser, settings: S
 
 
 @router.post("/tokens", response_model=TokenOut, status_code=status.HTTP_201_CREATED)
-def new_token(db: SessionDep, user: CurrentUser, settings: SettingsDep, body: TokenCreate | None = None) -> TokenOut:
-    """Mint another token for the calling user (e.g. one per device); ``ttl_s`` up to the server's
-    ``token_max_ttl_s`` (default ``token_ttl_s``)."""
+def new_token(request: Request, db: SessionDep, user: CurrentUser, settings: SettingsDep,
+              body: TokenCreate | None = None) -> TokenOut:
+    """Mint another token for the calling user (e.g. one per device).
+
+    A token never outlives the token that mints it, so a short-lived token cannot be turned into a long-lived
+    one:
+
+    - ``ttl_s`` given: at most the server's ``token_max_ttl_s`` and at most the remaining lifetime of the
+      token of this request; more is refused with 422 naming ``ttl_s`` and the most that can be had (the
+      client asked for a lifetime it would not get, so it is told instead of being handed a shorter one).
+    - ``ttl_s`` omitted: the server's ``token_ttl_s``, ending no later than the token of this request
+      (``expires_at`` of the answer says when).
+
+    Longer-lived tokens come from an admin: ``pednav admin token NAME --ttl-s S`` (or a new user's first
+    token, ``POST /v1/users``).
+    """
     opts = body or TokenCreate()
     if opts.ttl_s is not None and opts.ttl_s > settings.token_max_ttl_s:
         raise HTTPException(422, f"ttl_s: at most {settings.token_max_ttl_s} s on this server, got {opts.ttl_s}")
+    now = datetime.now(timezone.utc)
+    minting_exp = db.execute(
+        select(Token.expires_at).where(Token.token_hash == hash_token(request.state.token), Token.user_id == user.id)
+    ).scalar_one_or_none()
     ttl = opts.ttl_s if opts.ttl_s is not None else (settings.token_ttl_s or None)
+    if minting_exp is not None:
+        left_s = max(0, int((minting_exp - now).total_seconds()))
+        if opts.ttl_s is not None and opts.ttl_s > left_s:
+            raise HTTPException(422, (
+                f"ttl_s: at most {left_s} s: a token cannot outlive the token that mints it (this one expires at "
+                f"{minting_exp.isoformat(timespec='seconds')}), got {opts.ttl_s}; longer-lived tokens come from an "
+                "admin ('pednav admin token NAME --ttl-s S')"))
+        if ttl is None or ttl > left_s:
+            ttl = None  # capped below: the new token ends with the minting one
     token, row = crud.issue_token_row(db, user, opts.label, ttl)
+    if minting_exp is not None and (row.expires_at is None or row.expires_at > minting_exp):
+        row.expires_at = minting_exp
+        db.flush()
     db.commit()
     return TokenOut(user_id=user.id, token=token, expires_at=row.expires_at)
 

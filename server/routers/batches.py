@@ -12,7 +12,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 
 from models.batch import BatchError
 from server import crud
-from server.auth import authenticate
+from server.auth import authenticate, query_token_refused
 from server.deps import INT64_MAX, CurrentUser, PathId, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
@@ -62,15 +62,16 @@ def _upload_sync(app: Any, token: str | None, ctype: str | None, session_id: int
 
 
 def _token_of(authorization: str, query_string: bytes) -> str | None:
-    """Bearer token of the ``Authorization`` header, else the ``token`` query parameter."""
-    scheme, _, cred = authorization.partition(" ")
-    if scheme.lower() == "bearer" and cred.strip():
-        return cred.strip()
+    """Bearer token of the ``Authorization`` header; a ``token`` query parameter is refused with 401 (only the
+    Sensor Logger push takes one, :data:`server.auth.QUERY_TOKEN_ROUTE`)."""
     if query_string:
         from urllib.parse import parse_qs
 
-        vals = parse_qs(query_string.decode("latin-1")).get("token")
-        return vals[0] if vals else None
+        if "token" in parse_qs(query_string.decode("latin-1"), keep_blank_values=True):
+            raise query_token_refused()
+    scheme, _, cred = authorization.partition(" ")
+    if scheme.lower() == "bearer" and cred.strip():
+        return cred.strip()
     return None
 
 

@@ -1,14 +1,19 @@
-"""Calibration profiles per user and behaviour: read, replace, reset, history (versioned)."""
+"""Calibration profiles per user and behaviour: read, replace, reset, history (versioned).
+
+Every replace, reset and session close adds a version; the newest ``max_profile_versions`` per behaviour are
+kept (older ones are deleted). A profile put by a client is at most ``max_profile_bytes`` as compact JSON.
+"""
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, status
 
 from server import crud
 from energy.profile import PROFILE_BEHAVIOURS
-from server.deps import CurrentUser, HostDep, SessionDep
+from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
 from server.ingest import json_safe, validate_calibration
 from server.schemas import ProfileIn, ProfileOut
 
@@ -42,29 +47,44 @@ def get_profile(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
     return _out(cur)
 
 
+def _check_size(data: dict[str, Any], limit: int) -> None:
+    """413 naming ``data`` when its compact JSON exceeds ``limit`` bytes (before anything heavier looks at it)."""
+    try:
+        n = len(json.dumps(json_safe(data), separators=(",", ":")).encode())
+    except RecursionError:
+        raise HTTPException(422, "data: nested too deeply") from None
+    if n > limit:
+        raise HTTPException(413, f"data: calibration of {n} bytes (compact JSON) exceeds the limit of {limit} bytes per profile")
+
+
 @router.put("/{behaviour}", response_model=ProfileOut)
-def replace_profile(behaviour: str, body: ProfileIn, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
-    """Replace the profile (a new version; the old ones stay in the history). Used by new sessions."""
+def replace_profile(behaviour: str, body: ProfileIn, db: SessionDep, user: CurrentUser, host: HostDep,
+                    settings: SettingsDep) -> Any:
+    """Replace the profile (a new version; the newest ``max_profile_versions`` stay in the history). Used by new
+    sessions. 413 when ``data`` as compact JSON exceeds ``max_profile_bytes``."""
     _check(behaviour)
+    _check_size(body.data, settings.max_profile_bytes)
     try:
         validate_calibration(behaviour, body.data, host)
     except ValueError as exc:
         raise HTTPException(422, f"data: {exc}") from None
-    row = crud.add_profile_version(db, user, behaviour, json_safe(body.data), source="api")
+    row = crud.add_profile_version(db, user, behaviour, json_safe(body.data), source="api",
+                                   keep=settings.max_profile_versions)
     db.commit()
     return _out(row)
 
 
 @router.delete("/{behaviour}", response_model=ProfileOut)
-def reset_profile(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
+def reset_profile(behaviour: str, db: SessionDep, user: CurrentUser, settings: SettingsDep) -> Any:
     """Reset: new sessions start uncalibrated for this behaviour (recorded as a version with ``data: null``)."""
     _check(behaviour)
-    row = crud.add_profile_version(db, user, behaviour, None, source="reset")
+    row = crud.add_profile_version(db, user, behaviour, None, source="reset", keep=settings.max_profile_versions)
     db.commit()
     return _out(row)
 
 
 @router.get("/{behaviour}/history", response_model=list[ProfileOut])
 def history(behaviour: str, db: SessionDep, user: CurrentUser) -> Any:
+    """The kept versions of the profile, oldest first (the newest ``max_profile_versions``)."""
     _check(behaviour)
     return [_out(p) for p in crud.profile_history(db, user, behaviour)]

@@ -6,7 +6,20 @@ ns times; messages may arrive out of order and more than once. Each message is s
 session's engine in time order as ordinary sequenced batches (stored raw like any other batch). Samples that
 arrive behind what was already fed are counted as late and dropped.
 
-Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``).
+A push is taken whole or not at all: every refusal (4xx) stores nothing, and a message is stored (durably,
+committed) before it is answered 2xx. A message is checked on its own as the engine will take it (finite
+values, units; its ``accelerometer`` samples need ``gravity`` samples of the same message, since Sensor
+Logger's accelerometer excludes gravity) and then together with the held-back samples it is fed with: when
+its samples make that window unusable it is refused (422) and the window waits for the next push. Should the
+held-back samples of messages already accepted be unusable together without it (values in another unit
+in part of a message whose median passed), that window is skipped so that the session goes on: the push is
+still taken, and its answer says how many samples were skipped and why (``skipped_samples``, ``skipped``);
+they stay stored with their messages.
+
+Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``). This push
+is the only route that takes ``?token=`` (the app cannot set headers); every other route, the flush below
+included, refuses it with 401 (URLs end up in access logs). Give the app a token of its own (``POST /v1/tokens``
+with a label), so it can be revoked alone.
 """
 
 from __future__ import annotations
@@ -20,7 +33,8 @@ from sqlalchemy.exc import IntegrityError
 
 from models.batch import BatchError, SensorBatch
 from server import crud
-from server.deps import CurrentUser, HostDep, SessionDep, SettingsDep
+from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
+from server.formats import PayloadTooLarge
 from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, User
 from server.schemas import SensorLoggerPush
@@ -74,34 +88,124 @@ def samples_to_batch(items: list[dict[str, Any]]) -> SensorBatch:
 
 
 _FLOAT_MAX = int(np.finfo(np.float64).max)
+_I64_MAX = int(np.iinfo(np.int64).max)
 _SL_NAME = {"gyr": "gyroscope", "mag": "magnetometer"}
+_UNIT_CHECK_MIN = 10  # SensorBatch.validate checks units on streams of at least this many samples
+
+
+def _acc_name(items: Any) -> str:
+    """The sensor whose samples make the acceleration stream of ``items`` (samples of one or more messages)."""
+    return "totalacceleration" if any(it["name"] == "totalacceleration" for it in items) else "accelerometer"
+
+
+def _refusal(exc: BatchError, acc_name: str, suffix: str = "") -> BatchError:
+    """A batch's refusal named by the Sensor Logger sensor (``payload.gyroscope`` for ``gyr``)."""
+    stream = exc.field.removesuffix("_t_ns")
+    return BatchError(f"payload.{_SL_NAME.get(stream, acc_name)}", exc.problem + suffix)
+
+
+def _check_size(items: list[dict[str, Any]], limit: int) -> None:
+    """413 (nothing stored) for a message with more than ``limit`` samples of one sensor (``max_samples_per_stream``,
+    the limit of an uploaded batch, which pushes escaped: their windows reached the engine as batches of any size)."""
+    counts: dict[str, int] = {}
+    for it in items:
+        counts[it["name"]] = counts.get(it["name"], 0) + 1
+    for name, n in sorted(counts.items()):
+        if n > limit:
+            raise PayloadTooLarge(f"payload.{name}: {n} samples exceed the limit of {limit} per stream and message")
 
 
 def _check_samples(items: list[dict[str, Any]]) -> None:
-    """Refuse (422, nothing stored) a push whose own samples the engine would refuse: non-finite values or
-    implausible units (a gyroscope in deg/s, a magnetometer in gauss).
+    """Refuse (422, nothing stored) a push whose own samples the engine would refuse: non-finite values,
+    implausible units (a gyroscope in deg/s, a magnetometer in gauss), or ``accelerometer`` samples without
+    ``gravity`` (or ``totalacceleration``) samples in the same message.
 
-    A message is stored before its samples are fed, and every later push feeds the held-back samples of all
-    stored messages together: one such message, acknowledged with 200, made every later push of the session
-    and its flush fail with 422 for good. (A message with only ``accelerometer`` samples is still taken: its
-    samples are used when ``gravity`` or ``totalacceleration`` samples of other messages come with them.)
+    Units are checked on every stream of the message, also on one of fewer than ten samples (on its samples
+    repeated to ten: same median, same peak), which ``SensorBatch.validate`` leaves alone: a few such samples
+    per message were taken, and once the held-back samples of several messages were fed together they made
+    that window, and every later one that still held them, fail with 422. For the same reason accelerometer
+    samples are paired only with the gravity samples of their own message (those of a message without any
+    were taken, and the next push that fed them answered 422 after its own message was stored).
     """
-    try:
-        batch = samples_to_batch(items)
-        acc_name = "totalacceleration" if any(it["name"] == "totalacceleration" for it in items) else "accelerometer"
-    except BatchError as exc:
-        if exc.field != "payload.accelerometer":
-            raise
-        batch = samples_to_batch([it for it in items if it["name"] != "accelerometer"])
-        acc_name = "totalacceleration"
+    batch = samples_to_batch(items)  # BatchError payload.accelerometer: no gravity in this message
+    acc_name = _acc_name(items)
     try:
         batch.validate()
+        small = {}
+        for name in ("acc", "gyr", "mag"):
+            t, v = batch.stream(name)
+            if 0 < t.size < _UNIT_CHECK_MIN:
+                reps = -(-_UNIT_CHECK_MIN // t.size)
+                small[f"{name}_t_ns"] = np.arange(t.size * reps, dtype=np.int64)
+                small[name] = np.tile(v, (reps, 1))
+        if small:
+            SensorBatch(**small).validate()
     except BatchError as exc:
-        stream = exc.field.removesuffix("_t_ns")
-        raise BatchError(f"payload.{_SL_NAME.get(stream, acc_name)}", exc.problem) from None
+        raise _refusal(exc, acc_name) from None
+
+
+def _message_batch(payload: list[dict[str, Any]]) -> SensorBatch:
+    """A stored message's samples as the engine takes them (accelerometer paired with its own message's gravity;
+    messages stored before that was checked lose only their unpaired accelerometer samples)."""
+    try:
+        return samples_to_batch(payload)
+    except BatchError:
+        return samples_to_batch([it for it in payload if it["name"] != "accelerometer"])
+
+
+def _window(msgs: list[SensorLoggerMessage], lo_ns: int, hi_ns: int) -> SensorBatch:
+    """The held-back samples of ``msgs`` with ``lo_ns < time <= hi_ns``, in time order (a time present in several
+    messages: the oldest message's sample)."""
+    kw: dict[str, np.ndarray] = {}
+    parts = [_message_batch(m.payload) for m in sorted(msgs, key=lambda m: m.id)]
+    for name in ("acc", "gyr", "mag"):
+        ts, vs = [], []
+        for b in parts:
+            t, v = b.stream(name)
+            k = (t > lo_ns) & (t <= hi_ns)
+            ts.append(t[k])
+            vs.append(v[k])
+        t = np.concatenate(ts) if ts else np.zeros(0, dtype=np.int64)
+        v = np.concatenate(vs) if vs else np.zeros((0, 3))
+        t, idx = np.unique(t, return_index=True)  # sorted, duplicates dropped
+        kw[f"{name}_t_ns"], kw[name] = t, v[idx].reshape(-1, 3)
+    return SensorBatch(**kw)
+
+
+def _pieces(batch: SensorBatch, lo_ns: int, hi_ns: int, limit: int) -> list[tuple[SensorBatch, int]]:
+    """The window ``batch`` (samples with ``lo_ns < time <= hi_ns``) cut in time order into pieces of at most
+    ``limit`` samples per stream (``max_samples_per_stream``, as any uploaded batch); ``(piece, its end)`` each,
+    a piece holding the samples after the previous end up to and including its own."""
+    out: list[tuple[SensorBatch, int]] = []
+    start = lo_ns
+    while True:
+        ends = []
+        for name in ("acc", "gyr", "mag"):
+            t, _ = batch.stream(name)
+            i = int(np.searchsorted(t, start, side="right"))
+            if t.size - i > limit:
+                ends.append(int(t[i + limit - 1]))
+        if not ends:
+            out.append((batch.time_slice(start + 1, None) if start > lo_ns else batch, hi_ns))
+            return out
+        end = min(ends)
+        out.append((batch.time_slice(start + 1, end + 1 if end < _I64_MAX else None), end))
+        start = end
+
+
+def _window_problem(pieces: list[tuple[SensorBatch, int]]) -> BatchError | None:
+    """The first refusal of a piece of a window, or None."""
+    for piece, _ in pieces:
+        try:
+            piece.validate()
+        except BatchError as exc:
+            return exc
+    return None
 
 
 def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, host: Any) -> SensorLoggerLink:
+    """The link of the push's Sensor Logger session; a new one (and its session) is flushed, not committed: it is
+    stored with the push's message or not at all."""
     link = db.execute(
         select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)
     ).scalar_one_or_none()
@@ -113,40 +217,66 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
         db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
         engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
-    link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id)
+    link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id,
+                            watermark_ns=0, late_samples=0)
     db.add(link)
-    db.commit()
+    db.flush()
     return link
 
 
-def _feed_ready(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, horizon_ns: int) -> dict[str, Any] | None:
-    msgs = db.execute(
+def _unfed(db: SessionDep, link: SensorLoggerLink) -> list[SensorLoggerMessage]:
+    return list(db.execute(
         select(SensorLoggerMessage).where(
             SensorLoggerMessage.session_id == link.session_id, SensorLoggerMessage.t_max_ns > link.watermark_ns
         )
-    ).scalars()
-    items = [it for msg in msgs for it in msg.payload if link.watermark_ns < int(it["time"]) <= horizon_ns]
-    if not items:
-        return None
-    batch = samples_to_batch(items)
-    if batch.is_empty:
-        return None
-    batch.validate()
-    sess = crud.get_session(db, user, link.session_id)
-    assert sess is not None
-    link_id, next_seq = link.id, sess.next_seq
-    db.rollback()
+    ).scalars())
 
-    def advance(tx: Any) -> None:  # in the batch's own write transaction: fed samples are never fed again
-        tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=horizon_ns))
 
-    out = apply_batch(db, host, user.id, link.session_id, next_seq, batch, also=advance)
-    return out[0] if out else None
+def _feed(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, pieces: list[tuple[SensorBatch, int]],
+          acc_name: str) -> tuple[list[dict[str, Any]], str | None, dict[str, Any]]:
+    """Feed the pieces of a window as sequenced batches, each moving the watermark to its end in its own write
+    transaction (fed samples are never fed again); a piece the engine would refuse is skipped instead (watermark
+    moved, nothing fed). Returns (new positions, the last behaviour or None, ``{"skipped_samples", "skipped"}``)."""
+    positions: list[dict[str, Any]] = []
+    behaviour = None
+    skipped: dict[str, Any] = {"skipped_samples": 0, "skipped": None}
+    link_id = link.id
+    for piece, end_ns in pieces:
+        if piece.is_empty:
+            continue
+        try:
+            piece.validate()
+        except BatchError as problem:
+            exc = _refusal(problem, acc_name)
+            skipped["skipped_samples"] += int(len(piece.acc_t_ns) + len(piece.gyr_t_ns) + len(piece.mag_t_ns))
+            skipped["skipped"] = skipped["skipped"] or {"field": exc.field, "problem": exc.problem}
+            with host.write_lock:
+                db.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
+                db.commit()
+            continue
+
+        def advance(tx: Any, end_ns: int = end_ns) -> None:
+            tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
+
+        sess = crud.get_session(db, user, link.session_id)
+        assert sess is not None
+        next_seq = sess.next_seq
+        db.rollback()
+        out = apply_batch(db, host, user.id, link.session_id, next_seq, piece, also=advance)
+        if out:
+            positions += out[0]["positions"]
+            behaviour = out[0]["behaviour"]
+    return positions, behaviour, skipped
 
 
 @router.post("")
-def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
-    """Receive one Sensor Logger push message; returns the session and any new positions."""
+def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, settings: SettingsDep, host: HostDep) -> dict[str, Any]:
+    """Receive one Sensor Logger push message; returns the session and any new positions.
+
+    Taken whole or not at all (see the module docstring): a 4xx stores nothing; a 2xx answers a stored message.
+    ``skipped_samples`` / ``skipped`` (``{"field", "problem"}`` or null): held-back samples of messages taken
+    earlier that could not be fed together and were left out of the trajectory by this push (they stay stored).
+    """
     items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
     for it in items:
         it["name"] = it["name"].lower()
@@ -156,42 +286,61 @@ def push(body: SensorLoggerPush, db: SessionDep, user: CurrentUser, settings: Se
                 raise BatchError(f"payload.{it['name']}.values.{k}", "missing or not a number")
             if isinstance(v, int) and not -_FLOAT_MAX <= v <= _FLOAT_MAX:
                 raise BatchError(f"payload.{it['name']}.values.{k}", "beyond the float64 range")
+    _check_size(items, settings.max_samples_per_stream)
     _check_samples(items)
     link = _link(db, user, body, settings, host)
     t_max = max((int(it["time"]) for it in items), default=0)
     late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
-    db.add(SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items))
+    msg = SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items)
+    db.add(msg)
     try:
         db.flush()
     except IntegrityError:
         db.rollback()
         return {"session_id": link.session_id, "duplicate": True, "late_samples": link.late_samples, "positions": [],
-                "behaviour": None}
+                "behaviour": None, "skipped_samples": 0, "skipped": None}
     sess = crud.get_session(db, user, link.session_id)
     if sess is not None and sess.status != "open":  # refused: not stored (it would never be fed)
         db.rollback()
         raise IngestConflict(f"session {link.session_id} is closed; no more batches accepted", sess.next_seq)
-    db.commit()
-    if late:
-        link.late_samples += late
-        db.commit()
     newest = db.execute(
         select(SensorLoggerMessage.t_max_ns).where(SensorLoggerMessage.session_id == link.session_id)
         .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
     ).scalar_one()
     horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
-    resp = _feed_ready(db, user, link, host, horizon) if horizon > link.watermark_ns else None
+    pieces, acc_name = None, _acc_name(items)
+    if horizon > link.watermark_ns:
+        # the window this push feeds, checked before the message is stored: refused when its samples spoil it
+        unfed = _unfed(db, link)
+        acc_name = _acc_name(it for m in unfed for it in m.payload)
+        limit = settings.max_samples_per_stream
+        pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, limit)
+        problem = _window_problem(pieces)
+        if problem is not None and _window_problem(_pieces(
+                _window([m for m in unfed if m.id != msg.id], link.watermark_ns, horizon), link.watermark_ns, horizon,
+                limit)) is None:
+            db.rollback()
+            raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
+    if late:
+        link.late_samples += late
+    db.commit()  # the message is stored before it is answered
+    positions, behaviour, skipped = _feed(db, user, link, host, pieces, acc_name) if pieces is not None else (
+        [], None, {"skipped_samples": 0, "skipped": None})
     return {"session_id": link.session_id, "duplicate": False, "late_samples": link.late_samples,
-            "positions": resp["positions"] if resp else [], "behaviour": resp["behaviour"] if resp else None}
+            "positions": positions, "behaviour": behaviour, **skipped}
 
 
 @router.post("/{sl_session_id}/flush")
-def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep) -> dict[str, Any]:
-    """Feed every held-back sample of a Sensor Logger session now (call before closing the session)."""
+def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> dict[str, Any]:
+    """Feed every held-back sample of a Sensor Logger session now (call before closing the session).
+    ``skipped_samples`` / ``skipped`` as for the push."""
     link = db.execute(
         select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == sl_session_id)
     ).scalar_one_or_none()
     if link is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"Sensor Logger session {sl_session_id!r} not found")
-    resp = _feed_ready(db, user, link, host, np.iinfo(np.int64).max)
-    return {"session_id": link.session_id, "positions": resp["positions"] if resp else []}
+    horizon = _I64_MAX
+    unfed = _unfed(db, link)
+    pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, settings.max_samples_per_stream)
+    positions, _, skipped = _feed(db, user, link, host, pieces, _acc_name(it for m in unfed for it in m.payload))
+    return {"session_id": link.session_id, "positions": positions, **skipped}

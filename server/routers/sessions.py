@@ -54,9 +54,9 @@ def get_session(session_id: PathId, db: SessionDep, user: CurrentUser) -> Any:
 
 
 @router.post("/{session_id}/close", response_model=SessionOut)
-def close(session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
+def close(session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> Any:
     """Close: drain the engine's held-back positions, store the updated calibration profiles."""
-    sess = close_session(db, host, user, session_id)
+    sess = close_session(db, host, user, session_id, keep_versions=settings.max_profile_versions)
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
     return sess

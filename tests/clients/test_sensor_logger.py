@@ -355,6 +355,9 @@ def test_sensor_logger_push_refusals_and_isolation(client, make_user) -> None:  
     assert r.status_code == 422 and "values.y" in r.json()["detail"]
     r = client.post("/v1/sensorlogger", json={"messageId": 1}, headers=auth(a))
     assert r.status_code == 422 and r.json()["field"] in ("sessionId", "payload")
+    r = client.post("/v1/sensorlogger", json=msg, headers=auth(a))  # accelerometer without gravity: unusable
+    assert r.status_code == 422 and r.json()["field"] == "payload.accelerometer" and "gravity" in r.json()["detail"]
+    msg["payload"] = [{"name": "totalacceleration", "time": T_EPOCH, "values": {"x": 0.1, "y": 0.0, "z": 9.8}}]
     r = client.post("/v1/sensorlogger", json=msg, headers=auth(a))
     assert r.status_code == 200
     assert client.post("/v1/sensorlogger/x/flush", headers=auth(b)).status_code == 404

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 
 import msgpack
 import numpy as np
@@ -251,15 +252,36 @@ def test_invalid_batches_are_422_naming_the_field_and_store_nothing(client, make
                                         "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.t0"),
         (msgpack.packb({"v": 1, "acc": {"n": True, "t0": 0, "dt": b"", "dtype": "<f8",
                                         "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.n"),
+        (msgpack.packb({"v": 1, "acc": {"n": 1, "t0": True, "dt": b"", "dtype": "<f8",
+                                        "xyz": np.zeros(3).tobytes()}}), MSGPACK_TYPE, "acc.dt"),
     ],
     ids=["not-json", "rows-mismatch", "float-time", "unknown-stream", "not-msgpack", "text-plain", "int-beyond-float64",
-         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool"],
+         "nested-too-deep", "msgpack-t0-beyond-int64", "msgpack-n-bool", "msgpack-t0-bool"],
 )
 def test_malformed_bodies_are_422(client, make_user, body, ctype, field) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a)
     r = client.put(f"/v1/sessions/{sid}/batches/0", content=body, headers={**auth(a), "content-type": ctype})
     assert r.status_code == 422 and r.json()["field"] == field, r.text
+
+
+@pytest.mark.parametrize("value, got", [('"1.5"', "string '1.5'"), ("true", "boolean True"), ("null", "null None"),
+                                        ('[1.5]', "array [1.5]")],
+                         ids=["string", "boolean", "null", "array"])
+@pytest.mark.parametrize("stream", ["acc", "gyr", "mag"])
+def test_sample_values_must_be_json_numbers(client, make_user, stream, value, got) -> None:  # type: ignore[no-untyped-def]
+    """The JSON upload read sample values through numpy: the string "1.5" was taken as 1.5 and true as 1.0."""
+    _, a = make_user()
+    sid = _start(client, a)
+    b = still_batch(T0)
+    doc = {name: {"t_ns": b.stream(name)[0].tolist(), "xyz": b.stream(name)[1].tolist()} for name in ("acc", "gyr", "mag")}
+    doc[stream]["xyz"][4][0] = json.loads(value)
+    text = json.dumps(doc)
+    r = client.put(f"/v1/sessions/{sid}/batches/0", content=text, headers={**auth(a), "content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert r.json()["field"] == f"{stream}.xyz"
+    assert r.json()["detail"] == f"{stream}.xyz: row 4, value 0: must be a number, got {got}"
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 0
 
 
 def test_an_empty_json_stream_is_a_stream_the_device_did_not_sample(client, make_user) -> None:  # type: ignore[no-untyped-def]
@@ -407,6 +429,80 @@ def test_profile_validation(client, make_user, behaviour, data, field) -> None: 
     assert client.get("/v1/profiles", headers=auth(a)).json() == []
     assert client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(a)).status_code == 201
 
+
+
+def test_a_profile_beyond_the_size_limit_is_413_and_not_stored(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    """A step_model was limited only by the 2 MB body: every session start then copied it into the session row."""
+    _, a = make_user()
+    pad = "x" * (settings.max_profile_bytes + 1)
+    r = client.put("/v1/profiles/walk", json={"data": {**_calibration(), "step_model": {"kind": "test", "a": 0.7, "pad": pad}}},
+                   headers=auth(a))
+    assert r.status_code == 413, r.text[:300]
+    assert r.json()["detail"].startswith("data: calibration of ") and f"limit of {settings.max_profile_bytes} bytes" in r.json()["detail"]
+    assert client.get("/v1/profiles", headers=auth(a)).json() == []
+    # just under the limit (engine-sized profiles are far below it) is stored
+    small = {**_calibration(), "step_model": {"kind": "test", "a": 0.7, "pad": "x" * (settings.max_profile_bytes - 1000)}}
+    assert client.put("/v1/profiles/walk", json={"data": small}, headers=auth(a)).status_code == 200
+
+
+@pytest.fixture()
+def few_versions(settings):  # type: ignore[no-untyped-def]
+    from fastapi.testclient import TestClient
+
+    from server.app import create_app
+
+    app = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_profile_versions": 3}))
+    with TestClient(app) as c:
+        yield c
+    app.state.db_engine.dispose()
+
+
+def test_profile_history_keeps_the_newest_versions(few_versions, make_user) -> None:  # type: ignore[no-untyped-def]
+    """Every replace, reset and session close added a version and none was ever deleted: the history grew
+    without bound. The newest max_profile_versions (3 here) of each behaviour are kept; numbering goes on."""
+    c = few_versions
+    _, a = make_user()
+    _, b = make_user()
+    assert c.put("/v1/profiles/walk", json={"data": _calibration(0.5)}, headers=auth(b)).status_code == 200
+    assert c.put("/v1/profiles/run", json={"data": _calibration(1.2)}, headers=auth(a)).status_code == 200
+    for k in range(5):
+        assert c.put("/v1/profiles/walk", json={"data": _calibration(0.6 + 0.01 * k)}, headers=auth(a)).status_code == 200
+    hist = c.get("/v1/profiles/walk/history", headers=auth(a)).json()
+    assert [h["version"] for h in hist] == [3, 4, 5]
+    assert c.get("/v1/profiles/walk", headers=auth(a)).json()["data"]["step_model"]["a"] == pytest.approx(0.64)
+    assert c.delete("/v1/profiles/walk", headers=auth(a)).json()["version"] == 6  # a reset is a version too
+    assert [h["version"] for h in c.get("/v1/profiles/walk/history", headers=auth(a)).json()] == [4, 5, 6]
+    # other behaviours and other users keep theirs
+    assert [h["version"] for h in c.get("/v1/profiles/run/history", headers=auth(a)).json()] == [1]
+    assert [h["version"] for h in c.get("/v1/profiles/walk/history", headers=auth(b)).json()] == [1]
+
+
+def test_a_session_close_keeps_the_newest_profile_versions(app, make_user) -> None:  # type: ignore[no-untyped-def]
+    """The session close stores its profile through the same bound (here with a stand-in engine profile)."""
+    from types import SimpleNamespace
+
+    from server import crud
+    from server.ingest import close_session
+    from server.models import User
+
+    uid, a = make_user()
+    with app.state.sessionmaker() as db:
+        user = db.get(User, uid)
+        for k in range(4):
+            crud.add_profile_version(db, user, "walk", _calibration(0.5 + 0.01 * k), source="api", keep=2)
+        db.commit()
+        assert [p.version for p in crud.profile_history(db, user, "walk")] == [3, 4]
+
+        upd = SimpleNamespace(positions=[], events=[], behaviour="stand", mode="idle",
+                              sensor_config=SimpleNamespace(to_dict=dict))
+        engine = SimpleNamespace(flush=lambda: upd, to_bytes=lambda: b"state",  # hands out a new walk calibration
+                                 profile_dict=lambda: {"behaviours": {"walk": _calibration(0.9)}})
+        sid = crud.create_session(db, user, device_kind="foot").id
+        db.commit()
+        host = SimpleNamespace(lock=app.state.host.lock, write_lock=app.state.host.write_lock,
+                               forget=lambda _sid: None, restore=lambda _sess: engine)
+        close_session(db, host, user, sid, keep_versions=2)
+        assert [(p.version, p.source) for p in crud.profile_history(db, user, "walk")] == [(4, "api"), (5, f"session:{sid}")]
 
 
 # ---------------------------------------------------------------- trajectories

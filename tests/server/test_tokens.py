@@ -75,20 +75,115 @@ def test_token_refusals_say_which(client, make_user) -> None:  # type: ignore[no
     assert r.status_code == 422 and r.json()["field"] == "lifetime"
 
 
+def _token_count(app, uid: int) -> int:  # type: ignore[no-untyped-def]
+    from sqlalchemy import func, select
+
+    with app.state.sessionmaker() as db:
+        return db.execute(select(func.count()).select_from(Token).where(Token.user_id == uid)).scalar_one()
+
+
+@pytest.mark.parametrize("ttl_s", [365 * 86_400, 3601, 7200])
+def test_a_token_cannot_mint_a_token_that_outlives_it(client, app, make_user, ttl_s) -> None:  # type: ignore[no-untyped-def]
+    """A one-hour token minted a 365-day one: whoever held a short-lived token could keep the account for a year."""
+    uid, tok = make_user()
+    short = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+    n = _token_count(app, uid)
+    r = client.post("/v1/tokens", json={"ttl_s": ttl_s}, headers=auth(short["token"]))
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("ttl_s: at most 3") and "cannot outlive the token that mints it" in detail, detail
+    assert _token_count(app, uid) == n  # nothing minted
+
+
+def test_a_token_mints_shorter_tokens_and_the_default_ends_with_it(client, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    short = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+    short_exp = datetime.fromisoformat(short["expires_at"])
+    r = client.post("/v1/tokens", json={"ttl_s": 600}, headers=auth(short["token"]))
+    assert r.status_code == 201
+    assert abs((datetime.fromisoformat(r.json()["expires_at"]) - datetime.now(timezone.utc)).total_seconds() - 600) < 30
+    # no ttl_s: the server's default lifetime (30 days here) would outlive the minting token: it ends with it
+    assert settings.token_ttl_s > 3600
+    r = client.post("/v1/tokens", headers=auth(short["token"]))
+    assert r.status_code == 201 and datetime.fromisoformat(r.json()["expires_at"]) == short_exp
+    assert client.get("/v1/users/me", headers=auth(r.json()["token"])).status_code == 200
+    # a token that never expires (the admin bootstrap) still mints up to token_max_ttl_s
+    r = client.post("/v1/tokens", json={"ttl_s": settings.token_max_ttl_s}, headers=auth(tok))
+    assert r.status_code == 201
+
+
+def test_a_token_cannot_outlive_its_minter_when_tokens_never_expire(settings, make_user) -> None:  # type: ignore[no-untyped-def]
+    """``PEDNAV_TOKEN_TTL_S=0`` (default lifetime: never) from a token that expires: the new one ends with it."""
+    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "token_ttl_s": 0}))
+    try:
+        with TestClient(a) as c:
+            _, tok = make_user()
+            short = c.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(tok)).json()
+            r = c.post("/v1/tokens", headers=auth(short["token"]))
+            assert r.status_code == 201 and r.json()["expires_at"] == short["expires_at"]
+            assert c.post("/v1/tokens", headers=auth(tok)).json()["expires_at"] is None
+    finally:
+        a.state.db_engine.dispose()
+
+
 @pytest.mark.parametrize("how", ["query-with-other-scheme", "extra-blank"])
 def test_revoking_the_current_token_revokes_the_one_that_authenticated(client, make_user, how) -> None:  # type: ignore[no-untyped-def]
     """DELETE /v1/tokens/current parsed the Authorization header again: with another scheme and ``?token=`` (or
-    two blanks after "Bearer") it looked up a token that does not exist and answered 500, revoking nothing."""
+    two blanks after "Bearer") it looked up a token that does not exist and answered 500, revoking nothing.
+    (``?token=`` is now refused outside the Sensor Logger push: 401, and nothing is revoked.)"""
     _, tok = make_user()
     second = client.post("/v1/tokens", headers=auth(tok)).json()["token"]
     if how == "query-with-other-scheme":
         r = client.delete(f"/v1/tokens/current?token={second}", headers={"Authorization": "Basic dXNlcjpwdw=="})
+        assert r.status_code == 401 and "query string" in r.json()["detail"], r.text
+        assert client.get("/v1/users/me", headers=auth(second)).status_code == 200
+        r = client.delete("/v1/tokens/current", headers=auth(second))
     else:
         r = client.delete("/v1/tokens/current", headers={"Authorization": f"Bearer  {second}"})
     assert r.status_code == 204, r.text
     r = client.get("/v1/users/me", headers=auth(second))
     assert r.status_code == 401 and r.json()["detail"] == "token revoked"
     assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200
+
+
+@pytest.mark.parametrize("with_header", [False, True], ids=["query-only", "query-and-header"])
+@pytest.mark.parametrize("method, path", [
+    ("get", "/v1/users/me"),
+    ("get", "/v1/sessions"),
+    ("get", "/v1/sessions/{sid}/trajectory"),
+    ("get", "/v1/profiles"),
+    ("post", "/v1/tokens"),
+    ("delete", "/v1/tokens/current"),
+    ("put", "/v1/sessions/{sid}/batches/0"),  # the upload fast path
+    ("post", "/v1/sensorlogger/phone-q/flush"),
+])
+def test_a_query_token_is_refused_outside_the_sensor_logger_push(client, make_user, method, path, with_header) -> None:  # type: ignore[no-untyped-def]
+    """``?token=`` was taken on every route, so tokens ended up in access logs; only the Sensor Logger push (the
+    app cannot set headers) takes it now. Everything else answers 401 naming the query string and does nothing."""
+    _, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    kw: dict = {"headers": auth(tok) if with_header else {}}  # type: ignore[type-arg]
+    if method == "put":
+        kw = {"content": encode_msgpack(still_batch(T0)), "headers": {**kw["headers"], "content-type": MSGPACK_TYPE}}
+    r = getattr(client, method)(path.format(sid=sid) + f"?token={tok}", **kw)
+    assert r.status_code == 401, r.text
+    assert "query string" in r.json()["detail"] and "Authorization: Bearer" in r.json()["detail"]
+    assert r.headers["www-authenticate"] == "Bearer"
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200  # not revoked
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()["next_seq"] == 0  # nothing uploaded
+
+
+def test_the_sensor_logger_push_takes_a_query_token(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    msg = {"messageId": 1, "sessionId": "phone-q", "deviceId": "d", "payload": [
+        {"name": "totalacceleration", "time": T0, "values": {"x": 0.0, "y": 0.0, "z": 9.81}}]}
+    r = client.post(f"/v1/sensorlogger?token={tok}", json=msg)
+    assert r.status_code == 200 and r.json()["duplicate"] is False, r.text
+    r = client.post("/v1/sensorlogger?token=pn_nonsense", json={**msg, "messageId": 2})
+    assert r.status_code == 401 and r.json()["detail"] == "invalid token"
+    # the push's header still wins over its query parameter
+    r = client.post("/v1/sensorlogger?token=pn_nonsense", json={**msg, "messageId": 3}, headers=auth(tok))
+    assert r.status_code == 200
 
 
 @pytest.fixture()
@@ -149,6 +244,8 @@ def test_rate_limiter_refills_at_the_rate() -> None:
     ({"PEDNAV_RATE_LIMIT_PER_S": "nan"}, "PEDNAV_RATE_LIMIT_PER_S"),
     ({"PEDNAV_RATE_LIMIT_BURST": "0"}, "PEDNAV_RATE_LIMIT_BURST"),
     ({"PEDNAV_RATE_LIMIT_BURST": "many"}, "PEDNAV_RATE_LIMIT_BURST"),
+    ({"PEDNAV_MAX_PROFILE_BYTES": "1000"}, "PEDNAV_MAX_PROFILE_BYTES"),  # below what the engine hands out
+    ({"PEDNAV_MAX_PROFILE_VERSIONS": "0"}, "PEDNAV_MAX_PROFILE_VERSIONS"),  # the current version must stay
 ])
 def test_bad_settings_fail_fast_naming_the_variable(monkeypatch, env, problem) -> None:  # type: ignore[no-untyped-def]
     for k, v in env.items():

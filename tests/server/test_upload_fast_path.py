@@ -37,7 +37,7 @@ def _script(c: TestClient, tok: str, other: str) -> list[tuple[int, Any, str | N
         (f"/v1/sessions/{sid}/batches/2", b0, {**auth(other), "content-type": MSGPACK_TYPE}),  # other user: 404
         (f"/v1/sessions/{sid + 10**6}/batches/0", b0, mp),  # no such session: 404
         (f"/v1/sessions/{sid}/batches/2?token={tok}", encode_msgpack(still_batch(T0 + 2 * 10**9, seed=3)),
-         {"content-type": MSGPACK_TYPE}),  # token as a query parameter
+         {"content-type": MSGPACK_TYPE}),  # token as a query parameter: 401 (only the Sensor Logger push takes it)
         (f"/v1/sessions/{sid}/batches/3", b"x" * 3_000_000, mp),  # over the body limit: 413
     ]
     out = []
@@ -71,7 +71,7 @@ def test_fast_path_answers_as_the_route(settings) -> None:  # type: ignore[no-un
         finally:
             app.state.db_engine.dispose()
     fast, route = got
-    assert [s for s, *_ in fast] == [200, 200, 409, 409, 200, 422, 422, 401, 401, 404, 404, 200, 413]
+    assert [s for s, *_ in fast] == [200, 200, 409, 409, 200, 422, 422, 401, 401, 404, 404, 401, 413]
     assert [x[2] for x in fast[:2]] == ["false", "true"] and fast[0][1] == fast[1][1]
     for a, b in zip(fast, route):
         assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
