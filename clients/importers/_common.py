@@ -48,6 +48,7 @@ __all__ = [
     "read_csv_rows",
     "skipped_lines_message",
     "make_batch",
+    "is_hidden",
 ]
 
 log = logging.getLogger(__name__)
@@ -78,6 +79,15 @@ class ImporterError(ValueError):
         self.path = str(path)
         self.field = field
         self.problem = problem
+
+
+def is_hidden(path: str | Path) -> bool:
+    """True when any part of ``path`` (give it relative to the folder scanned, or a zip member's name) is a
+    dotfile/dot-folder, including the macOS AppleDouble resource forks ``._name`` that copying to a FAT/exFAT
+    or network drive leaves beside every file, or a zip's ``__MACOSX`` folder of them. Folder scans skip these:
+    they are never recordings (an AppleDouble ``._trial.mat`` holds Finder metadata, not MATLAB data)."""
+    parts = Path(path).parts
+    return any((part.startswith(".") and part not in (".", "..")) or part == "__MACOSX" for part in parts)
 
 
 def seconds_to_ns(path: str | Path, field: str, t_s: np.ndarray) -> np.ndarray:

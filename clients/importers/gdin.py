@@ -38,6 +38,7 @@ from clients.importers._common import (
     check_finite,
     clean_stream,
     drop_untimed_rows,
+    is_hidden,
     make_batch,
     seconds_to_ns,
 )
@@ -228,7 +229,8 @@ def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     ``stride_gcp/SensorConnectData_NN_*.csv``. The folders may sit at any depth below ``root`` (the dataset
     repository keeps them under ``data/``); when one experiment's file of a kind appears at several depths the
     shallowest is used, at one depth the last in path order, and a CSV beats a format C copy of the same
-    experiment. Extensions are matched in any case. ``recursive=False``: only the folders directly below
+    experiment. Extensions are matched in any case; hidden files and folders (dotfiles, macOS ``._*`` resource
+    forks, a ``.Trash`` or ``.git`` below ``root``) are skipped. ``recursive=False``: only the folders directly below
     ``root`` (what pairing one sensor file with its truth needs).
     """
     r = Path(root)
@@ -236,7 +238,7 @@ def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     truths: dict[int, Path] = {}
     strides: dict[int, Path] = {}
     candidates = r.rglob("SensorConnectData_*") if recursive else r.glob("*/SensorConnectData_*")
-    found = [f for f in candidates if f.is_file() and f.parent != r]
+    found = [f for f in candidates if f.is_file() and f.parent != r and not is_hidden(f.relative_to(r))]
     for f in sorted(found, key=lambda f: (-len(f.relative_to(r).parts), str(f))):  # deepest first: shallow wins
         exp = experiment_number(f)
         if exp is None:

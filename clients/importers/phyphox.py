@@ -26,6 +26,7 @@ from clients.importers._common import (
     ImporterError,
     clean_stream,
     drop_untimed_rows,
+    is_hidden,
     make_batch,
     skipped_lines_message,
 )
@@ -117,7 +118,7 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
             for n in zf.namelist():
                 if n.lower().endswith("meta/time.csv"):
                     time_csv = zf.read(n).decode("utf-8-sig")
-                elif n.lower().endswith(".csv") and "/meta/" not in "/" + n.lower():
+                elif n.lower().endswith(".csv") and "/meta/" not in "/" + n.lower() and not is_hidden(n):
                     out.append((f"{path}:{n}", zf.read(n).decode("utf-8-sig")))
         return out, time_csv
     folder = path if path.is_dir() else None
@@ -125,7 +126,7 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
         out.append((str(path), path.read_text(encoding="utf-8-sig")))
         meta = path.parent / "meta" / "time.csv"
     else:
-        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv"))]
+        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv")) if not is_hidden(f.name)]
         meta = folder / "meta" / "time.csv"
     if meta.exists():
         time_csv = meta.read_text(encoding="utf-8-sig")
@@ -210,7 +211,7 @@ def sniff(path: str | Path) -> bool:
     p = Path(path)
     try:
         if p.is_dir():
-            return _is_export_folder(p) and any(sniff(f) for f in sorted(p.glob("*.csv")))
+            return _is_export_folder(p) and any(sniff(f) for f in sorted(p.glob("*.csv")) if not is_hidden(f.name))
         if p.suffix.lower() == ".csv":
             with open(p, encoding="utf-8-sig") as fh:
                 first = fh.readline()

@@ -403,3 +403,54 @@ def test_format_a_export_of_two_nodes_is_refused_not_mixed(tmp_path: Path) -> No
     with pytest.raises(ImporterError, match="several sensor nodes") as ei:
         load(p)
     assert ei.value.field == "scaledAccelX"
+
+
+# ---------------------------------------------------------------------------------------------- hidden files
+# The start of a real AppleDouble file (macOS writes one as ._NAME beside every file copied to a FAT/exFAT or
+# network drive): magic 0x00051607, "Mac OS X", entry table; bytes that are not UTF-8 either.
+APPLEDOUBLE = (b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        \x00\x02\x00\x00\x00\x09\x00\x00\x00\x32"
+               b"\x00\x00\x0e\xb0\x00\x00\x00\x02\x00\x00\x0e\xe2\x00\x00\x01\x1e" + bytes(300))
+
+
+def test_folder_scans_skip_dotfiles_and_macos_resource_forks(tmp_path: Path) -> None:
+    """A dotfile or a hidden folder (.Trash, a ._NAME resource fork) is never a recording, whatever it holds."""
+    from clients.importers import list_recordings
+    from clients.importers.gdin import find_gdin
+
+    root = tmp_path / "gdin"
+    (root / "own").mkdir(parents=True)
+    (root / ".Trash" / "own").mkdir(parents=True)
+    good = write_a(root / "own" / "SensorConnectData_90.csv", _rows())
+    (root / "own" / "._SensorConnectData_90.csv").write_bytes(APPLEDOUBLE)
+    write_a(root / "own" / ".SensorConnectData_91.csv", _rows())  # readable, but hidden
+    write_a(root / ".Trash" / "own" / "SensorConnectData_92.csv", _rows())
+    assert list_recordings(root) == [good]
+    assert [e.exp for e in find_gdin(root)] == [90]
+
+
+def test_loading_a_resource_fork_says_what_it_is(tmp_path: Path) -> None:
+    p = tmp_path / "._2099-01-01-00-00-00.mat"
+    p.write_bytes(APPLEDOUBLE)
+    with pytest.raises(ImporterError, match="AppleDouble") as ei:
+        load(p)
+    assert "2099-01-01-00-00-00.mat" in str(ei.value) and ei.value.field == "file"
+
+
+def test_phyphox_zip_from_a_mac_ignores_its_macosx_folder(tmp_path: Path) -> None:
+    """macOS's "Compress" adds __MACOSX/._NAME for every file; reading them as tables failed on their bytes."""
+    import zipfile
+
+    from clients.importers.phyphox import load_phyphox
+
+    n = 400
+    head = '"Time (s)","{0} x ({1})","{0} y ({1})","{0} z ({1})"'
+    acc = [head.format("Acceleration", "m/s^2")] + [f"{k / 100:.2f},0.1,0.2,9.80" for k in range(n)]
+    gyr = [head.format("Gyroscope", "rad/s")] + [f"{k / 100:.2f},0.01,0.0,0.0" for k in range(n)]
+    p = tmp_path / "walk.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("Accelerometer.csv", "\n".join(acc) + "\n")
+        zf.writestr("Gyroscope.csv", "\n".join(gyr) + "\n")
+        zf.writestr("__MACOSX/._Accelerometer.csv", APPLEDOUBLE)
+        zf.writestr("__MACOSX/._Gyroscope.csv", APPLEDOUBLE)
+    rec = load_phyphox(p)
+    assert len(rec.batch) == n and len(rec.batch.gyr_t_ns) == n
