@@ -20,6 +20,10 @@ Sample policy (applies to every importer; what is dropped is logged and noted in
 - The accelerometer's median sample interval must give a rate within :data:`RATE_RANGE_HZ`; otherwise the
   time column is in another unit than the format says (ms, us, ns read as s) and the file is rejected with
   the unit it looks like, never rescaled by guess.
+- Gaps: an interval longer than :data:`GAP_PERIODS` of a stream's median sample periods (a logger that paused,
+  a lost radio link, a stretch of rows the policy dropped) is kept as recorded (the engine bridges a short gap
+  and restarts its segment after a long one) but noted with where it is (seconds into the recording) and how
+  long it lasts (:func:`gap_notes`), so a result over a hole in the data is never taken for a clean run.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.batch import BatchError, SensorBatch
+from models.batch import STREAMS, BatchError, SensorBatch
 
 __all__ = [
     "ImporterError",
@@ -39,6 +43,7 @@ __all__ = [
     "MAX_CONFLICT_FRACTION",
     "MIN_SAMPLES",
     "RATE_RANGE_HZ",
+    "GAP_PERIODS",
     "seconds_to_ns",
     "check_finite",
     "clean_timestamps",
@@ -48,6 +53,7 @@ __all__ = [
     "read_csv_rows",
     "skipped_lines_message",
     "make_batch",
+    "gap_notes",
     "is_hidden",
 ]
 
@@ -58,6 +64,10 @@ MAX_DROPPED_ROW_FRACTION = 0.10  # rows without a usable time (or malformed) abo
 MAX_CONFLICT_FRACTION = 0.05  # samples in conflicting duplicated-timestamp groups above this: rejected
 MIN_SAMPLES = 10  # a required stream needs at least this many finite samples
 RATE_RANGE_HZ = (2.0, 10000.0)  # plausible accelerometer rates [Hz]; outside: the time unit is not seconds
+# a longer interval is a gap worth a note: jitter (< 2 periods in the VICON and gdin files) and the sample or two
+# the policy drops for a conflicting timestamp (noted on their own) stay below it; ten missing samples do not
+GAP_PERIODS = 10.0
+_GAPS_LISTED = 5  # gaps named in a note (the count and the longest are always given)
 _MAX_SECONDS = 9.0e9  # |t| [s] that int64 nanoseconds can hold (2^63 ns = 9.22e9 s)
 
 
@@ -374,3 +384,37 @@ def make_batch(
         return SensorBatch(**kw).validate()
     except BatchError as exc:
         raise ImporterError(path, exc.field, exc.problem) from exc
+
+
+def gap_notes(path: str | Path, batch: SensorBatch) -> list[str]:
+    """Notes on the gaps of each stream of ``batch``: intervals longer than :data:`GAP_PERIODS` times the
+    stream's median sample interval, each given by where it starts (seconds after the recording's first sample)
+    and how long it lasts. Streams with the same gaps (accelerometer and gyroscope of one row-per-sample file)
+    share one note. Logged as warnings; empty when there is no gap."""
+    t_start = batch.t_start_ns
+    groups: dict[tuple[tuple[int, int], ...], list[str]] = {}
+    period: dict[str, float] = {}
+    for name in STREAMS:
+        t = batch.stream(name)[0]
+        if t.size < MIN_SAMPLES:
+            continue
+        d = np.diff(t)
+        dt = float(np.median(d))
+        at = np.flatnonzero(d > GAP_PERIODS * dt)
+        if dt <= 0 or not at.size:
+            continue
+        groups.setdefault(tuple((int(t[i]), int(t[i + 1])) for i in at), []).append(name)
+        period[name] = dt
+    notes: list[str] = []
+    for gaps, names in groups.items():
+        dt = period[names[0]]
+        length = [(b - a) * 1e-9 for a, b in gaps]
+        shown = ", ".join(f"{g:.4g} s from t = {(a - t_start) * 1e-9:.3f} s"
+                          for g, (a, _) in zip(length[:_GAPS_LISTED], gaps))
+        more = f" and {len(gaps) - _GAPS_LISTED} more" if len(gaps) > _GAPS_LISTED else ""
+        msg = (f"{'/'.join(names)}: {len(gaps)} time gap(s) longer than {GAP_PERIODS:g} sample periods "
+               f"({GAP_PERIODS * dt * 1e-9:.3g} s), no samples there: {shown}{more}; longest {max(length):.4g} s "
+               "(t from the recording's first sample)")
+        log.warning("%s: %s", path, msg)
+        notes.append(msg)
+    return notes

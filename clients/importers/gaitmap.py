@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, read_csv_rows
+from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, gap_notes, make_batch, read_csv_rows
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
@@ -178,6 +178,7 @@ def load_gaitmap(
             mag = mag_v * float(mag_scale_ut)
             units["mag"] = f"Xsens normalised -> uT (x {mag_scale_ut:g}, user-supplied scale)"
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t if mag is not None else None, mag)
+    notes += gap_notes(p, batch)
     truth = _mocap_truth(p, foot) if sensors is not None else None
     meta = RecordingMeta(
         source_format="gaitmap-csv",

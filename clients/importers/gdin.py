@@ -38,6 +38,7 @@ from clients.importers._common import (
     check_finite,
     clean_stream,
     drop_untimed_rows,
+    gap_notes,
     is_hidden,
     make_batch,
     seconds_to_ns,
@@ -125,6 +126,7 @@ def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
     gyr_t, gyr, n2 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3, 6)], t_all, imu[:, 3:])
     notes += n1 + n2
     batch = make_batch(p, acc_t, acc, gyr_t, gyr)
+    notes += gap_notes(p, batch)
     meta = RecordingMeta(
         source_format="gdin-llio-mat",
         rate_hz=float(batch.rate_hz("acc")),

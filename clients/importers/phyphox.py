@@ -26,6 +26,7 @@ from clients.importers._common import (
     ImporterError,
     clean_stream,
     drop_untimed_rows,
+    gap_notes,
     is_hidden,
     make_batch,
     skipped_lines_message,
@@ -198,6 +199,7 @@ def load_phyphox(path: str | Path) -> Recording:
     if time_note:
         notes.append(time_note)
     batch = make_batch(p, *streams["acc"], *streams.get("gyr", (None, None)), *streams.get("mag", (None, None)))
+    notes += gap_notes(p, batch)
     return Recording(
         name=p.stem,
         batch=batch,

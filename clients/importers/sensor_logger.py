@@ -35,6 +35,7 @@ from clients.importers._common import (
     MAX_DROPPED_ROW_FRACTION,
     ImporterError,
     clean_stream,
+    gap_notes,
     make_batch,
     skipped_lines_message,
 )
@@ -258,6 +259,7 @@ def load_sensor_logger(path: str | Path) -> Recording:
     if "Magnetometer" in streams:
         mag_t, mag = clean("Magnetometer")
     batch = make_batch(src, acc_t, acc, gyr_t, gyr, mag_t, mag)
+    notes += gap_notes(src, batch)
     rate = batch.rate_hz("acc")
     return Recording(
         name=src.stem if src.is_file() else src.name,

@@ -32,6 +32,7 @@ from clients.importers._common import (
     ImporterError,
     clean_stream,
     drop_untimed_rows,
+    gap_notes,
     make_batch,
     read_csv_rows,
     seconds_to_ns,
@@ -185,6 +186,7 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
             mag = _scaled(p, _A_MAG[0], mag, (0.05, 2.0), "gauss (scaledMag)", "|m|", GAUSS_TO_UT)
             units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t, mag)
+    notes += gap_notes(p, batch)
     meta = RecordingMeta(
         source_format=f"sensorconnect-{fmt.lower()}",
         rate_hz=float(batch.rate_hz("acc")),

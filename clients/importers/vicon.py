@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import scipy.io as sio
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, seconds_to_ns
+from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, gap_notes, make_batch, seconds_to_ns
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["sniff", "load", "load_vicon"]
@@ -88,6 +88,7 @@ def load_vicon(path: str | Path) -> Recording:
     gt_t, gt, n3 = clean_stream(p, "ts", ["gt x", "gt y", "gt z"], t_all, gt)
     notes += n1 + n2 + n3
     batch = make_batch(p, acc_t, acc, gyr_t, gyr)
+    notes += gap_notes(p, batch)
     meta = RecordingMeta(
         source_format="vicon-mat",
         rate_hz=float(batch.rate_hz("acc")),

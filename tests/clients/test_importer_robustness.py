@@ -454,3 +454,43 @@ def test_phyphox_zip_from_a_mac_ignores_its_macosx_folder(tmp_path: Path) -> Non
         zf.writestr("__MACOSX/._Gyroscope.csv", APPLEDOUBLE)
     rec = load_phyphox(p)
     assert len(rec.batch) == n and len(rec.batch.gyr_t_ns) == n
+
+
+# ---------------------------------------------------------------------------------------------- time gaps
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_long_time_gap_is_noted_with_its_position_and_length(tmp_path: Path, fmt: str) -> None:
+    """A logger that paused for 2 s: the samples are kept as recorded, and the note says where and how long."""
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[300:, 0] += 2.0  # nothing between t = 1.495 s and 3.5 s
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N
+    gaps = [n for n in rec.meta.notes if "gap" in n]
+    assert len(gaps) == 1, rec.meta.notes  # accelerometer and gyroscope (and magnetometer) share one note
+    assert gaps[0].startswith("acc/gyr") and "1 time gap(s)" in gaps[0]
+    assert "2.005 s from t = 1.495 s" in gaps[0] and "10 sample periods (0.05 s)" in gaps[0]
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_jitter_and_a_few_lost_samples_are_not_gaps(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[1:-1, 0] += np.random.default_rng(3).uniform(-0.002, 0.002, N - 2)  # +-0.4 sample periods
+    rows = np.delete(rows, [100, 101, 102, 250], axis=0)  # a 4-period and a 2-period hole
+    rec = load(_write(tmp_path, fmt, rows))
+    assert not any("gap" in n for n in rec.meta.notes)
+
+
+def test_gaps_of_the_magnetometer_alone_and_many_gaps_are_summarised(tmp_path: Path) -> None:
+    from clients.importers._common import gap_notes
+    from models.batch import SensorBatch
+
+    t = np.arange(2000, dtype=np.int64) * 5_000_000
+    for k in range(7):
+        t[200 * (k + 1):] += 100_000_000  # seven 0.105-s gaps
+    mag_t = np.arange(500, dtype=np.int64) * 20_000_000
+    mag_t[250:] += 1_000_000_000  # the magnetometer alone stops for 1 s
+    b = SensorBatch(acc_t_ns=t, acc=np.zeros((t.size, 3)), gyr_t_ns=t, gyr=np.zeros((t.size, 3)),
+                    mag_t_ns=mag_t, mag=np.zeros((mag_t.size, 3)))
+    notes = gap_notes("x.csv", b)
+    assert len(notes) == 2
+    assert notes[0].startswith("acc/gyr: 7 time gap(s)") and "and 2 more" in notes[0] and "longest 0.105 s" in notes[0]
+    assert notes[1].startswith("mag: 1 time gap(s)") and "1.02 s from t = 4.980 s" in notes[1]

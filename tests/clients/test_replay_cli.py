@@ -47,3 +47,16 @@ def test_replay_reports_what_the_importer_noted(tmp_path: Path, capsys: pytest.C
     assert main(["replay", str(f)]) == 0
     assert "note: magnetometer" in capsys.readouterr().err
     assert np.isfinite(doc["gyro_on_fraction"])
+
+
+def test_replay_tells_the_user_of_a_time_gap(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: a recording with a 5-s hole replayed without a word about it."""
+    rows = [",acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z"]
+    rows += [f"{k / 100 + (5.0 if k >= 300 else 0.0):.2f},0,0,9.81,0,0,0" for k in range(600)]
+    f = tmp_path / "paused.csv"
+    f.write_text("\n".join(rows) + "\n")
+    assert main(["replay", str(f), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert any("time gap" in n and "5.01 s from t = 2.990 s" in n for n in doc["notes"])
+    assert main(["replay", str(f)]) == 0
+    assert "note: acc/gyr: 1 time gap(s)" in capsys.readouterr().err
