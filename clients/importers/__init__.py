@@ -79,10 +79,23 @@ def load(path: str | Path) -> Recording:
                                 f"{p.name[2:]} on a non-Mac drive), not a recording; load {p.name[2:]} itself")
         if p.is_dir():
             raise ImporterError(p, "file", "is a folder that no importer recognises; use list_recordings() for folders")
-        raise ImporterError(p, "file", "no importer recognises this file (supported: " + ", ".join(_MODULES) + ")")
+        raise ImporterError(p, "file", "no importer recognises this file" + _header_hint(p) + " (supported: "
+                            + ", ".join(_MODULES) + ")")
     if m.__name__ == "clients.importers.sensorconnect":
         m = importlib.import_module("clients.importers.gdin")  # attaches truth when in the gdin layout
     return m.load(p)
+
+
+def _header_hint(p: Path) -> str:
+    """``; its first line: '...'`` for a text table (what the importers judged it by), else empty."""
+    if p.suffix.lower() not in (".csv", ".txt", ".tsv"):
+        return ""
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            line = fh.readline().rstrip("\r\n")
+    except OSError:
+        return ""
+    return f"; its first line: {line[:120]!r}{' ...' if len(line) > 120 else ''}" if line.strip() else "; it is empty"
 
 
 _SUFFIXES = (".mat", ".csv", ".json", ".zip")

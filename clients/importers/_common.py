@@ -28,7 +28,9 @@ Sample policy (applies to every importer; what is dropped is logged and noted in
 
 from __future__ import annotations
 
+import csv
 import logging
+import re
 import warnings
 from pathlib import Path
 
@@ -50,6 +52,9 @@ __all__ = [
     "drop_untimed_rows",
     "clean_stream",
     "check_rate",
+    "csv_separator",
+    "csv_cell",
+    "csv_fields",
     "read_csv_rows",
     "skipped_lines_message",
     "make_batch",
@@ -314,12 +319,55 @@ def skipped_lines_message(bad_lines: list[int], n_fields: int) -> str:
     return f"skipped {len(bad_lines)} line(s) without {n_fields} fields (line {shown})"
 
 
-def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[np.ndarray, list[str], int]:
-    """The data rows of a comma-separated file with ``n_cols`` fields per line, as floats.
+def csv_separator(first_line: str) -> str:
+    """The field separator of a CSV file from its first line: tab, semicolon (the European spreadsheet
+    export, whose decimal separator is the comma) or comma."""
+    if "\t" in first_line:
+        return "\t"
+    return ";" if first_line.count(";") > first_line.count(",") else ","
 
-    Empty or unreadable cells become NaN (the sample policy then drops them per stream). Lines with another
-    number of fields (e.g. the last line of a logger stopped mid-write) are skipped and named in a note;
-    blank lines are ignored; CR/LF line ends are both accepted.
+
+def csv_cell(cell: str, sep: str) -> float:
+    """A number cell as float: surrounding blanks and quotes ignored, a decimal comma accepted unless the comma
+    separates the fields; empty or unreadable -> NaN (the sample policy drops that sample)."""
+    c = cell.strip().strip('"').strip()
+    try:
+        return float(c.replace(",", ".") if sep != "," else c)
+    except ValueError:
+        return float("nan")
+
+
+def csv_fields(line: str, sep: str | None = None) -> list[str]:
+    """The fields of one CSV line (a header), quotes removed and blanks stripped; ``sep`` default: the line's
+    own (:func:`csv_separator`)."""
+    row = next(csv.reader([line.rstrip("\r\n")], delimiter=sep or csv_separator(line)), [])
+    return [c.strip().strip('"').strip() for c in row]
+
+
+_COMMA_NUMBER = re.compile(r"[+-]?\d[\d,]*(\.\d*)?([eE][+-]?\d+)?")  # "0,005", "1,234.5": a number with a comma
+
+
+def _refuse_quoted_commas(path: Path, rows: list[list[str]], line_numbers: list[int], header: list[str]) -> None:
+    """A quoted number with a comma in a comma-separated file (``"0,005"``) is a decimal comma or a thousands
+    separator (``"1,234"``): which one cannot be told, so such a file is refused, naming the first cell."""
+    for k, row in zip(line_numbers, rows):
+        for j, c in enumerate(row):
+            if "," in c and _COMMA_NUMBER.fullmatch(c.strip()):
+                col = header[j] if j < len(header) and header[j] else f"column {j + 1}"
+                raise ImporterError(path, col, f"line {k} holds the quoted number {c!r} in a comma-separated file: a "
+                                    "decimal comma or a thousands separator, which cannot be told apart; export "
+                                    "with a decimal point, or with ';' between the fields")
+
+
+def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[np.ndarray, list[str], int]:
+    """The data rows of a CSV file with ``n_cols`` fields per line, as floats.
+
+    The separator is the first line's (:func:`csv_separator`): comma, semicolon or tab; with a semicolon or tab
+    a decimal comma is read as a decimal point (the European spreadsheet export). Quoted cells (``"0.005"``,
+    as pandas' ``QUOTE_ALL`` and many spreadsheets write them) are read as their numbers. Empty or unreadable
+    cells become NaN (the sample policy then drops them per stream). Lines with another number of fields (e.g.
+    the last line of a logger stopped mid-write) are skipped and named in a note; blank lines are ignored;
+    CR/LF line ends are both accepted.
 
     Parameters
     ----------
@@ -340,12 +388,20 @@ def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[
     p = Path(path)
     try:
         with open(p, encoding="utf-8-sig", errors="replace", newline=None) as fh:
-            lines = fh.read().splitlines()[skip_header:]
+            text = fh.read()
     except OSError as exc:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
-    numbered = [(i + skip_header + 1, ln) for i, ln in enumerate(lines) if ln.strip()]
-    good = [ln for _, ln in numbered if ln.count(",") == n_cols - 1]
-    bad = [k for k, ln in numbered if ln.count(",") != n_cols - 1]
+    lines = text.splitlines()
+    sep = csv_separator(lines[0]) if lines else ","
+    numbered = [(i + skip_header + 1, ln) for i, ln in enumerate(lines[skip_header:]) if ln.strip()]
+    plain = sep == "," and '"' not in text  # the common flavour: counted and parsed without the csv module
+    if plain:
+        n_fields = [ln.count(",") + 1 for _, ln in numbered]
+    else:  # quotes may hold a separator; the csv module splits such lines right
+        fields = list(csv.reader((ln for _, ln in numbered), delimiter=sep))
+        n_fields = [len(f) for f in fields]
+    good = [i for i, n in enumerate(n_fields) if n == n_cols]
+    bad = [numbered[i][0] for i, n in enumerate(n_fields) if n != n_cols]
     notes: list[str] = []
     if bad:
         msg = skipped_lines_message(bad, n_cols)
@@ -356,9 +412,15 @@ def read_csv_rows(path: str | Path, n_cols: int, skip_header: int = 1) -> tuple[
                             f"(first: line {bad[0]}): not the format the header announces")
     if not good:
         return np.zeros((0, n_cols)), notes, len(numbered)
+    if not plain:
+        if sep == ",":
+            _refuse_quoted_commas(p, [fields[i] for i in good], [numbered[i][0] for i in good],
+                                  csv_fields(lines[skip_header - 1], sep) if skip_header else [])
+        data = np.array([[csv_cell(c, sep) for c in fields[i]] for i in good], dtype=np.float64)
+        return data.reshape(len(good), n_cols), notes, len(numbered)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # unreadable cells become NaN, handled by the sample policy
-        data = np.genfromtxt(good, delimiter=",", dtype=np.float64, invalid_raise=True)
+        data = np.genfromtxt([numbered[i][1] for i in good], delimiter=",", dtype=np.float64, invalid_raise=True)
     return np.atleast_2d(data).reshape(len(good), n_cols), notes, len(numbered)
 
 

@@ -25,7 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, gap_notes, make_batch, read_csv_rows
+from clients.importers._common import (
+    ImporterError,
+    clean_stream,
+    csv_fields,
+    csv_separator,
+    drop_untimed_rows,
+    gap_notes,
+    make_batch,
+    read_csv_rows,
+)
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
@@ -46,12 +55,13 @@ _MAG = ("mag_x", "mag_y", "mag_z")
 
 def _headers(p: Path) -> tuple[list[str], list[str] | None]:
     try:
-        with open(p, encoding="utf-8", newline="") as fh:
-            r = csv.reader(fh)
-            h1 = next(r, [])
-            h2 = next(r, [])
+        with open(p, encoding="utf-8-sig", newline="") as fh:
+            first, second = fh.readline(), fh.readline()
     except OSError as exc:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
+    sep = csv_separator(first)
+    h1 = csv_fields(first, sep) if first.strip() else []
+    h2 = csv_fields(second, sep) if second.strip() else []
     if not h1:
         raise ImporterError(p, "header", "empty file")
     if any(c in ("left_sensor", "right_sensor") for c in h1):

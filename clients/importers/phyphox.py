@@ -25,6 +25,9 @@ from clients.importers._common import (
     MAX_DROPPED_ROW_FRACTION,
     ImporterError,
     clean_stream,
+    csv_cell,
+    csv_fields,
+    csv_separator,
     drop_untimed_rows,
     gap_notes,
     is_hidden,
@@ -36,21 +39,6 @@ from clients.recording import Recording, RecordingMeta
 __all__ = ["sniff", "load", "load_phyphox"]
 
 log = logging.getLogger(__name__)
-
-
-def _separator(first_line: str) -> str:
-    """phyphox's CSV flavours: comma (decimal point), tab (decimal point or comma), semicolon (decimal comma)."""
-    if "\t" in first_line:
-        return "\t"
-    return ";" if first_line.count(";") > first_line.count(",") else ","
-
-
-def _cell(c: str, sep: str) -> float:
-    """A cell as float (decimal comma accepted unless comma is the separator); empty/unreadable -> NaN."""
-    try:
-        return float(c.replace(",", ".") if sep != "," else c)
-    except ValueError:
-        return float("nan")
 
 
 def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
@@ -69,7 +57,7 @@ def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
     notes : list of str
     """
     first = text.splitlines()[0] if text else ""
-    sep = _separator(first)
+    sep = csv_separator(first)
     rows = list(csv.reader(io.StringIO(text), delimiter=sep))
     if not rows:
         raise ImporterError(where, "header", "empty file")
@@ -83,7 +71,7 @@ def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
         if len(bad) > MAX_DROPPED_ROW_FRACTION * len(body):
             raise ImporterError(where, "rows", f"{len(bad)} of {len(body)} lines do not have the header's {len(head)} "
                                 f"fields (first: line {bad[0]}): not a phyphox export this importer can trust")
-    data = np.array([[_cell(c, sep) for c in r] for _, r in body if len(r) == len(head)], dtype=np.float64)
+    data = np.array([[csv_cell(c, sep) for c in r] for _, r in body if len(r) == len(head)], dtype=np.float64)
     return head, data.reshape(-1, len(head)), notes
 
 
@@ -139,12 +127,12 @@ def _epoch_ns(time_csv: str | None) -> tuple[int, str | None]:
     phyphox's separators), and a note when it cannot be used (0 then: times stay from the experiment start)."""
     if not time_csv:
         return 0, "time: seconds from the experiment start (no meta/time.csv)"
-    sep = _separator(time_csv.splitlines()[0] if time_csv.strip() else "")
+    sep = csv_separator(time_csv.splitlines()[0] if time_csv.strip() else "")
     rows = list(csv.DictReader(io.StringIO(time_csv), delimiter=sep))
     for r in rows:
         r = {str(k).strip().lower(): v for k, v in r.items()}
         if str(r.get("event", "")).strip().upper() == "START":
-            system, experiment = _cell(str(r.get("system time", "")), sep), _cell(str(r.get("experiment time", "")), sep)
+            system, experiment = csv_cell(str(r.get("system time", "")), sep), csv_cell(str(r.get("experiment time", "")), sep)
             if np.isfinite(system) and np.isfinite(experiment):
                 return int(round((system - experiment) * 1e9)), None
     return 0, "time: seconds from the experiment start (meta/time.csv has no readable START row)"
@@ -171,7 +159,7 @@ def load_phyphox(path: str | Path) -> Recording:
     streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for where, text in files:
         first = text.splitlines()[0] if text.strip() else ""
-        kind = _kind([h.strip() for h in next(csv.reader([first], delimiter=_separator(first)), [])])
+        kind = _kind(csv_fields(first))
         if kind is None:
             continue  # not a sensor table of this importer (e.g. a location export): never parsed
         head, data, n_parse = _parse(text, where)

@@ -9,7 +9,8 @@ magnetometer stream and the metadata says so).
 
 Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
 node id or be absent; an export of several nodes in one file is refused, never mixed); the time
-column is ``Time`` [s]. Rows that cannot be read (a line with another number
+column is ``Time`` [s]. Besides SensorConnect's own comma-separated form, a copy saved by a spreadsheet is read:
+semicolon (or tab) separated with decimal commas, as European locales write it, and quoted cells. Rows that cannot be read (a line with another number
 of fields, e.g. the last line of a logger that was stopped mid-write) and empty cells follow the sample policy
 of :mod:`clients.importers._common`: dropped, logged and noted.
 
@@ -31,6 +32,7 @@ from clients.importers._common import (
     G0,
     ImporterError,
     clean_stream,
+    csv_fields,
     drop_untimed_rows,
     gap_notes,
     make_batch,
@@ -54,7 +56,7 @@ _B_GYR = ("estAngularRateX", "estAngularRateY", "estAngularRateZ")
 
 def read_header(path: str | Path) -> list[str]:
     """Channel names of a SensorConnect CSV with the ``inertial-<serial>:`` prefix (any node id) removed
-    (a byte-order mark and quotes around the names are ignored)."""
+    (a byte-order mark and quotes around the names are ignored; comma, semicolon or tab separated)."""
     p = Path(path)
     try:
         with open(p, encoding="utf-8-sig", errors="replace") as fh:
@@ -63,7 +65,7 @@ def read_header(path: str | Path) -> list[str]:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
     if not line.strip():
         raise ImporterError(p, "header", "empty file")
-    names = [c.strip().strip('"').strip() for c in line.strip().split(",")]
+    names = csv_fields(line)
     return [c.split(":", 1)[1] if ":" in c else c for c in names]
 
 

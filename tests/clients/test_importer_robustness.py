@@ -494,3 +494,71 @@ def test_gaps_of_the_magnetometer_alone_and_many_gaps_are_summarised(tmp_path: P
     assert len(notes) == 2
     assert notes[0].startswith("acc/gyr: 7 time gap(s)") and "and 2 more" in notes[0] and "longest 0.105 s" in notes[0]
     assert notes[1].startswith("mag: 1 time gap(s)") and "1.02 s from t = 4.980 s" in notes[1]
+
+
+# ---------------------------------------------------------------------------------------------- spreadsheet flavours
+def _flavour(path: Path, sep: str, dec: str, quote: bool) -> Path:
+    """The same table as a spreadsheet saves it: another separator, decimal comma, quoted cells."""
+    q = '"' if quote else ""
+    lines = [sep.join(f"{q}{c.replace('.', dec) if i else c}{q}" for c in ln.split(","))
+             for i, ln in enumerate(path.read_text().splitlines())]
+    out = path.with_name("flavour_" + path.name)
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
+@pytest.mark.parametrize(("sep", "dec", "quote"),
+                         [(";", ",", False), (";", ",", True), ("\t", ",", False), (",", ".", True), ("\t", ".", True)])
+def test_spreadsheet_csv_flavours_read_like_the_original(tmp_path: Path, fmt: str, sep: str, dec: str, quote: bool) -> None:
+    """European exports (';' between fields, decimal comma) and quoted numbers were "no importer recognises
+    this file" or "no row has a finite time"."""
+    ref_path = _write(tmp_path, fmt)
+    ref = load(ref_path)
+    rec = load(_flavour(ref_path, sep, dec, quote))
+    assert rec.meta.source_format == ref.meta.source_format
+    np.testing.assert_array_equal(rec.batch.acc_t_ns, ref.batch.acc_t_ns)
+    np.testing.assert_array_equal(rec.batch.acc, ref.batch.acc)
+    np.testing.assert_array_equal(rec.batch.gyr, ref.batch.gyr)
+    np.testing.assert_array_equal(rec.batch.mag, ref.batch.mag)
+
+
+def test_semicolon_csv_keeps_the_sample_policy(tmp_path: Path) -> None:
+    rows = _rows()
+    rows[50, 4:7] = np.nan
+    p = _flavour(write_a(tmp_path / "SensorConnectData_90.csv", rows, cut_last=True), ";", ",", True)
+    rec = load(p)
+    assert len(rec.batch) == N - 1 and len(rec.batch.gyr_t_ns) == N - 2
+    assert f"line {N + 1}" in _notes(rec) and "non-finite" in _notes(rec)
+
+
+def test_quoted_decimal_commas_in_a_comma_separated_file_are_refused_by_column(tmp_path: Path) -> None:
+    """"0,005" between commas is a decimal comma or a thousands separator: refused, not guessed."""
+    p = write_a(tmp_path / "SensorConnectData_90.csv", _rows())
+    lines = p.read_text().splitlines()
+    lines[1:] = [",".join(f'"{c.replace(".", ",")}"' for c in ln.split(",")) for ln in lines[1:]]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImporterError, match="decimal comma or a thousands separator") as ei:
+        load(p)
+    assert ei.value.field == PREFIX + "scaledAccelX" and "line 2" in str(ei.value)  # its time 0 has no comma
+    assert "SensorConnectData_90.csv" in str(ei.value)
+
+
+def test_vicon_file_without_truth_loads_for_replay_and_is_refused_for_evaluation(tmp_path: Path) -> None:
+    """Before: "no importer recognises this file" (load) for the IMU log without its Vicon capture."""
+    p = write_vicon(tmp_path / "2099-01-01-00-00-00.mat", _rows(mag=False))
+    d = sio.loadmat(p)
+    sio.savemat(p, {k: v for k, v in d.items() if k in ("imu", "ts")})
+    rec = load(p)
+    assert rec.meta.source_format == "vicon-mat" and len(rec.batch) == N and rec.truth is None
+    assert "no Vicon ground truth" in _notes(rec)
+    with pytest.raises(ImporterError, match="not evaluated") as ei:
+        load_vicon(p)
+    assert ei.value.field == "gt"
+
+
+def test_an_unknown_table_is_refused_with_its_first_line(tmp_path: Path) -> None:
+    p = tmp_path / "walk.csv"
+    p.write_text("zeit;beschleunigung\n0,0;9,81\n")
+    with pytest.raises(ImporterError, match="no importer recognises this file; its first line: 'zeit;beschleunigung'"):
+        load(p)
