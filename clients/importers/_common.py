@@ -20,6 +20,9 @@ Sample policy (applies to every importer; what is dropped is logged and noted in
 - The accelerometer's median sample interval must give a rate within :data:`RATE_RANGE_HZ`; otherwise the
   time column is in another unit than the format says (ms, us, ns read as s) and the file is rejected with
   the unit it looks like, never rescaled by guess.
+- Gyroscope units: a unit the header states or the format fixes is checked against how fast the sensor turns
+  while its accelerometer shows motion; a file that does not say is judged the same way, and a unit the data
+  contradicts, or cannot tell, is refused (:func:`gyro_unit`), never divided by 57.3 on a guess.
 - Gaps: an interval longer than :data:`GAP_PERIODS` of a stream's median sample periods (a logger that paused,
   a lost radio link, a stretch of rows the policy dropped) is kept as recorded (the engine bridges a short gap
   and restarts its segment after a long one) but noted with where it is (seconds into the recording) and how
@@ -46,6 +49,8 @@ __all__ = [
     "MIN_SAMPLES",
     "RATE_RANGE_HZ",
     "GAP_PERIODS",
+    "GYR_RAD_S_MAX",
+    "GYR_DEG_S_MIN",
     "seconds_to_ns",
     "check_finite",
     "clean_timestamps",
@@ -59,6 +64,7 @@ __all__ = [
     "skipped_lines_message",
     "make_batch",
     "gap_notes",
+    "gyro_unit",
     "is_hidden",
 ]
 
@@ -72,6 +78,17 @@ RATE_RANGE_HZ = (2.0, 10000.0)  # plausible accelerometer rates [Hz]; outside: t
 # a longer interval is a gap worth a note: jitter (< 2 periods in the VICON and gdin files) and the sample or two
 # the policy drops for a conflicting timestamp (noted on their own) stay below it; ten missing samples do not
 GAP_PERIODS = 10.0
+# Gyroscope unit from the data: the 99th percentile of |w| at gyroscope samples within _MOTION_NEAR_S of an
+# accelerometer sample in motion (| |a| - 1 g | > _MOTION_MS2), in the file's numbers. Measured on the foot
+# recordings (42 VICON trials, 30 gdin walks, 7 gaitmap feet, slow shuffling to running): 1.5-12.2 rad/s, i.e.
+# 89-700 deg/s; sprinting feet stay below about 30 rad/s. So <= GYR_RAD_S_MAX reads as rad/s (as deg/s it would
+# be a foot turning at < 0.5 rad/s while it walks), >= GYR_DEG_S_MIN as deg/s (as rad/s: > 2500 deg/s);
+# in between the data cannot tell. Judged only with motion in at least _MIN_MOTION_FRACTION of the samples.
+GYR_RAD_S_MAX = 30.0
+GYR_DEG_S_MIN = 45.0
+_MOTION_MS2 = 2.0
+_MOTION_NEAR_S = 0.2
+_MIN_MOTION_FRACTION = 0.05
 _GAPS_LISTED = 5  # gaps named in a note (the count and the longest are always given)
 _MAX_SECONDS = 9.0e9  # |t| [s] that int64 nanoseconds can hold (2^63 ns = 9.22e9 s)
 
@@ -480,3 +497,76 @@ def gap_notes(path: str | Path, batch: SensorBatch) -> list[str]:
         log.warning("%s: %s", path, msg)
         notes.append(msg)
     return notes
+
+
+def _turn_rate_in_motion(acc_t_ns: np.ndarray, acc: np.ndarray, gyr_t_ns: np.ndarray, gyr: np.ndarray) -> float | None:
+    """99th percentile of |w| [the file's unit] near the accelerometer's moments of motion; ``None`` when the
+    accelerometer (m/s^2) shows too little motion to judge (a still or nearly still recording)."""
+    a = np.linalg.norm(np.asarray(acc, dtype=np.float64), axis=1)
+    moving = np.abs(a - G0) > _MOTION_MS2
+    if int(moving.sum()) < max(MIN_SAMPLES, _MIN_MOTION_FRACTION * a.size) or len(gyr_t_ns) < MIN_SAMPLES:
+        return None
+    tm = np.asarray(acc_t_ns, dtype=np.int64)[moving]
+    tg = np.asarray(gyr_t_ns, dtype=np.int64)
+    j = np.clip(np.searchsorted(tm, tg), 1, tm.size - 1)
+    dist = np.minimum(np.abs(tg - tm[j - 1]), np.abs(tm[j] - tg))
+    w = np.linalg.norm(np.asarray(gyr, dtype=np.float64)[dist <= _MOTION_NEAR_S * 1e9], axis=1)
+    return float(np.percentile(w, 99)) if w.size >= MIN_SAMPLES else None
+
+
+def gyro_unit(
+    path: str | Path, column: str, acc_t_ns: np.ndarray, acc: np.ndarray, gyr_t_ns: np.ndarray, gyr: np.ndarray,
+    unit: str, stated_by: str | None,
+) -> tuple[str, str, bool]:
+    """The unit of a gyroscope stream, ``"rad/s"`` or ``"deg/s"``, judged by how fast it turns while the
+    accelerometer shows motion (thresholds :data:`GYR_RAD_S_MAX`, :data:`GYR_DEG_S_MIN`). Importers of a
+    rad/s format call it for its check alone; one whose unit is a convention (gaitmap) also for the answer.
+
+    Parameters
+    ----------
+    path, column : str
+        Used in errors (``column``: the gyroscope's first column).
+    acc_t_ns, acc : ndarray
+        The accelerometer, already in m/s^2.
+    gyr_t_ns, gyr : ndarray
+        The gyroscope in the file's numbers.
+    unit : {"rad/s", "deg/s"}
+        The unit stated by ``stated_by``, or else the format's convention.
+    stated_by : str or None
+        Who states ``unit`` (``"the header"``, ``"the format"``): data that contradict it are refused. None:
+        nothing states it; the data decide, and the convention stands only for a recording with too little
+        motion to tell (which the returned text says).
+
+    Returns
+    -------
+    unit : str
+        The unit the values are in.
+    how : str
+        What decided it, for ``units_converted``/notes.
+    checked : bool
+        False when the recording had too little motion to check the unit (``unit`` is then as given).
+
+    Raises
+    ------
+    ImporterError
+        A stated unit the data contradict; an unstated one whose magnitudes fit neither unit.
+    """
+    level = _turn_rate_in_motion(acc_t_ns, acc, gyr_t_ns, gyr)
+    source = f"stated by {stated_by}" if stated_by else "not stated: the format's convention"
+    if level is None:
+        return unit, f"{unit} ({source}; not checked: too little motion in the recording to tell rad/s from deg/s)", False
+    seen = "rad/s" if level <= GYR_RAD_S_MAX else "deg/s" if level >= GYR_DEG_S_MIN else None
+    what = f"99th percentile of |w| while the sensor moves = {level:.3g}"
+    ranges = (f"a moving foot turns at about 1.5-30 rad/s = 90-1700 deg/s: <= {GYR_RAD_S_MAX:g} reads as rad/s, "
+              f">= {GYR_DEG_S_MIN:g} as deg/s")
+    if seen == unit:
+        return unit, f"{unit} ({source}; the motion agrees: {what})", True
+    if stated_by and seen is not None:
+        raise ImporterError(path, column, f"{stated_by} says {unit} but the values are {seen}: {what} ({ranges}); "
+                            "refusing to guess which is wrong")
+    if stated_by:
+        return unit, f"{unit} ({source}; the motion neither confirms nor contradicts it: {what})", True
+    if seen is None:
+        raise ImporterError(path, column, f"no unit stated and the values fit neither rad/s nor deg/s: {what} "
+                            f"({ranges}); state the unit in the header, e.g. '{column} [deg/s]'")
+    return seen, f"{seen} (not stated, and not the format's {unit}: {what}; {ranges})", True

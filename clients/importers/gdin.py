@@ -39,6 +39,7 @@ from clients.importers._common import (
     clean_stream,
     drop_untimed_rows,
     gap_notes,
+    gyro_unit,
     is_hidden,
     make_batch,
     seconds_to_ns,
@@ -125,6 +126,7 @@ def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
     acc_t, acc, n1 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3)], t_all, imu[:, :3])
     gyr_t, gyr, n2 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3, 6)], t_all, imu[:, 3:])
     notes += n1 + n2
+    gyro_unit(p, "imu_data[:,3]", acc_t, acc, gyr_t, gyr, "rad/s", "the format (imu_data: acc m/s^2, gyro rad/s)")
     batch = make_batch(p, acc_t, acc, gyr_t, gyr)
     notes += gap_notes(p, batch)
     meta = RecordingMeta(

@@ -30,6 +30,7 @@ from clients.importers._common import (
     csv_separator,
     drop_untimed_rows,
     gap_notes,
+    gyro_unit,
     is_hidden,
     make_batch,
     skipped_lines_message,
@@ -186,6 +187,8 @@ def load_phyphox(path: str | Path) -> Recording:
         raise ImporterError(p, "Acceleration x (m/s^2)", "no accelerometer with g found (use the 'Acceleration with g' sensor)")
     if time_note:
         notes.append(time_note)
+    if "gyr" in streams:
+        gyro_unit(p, "Gyroscope x (rad/s)", *streams["acc"], *streams["gyr"], "rad/s", "the format (phyphox: rad/s)")
     batch = make_batch(p, *streams["acc"], *streams.get("gyr", (None, None)), *streams.get("mag", (None, None)))
     notes += gap_notes(p, batch)
     return Recording(

@@ -35,6 +35,7 @@ from clients.importers._common import (
     csv_fields,
     drop_untimed_rows,
     gap_notes,
+    gyro_unit,
     make_batch,
     read_csv_rows,
     seconds_to_ns,
@@ -187,6 +188,7 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
         if mag is not None:
             mag = _scaled(p, _A_MAG[0], mag, (0.05, 2.0), "gauss (scaledMag)", "|m|", GAUSS_TO_UT)
             units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
+    gyro_unit(p, cols[ig[0]], acc_t, acc, gyr_t, gyr, "rad/s", f"the header ({gyr_names[0]}: rad/s)")
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t, mag)
     notes += gap_notes(p, batch)
     meta = RecordingMeta(

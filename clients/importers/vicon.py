@@ -17,7 +17,15 @@ from pathlib import Path
 import numpy as np
 import scipy.io as sio
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, gap_notes, make_batch, seconds_to_ns
+from clients.importers._common import (
+    ImporterError,
+    clean_stream,
+    drop_untimed_rows,
+    gap_notes,
+    gyro_unit,
+    make_batch,
+    seconds_to_ns,
+)
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["sniff", "load", "load_vicon"]
@@ -105,6 +113,7 @@ def load_vicon(path: str | Path, require_truth: bool = True) -> Recording:
                       extra={"frame": "vicon capture frame: x, y horizontal, z up (right-handed)"})
     else:
         notes.append("gt: variable missing: no Vicon ground truth, recording loaded without truth")
+    gyro_unit(p, _IMU_COLUMNS[3], acc_t, acc, gyr_t, gyr, "rad/s", "the format (imu: acc m/s^2, gyro rad/s)")
     batch = make_batch(p, acc_t, acc, gyr_t, gyr)
     notes += gap_notes(p, batch)
     meta = RecordingMeta(

@@ -562,3 +562,115 @@ def test_an_unknown_table_is_refused_with_its_first_line(tmp_path: Path) -> None
     p.write_text("zeit;beschleunigung\n0,0;9,81\n")
     with pytest.raises(ImporterError, match="no importer recognises this file; its first line: 'zeit;beschleunigung'"):
         load(p)
+
+
+# ---------------------------------------------------------------------------------------------- gyroscope units
+@pytest.fixture(scope="module")
+def walk():  # type: ignore[no-untyped-def]
+    """20 s of a synthetic foot sensor walking at 200 Hz (acc [m/s^2], gyr [rad/s]; |w| peaks at 6.5 rad/s)."""
+    from clients.synth import synthesize
+
+    b = synthesize("walk", seed=1, rate_hz=200.0).batch
+    return b.time_slice(b.t_start_ns, b.t_start_ns + 20 * 10**9)
+
+
+def _gaitmap_walk(path: Path, b, gyr_scale: float, gyr_unit: str = "", acc_scale: float = 1.0,  # type: ignore[no-untyped-def]
+                  acc_unit: str = "") -> Path:
+    def names(kind: str, unit: str) -> list[str]:
+        return [f"{kind}_{a}" + (f" [{unit}]" if unit else "") for a in "xyz"]
+
+    rows = np.column_stack([(b.acc_t_ns - b.acc_t_ns[0]) / 1e9, b.acc * acc_scale, b.gyr * gyr_scale])
+    return _csv(path, [""] + names("acc", acc_unit) + names("gyr", gyr_unit), rows)
+
+
+def test_gaitmap_gyroscope_in_rad_s_is_not_divided_by_57(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+    """A gaitmap-style CSV written in rad/s: it was read as deg/s and the foot turned 57 times too slowly."""
+    rec = load(_gaitmap_walk(tmp_path / "walk_rad.csv", walk, 1.0))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    assert rec.meta.units_converted["gyr"].startswith("rad/s, used as is")
+    assert "not the format's deg/s" in _notes(rec) and "= 6.49" in _notes(rec)
+
+
+def test_gaitmap_gyroscope_in_deg_s_is_converted_without_a_note(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+    rec = load(_gaitmap_walk(tmp_path / "walk_deg.csv", walk, 180.0 / np.pi))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    assert rec.meta.units_converted["gyr"].startswith("deg/s -> rad/s") and "motion agrees" in rec.meta.units_converted["gyr"]
+    assert "gyroscope" not in _notes(rec)
+
+
+@pytest.mark.parametrize(("gyr_unit", "gyr_scale"), [("rad/s", 1.0), ("deg/s", 180.0 / np.pi), ("°/s", 180.0 / np.pi),
+                                                     ("DPS", 180.0 / np.pi)])
+@pytest.mark.parametrize(("acc_unit", "acc_scale"), [("", 1.0), ("m/s^2", 1.0), ("g", 1.0 / G0)])
+def test_gaitmap_units_stated_in_the_header(tmp_path: Path, walk, gyr_unit: str, gyr_scale: float,  # type: ignore[no-untyped-def]
+                                            acc_unit: str, acc_scale: float) -> None:
+    rec = load(_gaitmap_walk(tmp_path / "walk.csv", walk, gyr_scale, gyr_unit, acc_scale, acc_unit))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(rec.batch.acc, walk.acc, rtol=1e-6, atol=1e-9)
+    assert "stated by the header" in rec.meta.units_converted["gyr"]
+    assert ("acc" in rec.meta.units_converted) == (acc_unit == "g")
+
+
+def test_gaitmap_header_unit_the_data_contradict_is_refused(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(ImporterError, match="the header says deg/s but the values are rad/s") as ei:
+        load(_gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "deg/s"))
+    assert ei.value.field == "gyr_x" and "walk.csv" in str(ei.value)
+
+
+@pytest.mark.parametrize(("units", "words"), [(("rad/s", "rad/s", "deg/s"), "different units"),
+                                              (("rad/s", "rad/s", ""), "different units"),
+                                              (("rpm", "rpm", "rpm"), "'rpm' not understood")])
+def test_gaitmap_header_units_that_cannot_be_read_are_refused(tmp_path: Path, walk, units: tuple[str, ...],  # type: ignore[no-untyped-def]
+                                                              words: str) -> None:
+    p = _gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "rad/s")
+    lines = p.read_text().splitlines()
+    lines[0] = ",".join(["", "acc_x", "acc_y", "acc_z"] + [f"gyr_{a}" + (f" [{u}]" if u else "")
+                                                           for a, u in zip("xyz", units)])
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImporterError, match=words) as ei:
+        load_gaitmap(p)
+    assert ei.value.field.startswith("gyr_x")
+
+
+def test_gaitmap_gyroscope_that_fits_neither_unit_is_refused(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+    """p99 |w| of 36 while walking: 36 rad/s is a sprint, 36 deg/s a foot that hardly turns. Not guessed."""
+    with pytest.raises(ImporterError, match="fit neither rad/s nor deg/s") as ei:
+        load(_gaitmap_walk(tmp_path / "walk.csv", walk, 5.5))
+    assert ei.value.field == "gyr_x" and "gyr_x [deg/s]" in str(ei.value)
+
+
+def test_gaitmap_still_recording_keeps_deg_s_and_says_it_was_not_checked(tmp_path: Path) -> None:
+    rec = load(_write(tmp_path, "gaitmap"))
+    np.testing.assert_allclose(rec.batch.gyr, _rows(mag=False)[:, 4:7], rtol=1e-6, atol=1e-9)
+    assert "not checked: too little motion" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
+def test_rad_s_formats_refuse_a_walk_logged_in_deg_s_naming_the_column(tmp_path: Path, walk, fmt: str) -> None:  # type: ignore[no-untyped-def]
+    t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
+    cols = [t[:, None], walk.acc / G0, np.rad2deg(walk.gyr)]
+    if FORMATS[fmt][2]:
+        cols.append(np.tile([0.2, 0.0, -0.4], (t.size, 1)))
+    with pytest.raises(ImporterError, match="says rad/s but the values are deg/s") as ei:
+        load(_write(tmp_path, fmt, np.hstack(cols)))
+    assert ei.value.field in ("scaledGyroX", "estAngularRateX", "imu_data[:,3]", "imu[:,3] gyr_x")
+
+
+@pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
+def test_rad_s_formats_accept_the_walk_in_rad_s(tmp_path: Path, walk, fmt: str) -> None:  # type: ignore[no-untyped-def]
+    t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
+    cols = [t[:, None], walk.acc / G0, walk.gyr]
+    if FORMATS[fmt][2]:
+        cols.append(np.tile([0.2, 0.0, -0.4], (t.size, 1)))
+    rec = load(_write(tmp_path, fmt, np.hstack(cols)))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-8)
+
+
+def test_gaitmap_magnetometer_stated_in_ut_is_imported_without_a_scale(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+    p = _gaitmap_walk(tmp_path / "walk.csv", walk, 180.0 / np.pi)
+    lines = p.read_text().splitlines()
+    lines[0] += ",mag_x [uT],mag_y [uT],mag_z [uT]"
+    lines[1:] = [ln + ",20.5,0,-40" for ln in lines[1:]]
+    p.write_text("\n".join(lines) + "\n")
+    rec = load(p)
+    np.testing.assert_allclose(rec.batch.mag[0], [20.5, 0.0, -40.0])
+    assert rec.meta.units_converted["mag"].startswith("uT (stated)")
