@@ -83,7 +83,8 @@ def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
     for name in STREAMS:
         if len(rec.batch.stream(name)[0]) > 1:
             old, new = rec.batch.rate_hz(name), batch.rate_hz(name)
-            rates.append(f"{name} {old:.4g} -> {new:.4g} Hz" if abs(new - old) > 1e-6 * old else f"{name} {old:.4g} Hz kept")
+            kept = abs(new - old) <= 1e-6 * old
+            rates.append(f"{name} {old:.4g} Hz kept" if kept else f"{name} {old:.4g} -> {new:.4g} Hz")
     note = f"--rate-hz {rate_hz:g}: de-sampled (anti-aliasing FIR, whole decimation factors): {', '.join(rates)}"
     meta = replace(rec.meta, rate_hz=float(batch.rate_hz("acc")), notes=(*rec.meta.notes, note))
     return replace(rec, batch=batch, meta=meta)

@@ -116,7 +116,8 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
         out.append((str(path), path.read_text(encoding="utf-8-sig")))
         meta = path.parent / "meta" / "time.csv"
     else:
-        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv")) if not is_hidden(f.name)]
+        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv"))
+                if not is_hidden(f.name)]
         meta = folder / "meta" / "time.csv"
     if meta.exists():
         time_csv = meta.read_text(encoding="utf-8-sig")

@@ -10,9 +10,10 @@ magnetometer stream and the metadata says so).
 Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
 node id or be absent; an export of several nodes in one file is refused, never mixed); the time
 column is ``Time`` [s]. Besides SensorConnect's own comma-separated form, a copy saved by a spreadsheet is read:
-semicolon (or tab) separated with decimal commas, as European locales write it, and quoted cells. Rows that cannot be read (a line with another number
-of fields, e.g. the last line of a logger that was stopped mid-write) and empty cells follow the sample policy
-of :mod:`clients.importers._common`: dropped, logged and noted.
+semicolon (or tab) separated with decimal commas, as European locales write it, and quoted cells. Rows that
+cannot be read (a line with another number of fields, e.g. the last line of a logger that was stopped
+mid-write) and empty cells follow the sample policy of :mod:`clients.importers._common`: dropped, logged and
+noted.
 
 Format B (``estCompensatedAccel*``/``estAngularRate*`` with ``:valid`` flag columns, 250 Hz, no
 magnetometer): the sensor's bias-compensated filter outputs, already m/s^2 and rad/s. Rows whose acc/gyro

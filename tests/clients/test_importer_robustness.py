@@ -23,6 +23,7 @@ from clients.importers.gaitmap import load_gaitmap
 from clients.importers.gdin import load_llio_mat
 from clients.importers.sensorconnect import load_sensorconnect
 from clients.importers.vicon import load_vicon
+from models.batch import SensorBatch
 
 PREFIX = "inertial-6253.76535:"
 N = 400
@@ -101,7 +102,7 @@ def _write(tmp_path: Path, fmt: str, rows: np.ndarray | None = None, **kw: bool)
     return writer(tmp_path / name, rows, **kw)
 
 
-def _notes(rec) -> str:  # type: ignore[no-untyped-def]
+def _notes(rec) -> str:
     return " | ".join(rec.meta.notes)
 
 
@@ -510,7 +511,8 @@ def _flavour(path: Path, sep: str, dec: str, quote: bool) -> Path:
 @pytest.mark.parametrize("fmt", CSV_FORMATS)
 @pytest.mark.parametrize(("sep", "dec", "quote"),
                          [(";", ",", False), (";", ",", True), ("\t", ",", False), (",", ".", True), ("\t", ".", True)])
-def test_spreadsheet_csv_flavours_read_like_the_original(tmp_path: Path, fmt: str, sep: str, dec: str, quote: bool) -> None:
+def test_spreadsheet_csv_flavours_read_like_the_original(tmp_path: Path, fmt: str, sep: str, dec: str,
+                                                        quote: bool) -> None:
     """European exports (';' between fields, decimal comma) and quoted numbers were "no importer recognises
     this file" or "no row has a finite time"."""
     ref_path = _write(tmp_path, fmt)
@@ -566,7 +568,7 @@ def test_an_unknown_table_is_refused_with_its_first_line(tmp_path: Path) -> None
 
 # ---------------------------------------------------------------------------------------------- gyroscope units
 @pytest.fixture(scope="module")
-def walk():  # type: ignore[no-untyped-def]
+def walk() -> SensorBatch:
     """20 s of a synthetic foot sensor walking at 200 Hz (acc [m/s^2], gyr [rad/s]; |w| peaks at 6.5 rad/s)."""
     from clients.synth import synthesize
 
@@ -574,7 +576,7 @@ def walk():  # type: ignore[no-untyped-def]
     return b.time_slice(b.t_start_ns, b.t_start_ns + 20 * 10**9)
 
 
-def _gaitmap_walk(path: Path, b, gyr_scale: float, gyr_unit: str = "", acc_scale: float = 1.0,  # type: ignore[no-untyped-def]
+def _gaitmap_walk(path: Path, b: SensorBatch, gyr_scale: float, gyr_unit: str = "", acc_scale: float = 1.0,
                   acc_unit: str = "") -> Path:
     def names(kind: str, unit: str) -> list[str]:
         return [f"{kind}_{a}" + (f" [{unit}]" if unit else "") for a in "xyz"]
@@ -583,7 +585,7 @@ def _gaitmap_walk(path: Path, b, gyr_scale: float, gyr_unit: str = "", acc_scale
     return _csv(path, [""] + names("acc", acc_unit) + names("gyr", gyr_unit), rows)
 
 
-def test_gaitmap_gyroscope_in_rad_s_is_not_divided_by_57(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+def test_gaitmap_gyroscope_in_rad_s_is_not_divided_by_57(tmp_path: Path, walk: SensorBatch) -> None:
     """A gaitmap-style CSV written in rad/s: it was read as deg/s and the foot turned 57 times too slowly."""
     rec = load(_gaitmap_walk(tmp_path / "walk_rad.csv", walk, 1.0))
     np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
@@ -591,17 +593,18 @@ def test_gaitmap_gyroscope_in_rad_s_is_not_divided_by_57(tmp_path: Path, walk) -
     assert "not the format's deg/s" in _notes(rec) and "= 6.49" in _notes(rec)
 
 
-def test_gaitmap_gyroscope_in_deg_s_is_converted_without_a_note(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+def test_gaitmap_gyroscope_in_deg_s_is_converted_without_a_note(tmp_path: Path, walk: SensorBatch) -> None:
     rec = load(_gaitmap_walk(tmp_path / "walk_deg.csv", walk, 180.0 / np.pi))
     np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
-    assert rec.meta.units_converted["gyr"].startswith("deg/s -> rad/s") and "motion agrees" in rec.meta.units_converted["gyr"]
+    how = rec.meta.units_converted["gyr"]
+    assert how.startswith("deg/s -> rad/s") and "motion agrees" in how
     assert "gyroscope" not in _notes(rec)
 
 
 @pytest.mark.parametrize(("gyr_unit", "gyr_scale"), [("rad/s", 1.0), ("deg/s", 180.0 / np.pi), ("°/s", 180.0 / np.pi),
                                                      ("DPS", 180.0 / np.pi)])
 @pytest.mark.parametrize(("acc_unit", "acc_scale"), [("", 1.0), ("m/s^2", 1.0), ("g", 1.0 / G0)])
-def test_gaitmap_units_stated_in_the_header(tmp_path: Path, walk, gyr_unit: str, gyr_scale: float,  # type: ignore[no-untyped-def]
+def test_gaitmap_units_stated_in_the_header(tmp_path: Path, walk: SensorBatch, gyr_unit: str, gyr_scale: float,
                                             acc_unit: str, acc_scale: float) -> None:
     rec = load(_gaitmap_walk(tmp_path / "walk.csv", walk, gyr_scale, gyr_unit, acc_scale, acc_unit))
     np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
@@ -610,7 +613,7 @@ def test_gaitmap_units_stated_in_the_header(tmp_path: Path, walk, gyr_unit: str,
     assert ("acc" in rec.meta.units_converted) == (acc_unit == "g")
 
 
-def test_gaitmap_header_unit_the_data_contradict_is_refused(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+def test_gaitmap_header_unit_the_data_contradict_is_refused(tmp_path: Path, walk: SensorBatch) -> None:
     with pytest.raises(ImporterError, match="the header says deg/s but the values are rad/s") as ei:
         load(_gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "deg/s"))
     assert ei.value.field == "gyr_x" and "walk.csv" in str(ei.value)
@@ -619,7 +622,8 @@ def test_gaitmap_header_unit_the_data_contradict_is_refused(tmp_path: Path, walk
 @pytest.mark.parametrize(("units", "words"), [(("rad/s", "rad/s", "deg/s"), "different units"),
                                               (("rad/s", "rad/s", ""), "different units"),
                                               (("rpm", "rpm", "rpm"), "'rpm' not understood")])
-def test_gaitmap_header_units_that_cannot_be_read_are_refused(tmp_path: Path, walk, units: tuple[str, ...],  # type: ignore[no-untyped-def]
+def test_gaitmap_header_units_that_cannot_be_read_are_refused(tmp_path: Path, walk: SensorBatch,
+                                                              units: tuple[str, ...],
                                                               words: str) -> None:
     p = _gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "rad/s")
     lines = p.read_text().splitlines()
@@ -631,7 +635,7 @@ def test_gaitmap_header_units_that_cannot_be_read_are_refused(tmp_path: Path, wa
     assert ei.value.field.startswith("gyr_x")
 
 
-def test_gaitmap_gyroscope_that_fits_neither_unit_is_refused(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+def test_gaitmap_gyroscope_that_fits_neither_unit_is_refused(tmp_path: Path, walk: SensorBatch) -> None:
     """p99 |w| of 36 while walking: 36 rad/s is a sprint, 36 deg/s a foot that hardly turns. Not guessed."""
     with pytest.raises(ImporterError, match="fit neither rad/s nor deg/s") as ei:
         load(_gaitmap_walk(tmp_path / "walk.csv", walk, 5.5))
@@ -645,7 +649,8 @@ def test_gaitmap_still_recording_keeps_deg_s_and_says_it_was_not_checked(tmp_pat
 
 
 @pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
-def test_rad_s_formats_refuse_a_walk_logged_in_deg_s_naming_the_column(tmp_path: Path, walk, fmt: str) -> None:  # type: ignore[no-untyped-def]
+def test_rad_s_formats_refuse_a_walk_logged_in_deg_s_naming_the_column(tmp_path: Path, walk: SensorBatch,
+                                                                         fmt: str) -> None:
     t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
     cols = [t[:, None], walk.acc / G0, np.rad2deg(walk.gyr)]
     if FORMATS[fmt][2]:
@@ -656,7 +661,7 @@ def test_rad_s_formats_refuse_a_walk_logged_in_deg_s_naming_the_column(tmp_path:
 
 
 @pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
-def test_rad_s_formats_accept_the_walk_in_rad_s(tmp_path: Path, walk, fmt: str) -> None:  # type: ignore[no-untyped-def]
+def test_rad_s_formats_accept_the_walk_in_rad_s(tmp_path: Path, walk: SensorBatch, fmt: str) -> None:
     t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
     cols = [t[:, None], walk.acc / G0, walk.gyr]
     if FORMATS[fmt][2]:
@@ -665,7 +670,7 @@ def test_rad_s_formats_accept_the_walk_in_rad_s(tmp_path: Path, walk, fmt: str) 
     np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-8)
 
 
-def test_gaitmap_magnetometer_stated_in_ut_is_imported_without_a_scale(tmp_path: Path, walk) -> None:  # type: ignore[no-untyped-def]
+def test_gaitmap_magnetometer_stated_in_ut_is_imported_without_a_scale(tmp_path: Path, walk: SensorBatch) -> None:
     p = _gaitmap_walk(tmp_path / "walk.csv", walk, 180.0 / np.pi)
     lines = p.read_text().splitlines()
     lines[0] += ",mag_x [uT],mag_y [uT],mag_z [uT]"
