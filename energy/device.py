@@ -28,7 +28,7 @@ from models.fir import Decimator
 if TYPE_CHECKING:
     from energy.engine import Engine, Trace
 
-__all__ = ["GYRO_TURN_ON_S", "Desampler", "DeviceEmulator", "ReplayResult", "Span", "replay"]
+__all__ = ["GYRO_TURN_ON_S", "Desampler", "DeviceEmulator", "ReplayResult", "Span", "desample", "replay"]
 
 # Gyroscope turn-on time [s]: from power-down to the first valid sample. The LSM9DS1 datasheet (DocID025715
 # Rev 3) copies searched do not state it; the ST LSM6DS3 datasheet (same ST MEMS gyroscope family, its
@@ -89,6 +89,27 @@ class Desampler:
         if len(out_t):
             self._last_out_t = int(out_t[-1])
         return out_t, out_v
+
+
+def desample(recording: SensorBatch, rate_hz: float) -> SensorBatch:
+    """The recording as a sensor set to ``rate_hz`` would have delivered it: each stream faster than that is
+    low-passed and decimated by :class:`models.fir.Decimator` (Hamming-window anti-aliasing FIR, group delay
+    compensated, the whole stream including the filter's tail) by the whole factor nearest to its rate /
+    ``rate_hz``, as :class:`Desampler` does live; a stream at or below ``rate_hz`` is kept as it is (nothing
+    is up-sampled). The actual rates are ``recording.rate_hz(name) / factor``.
+    """
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    kw: dict[str, np.ndarray] = {}
+    for name in STREAMS:
+        t, v = recording.stream(name)
+        if t.size > 1:
+            dec = Decimator(recording.rate_hz(name), rate_hz)
+            if dec.factor > 1:
+                (t1, v1), (t2, v2) = dec.process(t, v), dec.flush()
+                t, v = np.concatenate([t1, t2]), np.concatenate([v1, v2])
+        kw[f"{name}_t_ns"], kw[name] = t, v
+    return SensorBatch(**kw)
 
 
 class DeviceEmulator:

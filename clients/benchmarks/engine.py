@@ -45,12 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _default_file() -> Path | None:
     """The longest 9-axis (format A) gdin walk, or None without the data."""
     from clients.datasets import dataset_dir
+    from clients.importers._common import is_hidden
     from clients.importers.sensorconnect import read_header
 
     d = dataset_dir("gdin")
     if d is None:
         return None
-    files = [f for f in sorted((d / "own").glob("*.csv")) if "scaledMagX" in read_header(f)]
+    files = [f for f in sorted((d / "own").glob("*.csv")) if not is_hidden(f.name) and "scaledMagX" in read_header(f)]
     return max(files, key=lambda f: f.stat().st_size) if files else None
 
 

@@ -25,10 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _load() -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
     """(name, t [s], acc [m/s^2], gyr [rad/s]) of the benchmark recording."""
     from clients.datasets import dataset_dir
+    from clients.evaluation.harness import vicon_files
 
     d = dataset_dir("vicon")
     if d is not None:
-        files = sorted(d.glob("*.mat"))
+        files = vicon_files(d)  # the trials eval vicon sees (no ._*.mat resource forks)
         if files:
             return _load_file(files[len(files) // 4])
     # synthetic fallback: 60 s of alternating rest and swing-like motion at 200 Hz

@@ -1,4 +1,5 @@
-"""``pednav replay FILE``: stream a recording through the HTTP API or a local engine (same positions)."""
+"""``pednav replay FILE``: stream a recording through the HTTP API or a local engine (same positions), at its
+recorded rates or, with ``--rate-hz``, de-sampled as a sensor set to a lower rate would have delivered it."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["register", "load_recording", "replay_local", "replay_server"]
+__all__ = ["register", "load_recording", "desampled", "replay_local", "replay_server"]
 
 
 def load_recording(spec: str, mag_scale_ut: float | None = None):  # type: ignore[no-untyped-def]
@@ -68,14 +69,39 @@ def replay_server(rec, server: str, token: str, batch_seconds: float, device: st
     return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, "session_id": res.session_id}
 
 
+def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
+    """``rec`` as a sensor set to ``rate_hz`` would have recorded it (:func:`energy.device.desample`:
+    anti-aliased, each stream by the whole factor nearest to its rate / ``rate_hz``, none up-sampled), with a
+    note of the rates it now has."""
+    from dataclasses import replace
+
+    from energy.device import desample
+    from models.batch import STREAMS
+
+    batch = desample(rec.batch, rate_hz)
+    rates = []
+    for name in STREAMS:
+        if len(rec.batch.stream(name)[0]) > 1:
+            old, new = rec.batch.rate_hz(name), batch.rate_hz(name)
+            kept = abs(new - old) <= 1e-6 * old
+            rates.append(f"{name} {old:.4g} Hz kept" if kept else f"{name} {old:.4g} -> {new:.4g} Hz")
+    note = f"--rate-hz {rate_hz:g}: de-sampled (anti-aliasing FIR, whole decimation factors): {', '.join(rates)}"
+    meta = replace(rec.meta, rate_hz=float(batch.rate_hz("acc")), notes=(*rec.meta.notes, note))
+    return replace(rec, batch=batch, meta=meta)
+
+
 def _run(args: argparse.Namespace) -> int:
     try:
         if args.mag_scale_ut is not None and not args.mag_scale_ut > 0:
             raise ValueError(f"--mag-scale-ut must be a positive field in uT, got {args.mag_scale_ut}")
+        if args.rate_hz is not None and not args.rate_hz > 0:
+            raise ValueError(f"--rate-hz must be a positive rate in Hz, got {args.rate_hz}")
         rec = load_recording(args.file, args.mag_scale_ut)
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    if args.rate_hz is not None:
+        rec = desampled(rec, args.rate_hz)
     if len(rec.batch.gyr_t_ns) == 0:
         # every engine mode starts on the ZUPT-KF, which integrates the gyroscope: without one the replay
         # would end with no position at all and look like a success
@@ -117,5 +143,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mag-scale-ut", type=float, default=None, metavar="UT",
                    help="field [uT] that a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV: the field "
                         "at their calibration site); without it such a magnetometer is left out")
+    p.add_argument("--rate-hz", type=float, default=None, metavar="HZ",
+                   help="replay the recording as a sensor set to HZ would have recorded it: every stream faster "
+                        "than HZ is low-passed (anti-aliasing FIR) and decimated by the whole factor nearest to its "
+                        "rate / HZ (200 Hz at --rate-hz 50: every 4th sample); slower streams are kept, nothing is "
+                        "up-sampled; the rates used are in the notes (default: the recorded rates)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.set_defaults(func=_run)

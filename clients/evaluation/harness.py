@@ -44,6 +44,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from clients.evaluation import metrics
+from clients.importers._common import is_hidden
 from clients.importers.gdin import GdinEntry, find_gdin, load_gdin
 from clients.importers.vicon import load_vicon
 from clients.recording import Recording
@@ -392,8 +393,10 @@ def select(items: Iterable[Any], names: Callable[[Any], str], match: Sequence[st
 
 def vicon_files(directory: str | Path) -> list[Path]:
     """Every ``*.mat`` in ``directory`` (sorted), as DESIGN.md's ``pednav eval vicon DIR`` specifies (the
-    extension in any case: ``.MAT`` from a Windows export too)."""
-    return sorted(f for f in Path(directory).iterdir() if f.suffix.lower() == ".mat" and f.is_file())
+    extension in any case: ``.MAT`` from a Windows export too); hidden files (dotfiles, the macOS ``._*.mat``
+    resource forks beside each trial on a copied drive) are not trials and are skipped."""
+    return sorted(f for f in Path(directory).iterdir()
+                  if f.suffix.lower() == ".mat" and f.is_file() and not is_hidden(f.name))
 
 
 def gdin_entries(directory: str | Path) -> list[GdinEntry]:
@@ -406,7 +409,7 @@ def gaitmap_recordings(directory: str | Path) -> list[tuple[Path, str]]:
     sorted by file name."""
     from clients.importers.gaitmap import sensor_feet, sniff
 
-    files = sorted(f for f in Path(directory).glob("*.csv") if f.is_file() and sniff(f))
+    files = sorted(f for f in Path(directory).glob("*.csv") if f.is_file() and not is_hidden(f.name) and sniff(f))
     return [(f, foot) for f in files for foot in sensor_feet(f)]
 
 

@@ -16,7 +16,7 @@ import importlib
 from pathlib import Path
 from types import ModuleType
 
-from clients.importers._common import ImporterError
+from clients.importers._common import ImporterError, is_hidden
 from clients.recording import Recording
 
 __all__ = ["ImporterError", "load", "list_recordings", "importer_for"]
@@ -74,12 +74,28 @@ def load(path: str | Path) -> Recording:
         raise ImporterError(p, "file", "does not exist")
     m = importer_for(p)
     if m is None:
+        if p.name.startswith("._"):
+            raise ImporterError(p, "file", "is a macOS AppleDouble resource fork (Finder metadata written beside "
+                                f"{p.name[2:]} on a non-Mac drive), not a recording; load {p.name[2:]} itself")
         if p.is_dir():
             raise ImporterError(p, "file", "is a folder that no importer recognises; use list_recordings() for folders")
-        raise ImporterError(p, "file", "no importer recognises this file (supported: " + ", ".join(_MODULES) + ")")
+        raise ImporterError(p, "file", "no importer recognises this file" + _header_hint(p) + " (supported: "
+                            + ", ".join(_MODULES) + ")")
     if m.__name__ == "clients.importers.sensorconnect":
         m = importlib.import_module("clients.importers.gdin")  # attaches truth when in the gdin layout
     return m.load(p)
+
+
+def _header_hint(p: Path) -> str:
+    """``; its first line: '...'`` for a text table (what the importers judged it by), else empty."""
+    if p.suffix.lower() not in (".csv", ".txt", ".tsv"):
+        return ""
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            line = fh.readline().rstrip("\r\n")
+    except OSError:
+        return ""
+    return f"; its first line: {line[:120]!r}{' ...' if len(line) > 120 else ''}" if line.strip() else "; it is empty"
 
 
 _SUFFIXES = (".mat", ".csv", ".json", ".zip")
@@ -87,12 +103,15 @@ _SUFFIXES = (".mat", ".csv", ".json", ".zip")
 
 def list_recordings(directory: str | Path, recursive: bool = True) -> list[Path]:
     """Sorted importable recordings under ``directory``: files, and sub-folders that an importer reads as one
-    recording (e.g. a Sensor Logger export folder, not descended into). Truth-only files are excluded."""
+    recording (e.g. a Sensor Logger export folder, not descended into). Truth-only files are excluded, and so
+    are hidden files and folders (dotfiles, macOS ``._*`` resource forks: :func:`_common.is_hidden`)."""
     d = Path(directory)
     if not d.is_dir():
         raise ImporterError(d, "directory", "does not exist or is not a folder")
     out: list[Path] = []
     for f in sorted(d.iterdir()):
+        if is_hidden(f.name):
+            continue
         if f.is_dir():
             if importer_for(f) is not None:
                 out.append(f)

@@ -1,7 +1,11 @@
 """gaitmap example CSVs (datasets/gaitmap-mocap, datasets/gaitmap-mag).
 
 gaitmap's own convention: accelerometer [m/s^2], gyroscope [deg/s] (converted here to rad/s), foot frame
-with gravity on +z at rest. Two layouts:
+with gravity on +z at rest. A column name may state its unit (``gyr_x [rad/s]``, ``acc_x (g)``, ``mag_x [uT]``;
+accelerometer m/s^2 or g, gyroscope deg/s or rad/s, magnetometer uT); the gyroscope's unit, stated or not, is
+checked against how fast the foot turns while it moves (:func:`clients.importers._common.gyro_unit`): a file
+without units whose gyroscope is plainly in rad/s is read as rad/s and says so, one the data cannot place is
+refused, one without enough motion to tell keeps gaitmap's deg/s and notes that it was not checked. Two layouts:
 
 - two header rows (``sensor``/first row: ``left_sensor``/``right_sensor``; second row: ``acc_x`` .. ``gyr_z``),
   one foot selected with ``foot=`` (imu_sample.csv, imu_sample_healthy_stair_*.csv);
@@ -21,11 +25,23 @@ from __future__ import annotations
 
 import csv
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
 
-from clients.importers._common import ImporterError, clean_stream, drop_untimed_rows, make_batch, read_csv_rows
+from clients.importers._common import (
+    G0,
+    ImporterError,
+    clean_stream,
+    csv_fields,
+    csv_separator,
+    drop_untimed_rows,
+    gap_notes,
+    gyro_unit,
+    make_batch,
+    read_csv_rows,
+)
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
@@ -42,16 +58,50 @@ KNOWN_RATES_HZ: dict[str, float] = {
 MOCAP_RATE_HZ = 100.0
 _AXES = ("acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z")
 _MAG = ("mag_x", "mag_y", "mag_z")
+_UNIT = re.compile(r"(?P<name>.*?)\s*[\[(](?P<unit>[^\])]*)[\])]")  # "gyr_x [rad/s]", "acc_x (m/s^2)"
+_ACC_UNITS = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": G0}  # factor to m/s^2
+_GYR_UNITS = {"deg/s": "deg/s", "°/s": "deg/s", "dps": "deg/s", "rad/s": "rad/s"}
+_MAG_UNITS = ("ut", "µt", "μt")
 
 
-def _headers(p: Path) -> tuple[list[str], list[str] | None]:
+def _split_unit(column: str) -> tuple[str, str | None]:
+    """``"gyr_x [rad/s]"`` -> ``("gyr_x", "rad/s")``; a name without a unit -> ``(name, None)``."""
+    m = _UNIT.fullmatch(column.strip())
+    return (m.group("name"), m.group("unit").strip()) if m else (column, None)
+
+
+def _stated_unit(p: Path, columns: list[str], units: list[str | None], known: tuple[str, ...]) -> str | None:
+    """The unit the header states for one sensor's three columns (lower case), ``None`` when it states none;
+    refused when the axes disagree or the unit is not one of ``known``."""
+    given = {u.lower() for u in units if u}
+    if not given:
+        return None
+    if len(given) > 1 or None in units:
+        raise ImporterError(p, columns[0], f"the axes {', '.join(columns)} state different units "
+                            f"({', '.join(u or 'none' for u in units)})")
+    unit = given.pop()
+    if unit not in known:
+        raise ImporterError(p, columns[0], f"unit {unit!r} not understood (expected one of: {', '.join(known)})")
+    return unit
+
+
+def _headers(p: Path) -> tuple[list[str], list[str] | None, list[str | None]]:
+    """Column names without their units, the sensor row of a two-sensor file (else ``None``), and each
+    column's stated unit (``None`` where it states none)."""
+    axes, sensors = _header_rows(p)
+    split = [_split_unit(a) for a in axes]
+    return [n for n, _ in split], sensors, [u for _, u in split]
+
+
+def _header_rows(p: Path) -> tuple[list[str], list[str] | None]:
     try:
-        with open(p, encoding="utf-8", newline="") as fh:
-            r = csv.reader(fh)
-            h1 = next(r, [])
-            h2 = next(r, [])
+        with open(p, encoding="utf-8-sig", newline="") as fh:
+            first, second = fh.readline(), fh.readline()
     except OSError as exc:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
+    sep = csv_separator(first)
+    h1 = csv_fields(first, sep) if first.strip() else []
+    h2 = csv_fields(second, sep) if second.strip() else []
     if not h1:
         raise ImporterError(p, "header", "empty file")
     if any(c in ("left_sensor", "right_sensor") for c in h1):
@@ -65,7 +115,7 @@ def sniff(path: str | Path) -> bool:
     if p.suffix.lower() != ".csv":
         return False
     try:
-        axes, _ = _headers(p)
+        axes, _, _ = _headers(p)
     except ImporterError:
         return False
     return all(a in axes for a in _AXES)
@@ -74,7 +124,7 @@ def sniff(path: str | Path) -> bool:
 def sensor_feet(path: str | Path) -> tuple[str, ...]:
     """The ``foot=`` values :func:`load_gaitmap` accepts for this file: the feet whose sensor the two-sensor
     layout holds (both, or only one), ``("left",)`` (ignored) for a single sensor."""
-    _, sensors = _headers(Path(path))
+    _, sensors, _ = _headers(Path(path))
     if sensors is None:
         return ("left",)
     return tuple(f for f in ("left", "right") if f"{f}_sensor" in sensors)
@@ -109,10 +159,11 @@ def load_gaitmap(
     Returns
     -------
     Recording
-        acc [m/s^2], gyr [rad/s] (from deg/s), optionally mag [uT]; time from the first sample (t = 0).
+        acc [m/s^2], gyr [rad/s] (from deg/s, or as read: ``meta.units_converted["gyr"]`` says which and why),
+        optionally mag [uT]; time from the first sample (t = 0).
     """
     p = Path(path)
-    axes, sensors = _headers(p)
+    axes, sensors, stated = _headers(p)
     if foot not in ("left", "right"):
         raise ValueError(f"foot must be 'left' or 'right', got {foot!r}")
     data, notes, n_lines = read_csv_rows(p, len(axes), skip_header=2 if sensors else 1)
@@ -139,6 +190,7 @@ def load_gaitmap(
         idx, midx = [i + 1 for i in idx], [i + 1 for i in midx]
         notes.append(f"no index/time column: rows taken as consecutive samples at {rate0:g} Hz")
         axes = ["row"] + axes
+        stated = [None] + stated
         if sensors is not None:
             sensors = [""] + sensors
         rate_hz = rate0
@@ -166,11 +218,31 @@ def load_gaitmap(
     if midx:
         mag_t, mag_v, n3 = clean_stream(p, tname, [axes[i] for i in midx], t_ns, data[:, midx], required=False)
     notes += n1 + n2 + n3
-    acc = acc_v
-    gyr = np.deg2rad(gyr_v)
-    units = {"gyr": "deg/s -> rad/s (x pi/180)"}
+    assert acc_v is not None and gyr_v is not None  # required streams: clean_stream raises instead
+    units: dict[str, str] = {}
+    acc_unit = _stated_unit(p, [axes[i] for i in idx[:3]], [stated[i] for i in idx[:3]], tuple(_ACC_UNITS))
+    acc = acc_v * _ACC_UNITS[acc_unit or "m/s^2"]
+    if acc_unit == "g":
+        units["acc"] = f"g (stated) -> m/s^2 (x {G0})"
+    gyr_stated = _stated_unit(p, [axes[i] for i in idx[3:]], [stated[i] for i in idx[3:]], tuple(_GYR_UNITS))
+    gyr_unit, how, checked = gyro_unit(p, axes[idx[3]], acc_t, acc, gyr_t, gyr_v,
+                                       _GYR_UNITS[gyr_stated] if gyr_stated else "deg/s",
+                                       "the header" if gyr_stated else None)
+    if gyr_unit == "deg/s":
+        gyr = np.deg2rad(gyr_v)
+        units["gyr"] = f"deg/s -> rad/s (x pi/180); unit: {how}"
+    else:
+        gyr = gyr_v
+        units["gyr"] = f"rad/s, used as is; unit: {how}"
+    if gyr_stated is None and (gyr_unit != "deg/s" or not checked):  # not gaitmap's deg/s, or not verifiable
+        notes.append(f"gyroscope ({axes[idx[3]]}..{axes[idx[5]]}): {how}")
+        log.warning("%s: %s", p, notes[-1])
     mag = None
-    if has_mag and mag_v is not None:
+    mag_unit = _stated_unit(p, [axes[i] for i in midx], [stated[i] for i in midx], _MAG_UNITS) if midx else None
+    if mag_unit is not None and mag_v is not None:
+        mag = mag_v
+        units["mag"] = "uT (stated), used as is" + ("; mag_scale_ut not needed, ignored" if mag_scale_ut else "")
+    elif has_mag and mag_v is not None:
         if mag_scale_ut is None:
             units["mag"] = "Xsens normalised (scale unknown) -> NOT imported; pass mag_scale_ut to convert"
             notes.append("magnetometer in Xsens normalised units with unknown scale: left out of the batch")
@@ -178,6 +250,7 @@ def load_gaitmap(
             mag = mag_v * float(mag_scale_ut)
             units["mag"] = f"Xsens normalised -> uT (x {mag_scale_ut:g}, user-supplied scale)"
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t if mag is not None else None, mag)
+    notes += gap_notes(p, batch)
     truth = _mocap_truth(p, foot) if sensors is not None else None
     meta = RecordingMeta(
         source_format="gaitmap-csv",

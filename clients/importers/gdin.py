@@ -38,6 +38,9 @@ from clients.importers._common import (
     check_finite,
     clean_stream,
     drop_untimed_rows,
+    gap_notes,
+    gyro_unit,
+    is_hidden,
     make_batch,
     seconds_to_ns,
 )
@@ -123,7 +126,9 @@ def load_llio_mat(path: str | Path, name: str | None = None) -> Recording:
     acc_t, acc, n1 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3)], t_all, imu[:, :3])
     gyr_t, gyr, n2 = clean_stream(p, "timestamps", [f"imu_data[:,{i}]" for i in range(3, 6)], t_all, imu[:, 3:])
     notes += n1 + n2
+    gyro_unit(p, "imu_data[:,3]", acc_t, acc, gyr_t, gyr, "rad/s", "the format (imu_data: acc m/s^2, gyro rad/s)")
     batch = make_batch(p, acc_t, acc, gyr_t, gyr)
+    notes += gap_notes(p, batch)
     meta = RecordingMeta(
         source_format="gdin-llio-mat",
         rate_hz=float(batch.rate_hz("acc")),
@@ -228,7 +233,8 @@ def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     ``stride_gcp/SensorConnectData_NN_*.csv``. The folders may sit at any depth below ``root`` (the dataset
     repository keeps them under ``data/``); when one experiment's file of a kind appears at several depths the
     shallowest is used, at one depth the last in path order, and a CSV beats a format C copy of the same
-    experiment. Extensions are matched in any case. ``recursive=False``: only the folders directly below
+    experiment. Extensions are matched in any case; hidden files and folders (dotfiles, macOS ``._*`` resource
+    forks, a ``.Trash`` or ``.git`` below ``root``) are skipped. ``recursive=False``: only the folders directly below
     ``root`` (what pairing one sensor file with its truth needs).
     """
     r = Path(root)
@@ -236,7 +242,7 @@ def find_gdin(root: str | Path, recursive: bool = True) -> list[GdinEntry]:
     truths: dict[int, Path] = {}
     strides: dict[int, Path] = {}
     candidates = r.rglob("SensorConnectData_*") if recursive else r.glob("*/SensorConnectData_*")
-    found = [f for f in candidates if f.is_file() and f.parent != r]
+    found = [f for f in candidates if f.is_file() and f.parent != r and not is_hidden(f.relative_to(r))]
     for f in sorted(found, key=lambda f: (-len(f.relative_to(r).parts), str(f))):  # deepest first: shallow wins
         exp = experiment_number(f)
         if exp is None:

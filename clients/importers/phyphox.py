@@ -25,7 +25,13 @@ from clients.importers._common import (
     MAX_DROPPED_ROW_FRACTION,
     ImporterError,
     clean_stream,
+    csv_cell,
+    csv_fields,
+    csv_separator,
     drop_untimed_rows,
+    gap_notes,
+    gyro_unit,
+    is_hidden,
     make_batch,
     skipped_lines_message,
 )
@@ -34,21 +40,6 @@ from clients.recording import Recording, RecordingMeta
 __all__ = ["sniff", "load", "load_phyphox"]
 
 log = logging.getLogger(__name__)
-
-
-def _separator(first_line: str) -> str:
-    """phyphox's CSV flavours: comma (decimal point), tab (decimal point or comma), semicolon (decimal comma)."""
-    if "\t" in first_line:
-        return "\t"
-    return ";" if first_line.count(";") > first_line.count(",") else ","
-
-
-def _cell(c: str, sep: str) -> float:
-    """A cell as float (decimal comma accepted unless comma is the separator); empty/unreadable -> NaN."""
-    try:
-        return float(c.replace(",", ".") if sep != "," else c)
-    except ValueError:
-        return float("nan")
 
 
 def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
@@ -67,7 +58,7 @@ def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
     notes : list of str
     """
     first = text.splitlines()[0] if text else ""
-    sep = _separator(first)
+    sep = csv_separator(first)
     rows = list(csv.reader(io.StringIO(text), delimiter=sep))
     if not rows:
         raise ImporterError(where, "header", "empty file")
@@ -81,7 +72,7 @@ def _parse(text: str, where: str) -> tuple[list[str], np.ndarray, list[str]]:
         if len(bad) > MAX_DROPPED_ROW_FRACTION * len(body):
             raise ImporterError(where, "rows", f"{len(bad)} of {len(body)} lines do not have the header's {len(head)} "
                                 f"fields (first: line {bad[0]}): not a phyphox export this importer can trust")
-    data = np.array([[_cell(c, sep) for c in r] for _, r in body if len(r) == len(head)], dtype=np.float64)
+    data = np.array([[csv_cell(c, sep) for c in r] for _, r in body if len(r) == len(head)], dtype=np.float64)
     return head, data.reshape(-1, len(head)), notes
 
 
@@ -117,7 +108,7 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
             for n in zf.namelist():
                 if n.lower().endswith("meta/time.csv"):
                     time_csv = zf.read(n).decode("utf-8-sig")
-                elif n.lower().endswith(".csv") and "/meta/" not in "/" + n.lower():
+                elif n.lower().endswith(".csv") and "/meta/" not in "/" + n.lower() and not is_hidden(n):
                     out.append((f"{path}:{n}", zf.read(n).decode("utf-8-sig")))
         return out, time_csv
     folder = path if path.is_dir() else None
@@ -125,7 +116,8 @@ def _files(path: Path) -> tuple[list[tuple[str, str]], str | None]:
         out.append((str(path), path.read_text(encoding="utf-8-sig")))
         meta = path.parent / "meta" / "time.csv"
     else:
-        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv"))]
+        out += [(str(f), f.read_text(encoding="utf-8-sig")) for f in sorted(folder.glob("*.csv"))
+                if not is_hidden(f.name)]
         meta = folder / "meta" / "time.csv"
     if meta.exists():
         time_csv = meta.read_text(encoding="utf-8-sig")
@@ -137,12 +129,12 @@ def _epoch_ns(time_csv: str | None) -> tuple[int, str | None]:
     phyphox's separators), and a note when it cannot be used (0 then: times stay from the experiment start)."""
     if not time_csv:
         return 0, "time: seconds from the experiment start (no meta/time.csv)"
-    sep = _separator(time_csv.splitlines()[0] if time_csv.strip() else "")
+    sep = csv_separator(time_csv.splitlines()[0] if time_csv.strip() else "")
     rows = list(csv.DictReader(io.StringIO(time_csv), delimiter=sep))
     for r in rows:
         r = {str(k).strip().lower(): v for k, v in r.items()}
         if str(r.get("event", "")).strip().upper() == "START":
-            system, experiment = _cell(str(r.get("system time", "")), sep), _cell(str(r.get("experiment time", "")), sep)
+            system, experiment = csv_cell(str(r.get("system time", "")), sep), csv_cell(str(r.get("experiment time", "")), sep)
             if np.isfinite(system) and np.isfinite(experiment):
                 return int(round((system - experiment) * 1e9)), None
     return 0, "time: seconds from the experiment start (meta/time.csv has no readable START row)"
@@ -169,7 +161,7 @@ def load_phyphox(path: str | Path) -> Recording:
     streams: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for where, text in files:
         first = text.splitlines()[0] if text.strip() else ""
-        kind = _kind([h.strip() for h in next(csv.reader([first], delimiter=_separator(first)), [])])
+        kind = _kind(csv_fields(first))
         if kind is None:
             continue  # not a sensor table of this importer (e.g. a location export): never parsed
         head, data, n_parse = _parse(text, where)
@@ -196,7 +188,10 @@ def load_phyphox(path: str | Path) -> Recording:
         raise ImporterError(p, "Acceleration x (m/s^2)", "no accelerometer with g found (use the 'Acceleration with g' sensor)")
     if time_note:
         notes.append(time_note)
+    if "gyr" in streams:
+        gyro_unit(p, "Gyroscope x (rad/s)", *streams["acc"], *streams["gyr"], "rad/s", "the format (phyphox: rad/s)")
     batch = make_batch(p, *streams["acc"], *streams.get("gyr", (None, None)), *streams.get("mag", (None, None)))
+    notes += gap_notes(p, batch)
     return Recording(
         name=p.stem,
         batch=batch,
@@ -210,7 +205,7 @@ def sniff(path: str | Path) -> bool:
     p = Path(path)
     try:
         if p.is_dir():
-            return _is_export_folder(p) and any(sniff(f) for f in sorted(p.glob("*.csv")))
+            return _is_export_folder(p) and any(sniff(f) for f in sorted(p.glob("*.csv")) if not is_hidden(f.name))
         if p.suffix.lower() == ".csv":
             with open(p, encoding="utf-8-sig") as fh:
                 first = fh.readline()

@@ -35,6 +35,8 @@ from clients.importers._common import (
     MAX_DROPPED_ROW_FRACTION,
     ImporterError,
     clean_stream,
+    gap_notes,
+    gyro_unit,
     make_batch,
     skipped_lines_message,
 )
@@ -257,7 +259,10 @@ def load_sensor_logger(path: str | Path) -> Recording:
         gyr_t, gyr = clean("Gyroscope")
     if "Magnetometer" in streams:
         mag_t, mag = clean("Magnetometer")
+    if gyr_t is not None and gyr is not None:
+        gyro_unit(src, "Gyroscope.x", acc_t, acc, gyr_t, gyr, "rad/s", "the format (Sensor Logger's Gyroscope: rad/s)")
     batch = make_batch(src, acc_t, acc, gyr_t, gyr, mag_t, mag)
+    notes += gap_notes(src, batch)
     rate = batch.rate_hz("acc")
     return Recording(
         name=src.stem if src.is_file() else src.name,

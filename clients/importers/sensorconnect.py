@@ -9,9 +9,11 @@ magnetometer stream and the metadata says so).
 
 Columns are found by name (any order, extra channels ignored; the ``inertial-<node>:`` prefix may carry any
 node id or be absent; an export of several nodes in one file is refused, never mixed); the time
-column is ``Time`` [s]. Rows that cannot be read (a line with another number
-of fields, e.g. the last line of a logger that was stopped mid-write) and empty cells follow the sample policy
-of :mod:`clients.importers._common`: dropped, logged and noted.
+column is ``Time`` [s]. Besides SensorConnect's own comma-separated form, a copy saved by a spreadsheet is read:
+semicolon (or tab) separated with decimal commas, as European locales write it, and quoted cells. Rows that
+cannot be read (a line with another number of fields, e.g. the last line of a logger that was stopped
+mid-write) and empty cells follow the sample policy of :mod:`clients.importers._common`: dropped, logged and
+noted.
 
 Format B (``estCompensatedAccel*``/``estAngularRate*`` with ``:valid`` flag columns, 250 Hz, no
 magnetometer): the sensor's bias-compensated filter outputs, already m/s^2 and rad/s. Rows whose acc/gyro
@@ -31,7 +33,10 @@ from clients.importers._common import (
     G0,
     ImporterError,
     clean_stream,
+    csv_fields,
     drop_untimed_rows,
+    gap_notes,
+    gyro_unit,
     make_batch,
     read_csv_rows,
     seconds_to_ns,
@@ -53,7 +58,7 @@ _B_GYR = ("estAngularRateX", "estAngularRateY", "estAngularRateZ")
 
 def read_header(path: str | Path) -> list[str]:
     """Channel names of a SensorConnect CSV with the ``inertial-<serial>:`` prefix (any node id) removed
-    (a byte-order mark and quotes around the names are ignored)."""
+    (a byte-order mark and quotes around the names are ignored; comma, semicolon or tab separated)."""
     p = Path(path)
     try:
         with open(p, encoding="utf-8-sig", errors="replace") as fh:
@@ -62,7 +67,7 @@ def read_header(path: str | Path) -> list[str]:
         raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
     if not line.strip():
         raise ImporterError(p, "header", "empty file")
-    names = [c.strip().strip('"').strip() for c in line.strip().split(",")]
+    names = csv_fields(line)
     return [c.split(":", 1)[1] if ":" in c else c for c in names]
 
 
@@ -184,7 +189,9 @@ def load_sensorconnect(path: str | Path, name: str | None = None) -> Recording:
         if mag is not None:
             mag = _scaled(p, _A_MAG[0], mag, (0.05, 2.0), "gauss (scaledMag)", "|m|", GAUSS_TO_UT)
             units["mag"] = f"gauss -> uT (x {GAUSS_TO_UT:g})"
+    gyro_unit(p, cols[ig[0]], acc_t, acc, gyr_t, gyr, "rad/s", f"the header ({gyr_names[0]}: rad/s)")
     batch = make_batch(p, acc_t, acc, gyr_t, gyr, mag_t, mag)
+    notes += gap_notes(p, batch)
     meta = RecordingMeta(
         source_format=f"sensorconnect-{fmt.lower()}",
         rate_hz=float(batch.rate_hz("acc")),

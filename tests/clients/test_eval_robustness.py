@@ -175,3 +175,22 @@ def test_eval_gdin_on_a_sensor_file_cut_short(gdin_dir: Path, tmp_path: Path,
     assert code == 0 and r["gt_usable"] is False and doc["excluded_from_summary"] == ["exp31"]
     assert r["stride_mean_err_m"] < 1.0  # before: 1.98 m, the strides after 30 s all compared at the last sample
     assert any("cut short" in n for n in r["notes"])
+
+
+def test_eval_vicon_skips_macos_resource_forks_and_dotfiles(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A trial folder copied from a Mac to a FAT/exFAT drive has a ._NAME.mat beside every trial: each one was
+    listed as a failed trial (exit 1)."""
+    _still_vicon(tmp_path / "2099-01-01-00-00-00.mat")
+    (tmp_path / "._2099-01-01-00-00-00.mat").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        " + bytes(200))
+    _still_vicon(tmp_path / ".2099-01-01-00-00-01.mat")  # a dotfile: hidden, even when readable
+    code, doc, _ = _run(capsys, ["eval", "vicon", str(tmp_path), "--json"])
+    assert code == 0 and [r["name"] for r in doc["trials"]] == ["2099-01-01-00-00-00"]
+    assert doc["summary"]["trials"] == 1
+
+
+def test_eval_gaitmap_lists_no_hidden_files(tmp_path: Path) -> None:
+    head = "sensor," + ",".join(["left_sensor"] * 6) + "\naxis,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z\n0,0,0,9.81,0,0,0\n"
+    (tmp_path / "imu_sample.csv").write_text(head)
+    (tmp_path / ".imu_sample.csv").write_text(head)
+    (tmp_path / "._imu_sample.csv").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        \xb0\xe2" + bytes(200))
+    assert harness.gaitmap_recordings(tmp_path) == [(tmp_path / "imu_sample.csv", "left")]

@@ -23,6 +23,7 @@ from clients.importers.gaitmap import load_gaitmap
 from clients.importers.gdin import load_llio_mat
 from clients.importers.sensorconnect import load_sensorconnect
 from clients.importers.vicon import load_vicon
+from models.batch import SensorBatch
 
 PREFIX = "inertial-6253.76535:"
 N = 400
@@ -101,7 +102,7 @@ def _write(tmp_path: Path, fmt: str, rows: np.ndarray | None = None, **kw: bool)
     return writer(tmp_path / name, rows, **kw)
 
 
-def _notes(rec) -> str:  # type: ignore[no-untyped-def]
+def _notes(rec) -> str:
     return " | ".join(rec.meta.notes)
 
 
@@ -403,3 +404,278 @@ def test_format_a_export_of_two_nodes_is_refused_not_mixed(tmp_path: Path) -> No
     with pytest.raises(ImporterError, match="several sensor nodes") as ei:
         load(p)
     assert ei.value.field == "scaledAccelX"
+
+
+# ---------------------------------------------------------------------------------------------- hidden files
+# The start of a real AppleDouble file (macOS writes one as ._NAME beside every file copied to a FAT/exFAT or
+# network drive): magic 0x00051607, "Mac OS X", entry table; bytes that are not UTF-8 either.
+APPLEDOUBLE = (b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        \x00\x02\x00\x00\x00\x09\x00\x00\x00\x32"
+               b"\x00\x00\x0e\xb0\x00\x00\x00\x02\x00\x00\x0e\xe2\x00\x00\x01\x1e" + bytes(300))
+
+
+def test_folder_scans_skip_dotfiles_and_macos_resource_forks(tmp_path: Path) -> None:
+    """A dotfile or a hidden folder (.Trash, a ._NAME resource fork) is never a recording, whatever it holds."""
+    from clients.importers import list_recordings
+    from clients.importers.gdin import find_gdin
+
+    root = tmp_path / "gdin"
+    (root / "own").mkdir(parents=True)
+    (root / ".Trash" / "own").mkdir(parents=True)
+    good = write_a(root / "own" / "SensorConnectData_90.csv", _rows())
+    (root / "own" / "._SensorConnectData_90.csv").write_bytes(APPLEDOUBLE)
+    write_a(root / "own" / ".SensorConnectData_91.csv", _rows())  # readable, but hidden
+    write_a(root / ".Trash" / "own" / "SensorConnectData_92.csv", _rows())
+    assert list_recordings(root) == [good]
+    assert [e.exp for e in find_gdin(root)] == [90]
+
+
+def test_loading_a_resource_fork_says_what_it_is(tmp_path: Path) -> None:
+    p = tmp_path / "._2099-01-01-00-00-00.mat"
+    p.write_bytes(APPLEDOUBLE)
+    with pytest.raises(ImporterError, match="AppleDouble") as ei:
+        load(p)
+    assert "2099-01-01-00-00-00.mat" in str(ei.value) and ei.value.field == "file"
+
+
+def test_phyphox_zip_from_a_mac_ignores_its_macosx_folder(tmp_path: Path) -> None:
+    """macOS's "Compress" adds __MACOSX/._NAME for every file; reading them as tables failed on their bytes."""
+    import zipfile
+
+    from clients.importers.phyphox import load_phyphox
+
+    n = 400
+    head = '"Time (s)","{0} x ({1})","{0} y ({1})","{0} z ({1})"'
+    acc = [head.format("Acceleration", "m/s^2")] + [f"{k / 100:.2f},0.1,0.2,9.80" for k in range(n)]
+    gyr = [head.format("Gyroscope", "rad/s")] + [f"{k / 100:.2f},0.01,0.0,0.0" for k in range(n)]
+    p = tmp_path / "walk.zip"
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("Accelerometer.csv", "\n".join(acc) + "\n")
+        zf.writestr("Gyroscope.csv", "\n".join(gyr) + "\n")
+        zf.writestr("__MACOSX/._Accelerometer.csv", APPLEDOUBLE)
+        zf.writestr("__MACOSX/._Gyroscope.csv", APPLEDOUBLE)
+    rec = load_phyphox(p)
+    assert len(rec.batch) == n and len(rec.batch.gyr_t_ns) == n
+
+
+# ---------------------------------------------------------------------------------------------- time gaps
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_a_long_time_gap_is_noted_with_its_position_and_length(tmp_path: Path, fmt: str) -> None:
+    """A logger that paused for 2 s: the samples are kept as recorded, and the note says where and how long."""
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[300:, 0] += 2.0  # nothing between t = 1.495 s and 3.5 s
+    rec = load(_write(tmp_path, fmt, rows))
+    assert len(rec.batch) == N
+    gaps = [n for n in rec.meta.notes if "gap" in n]
+    assert len(gaps) == 1, rec.meta.notes  # accelerometer and gyroscope (and magnetometer) share one note
+    assert gaps[0].startswith("acc/gyr") and "1 time gap(s)" in gaps[0]
+    assert "2.005 s from t = 1.495 s" in gaps[0] and "10 sample periods (0.05 s)" in gaps[0]
+
+
+@pytest.mark.parametrize("fmt", list(FORMATS))
+def test_jitter_and_a_few_lost_samples_are_not_gaps(tmp_path: Path, fmt: str) -> None:
+    rows = _rows(mag=FORMATS[fmt][2])
+    rows[1:-1, 0] += np.random.default_rng(3).uniform(-0.002, 0.002, N - 2)  # +-0.4 sample periods
+    rows = np.delete(rows, [100, 101, 102, 250], axis=0)  # a 4-period and a 2-period hole
+    rec = load(_write(tmp_path, fmt, rows))
+    assert not any("gap" in n for n in rec.meta.notes)
+
+
+def test_gaps_of_the_magnetometer_alone_and_many_gaps_are_summarised(tmp_path: Path) -> None:
+    from clients.importers._common import gap_notes
+    from models.batch import SensorBatch
+
+    t = np.arange(2000, dtype=np.int64) * 5_000_000
+    for k in range(7):
+        t[200 * (k + 1):] += 100_000_000  # seven 0.105-s gaps
+    mag_t = np.arange(500, dtype=np.int64) * 20_000_000
+    mag_t[250:] += 1_000_000_000  # the magnetometer alone stops for 1 s
+    b = SensorBatch(acc_t_ns=t, acc=np.zeros((t.size, 3)), gyr_t_ns=t, gyr=np.zeros((t.size, 3)),
+                    mag_t_ns=mag_t, mag=np.zeros((mag_t.size, 3)))
+    notes = gap_notes("x.csv", b)
+    assert len(notes) == 2
+    assert notes[0].startswith("acc/gyr: 7 time gap(s)") and "and 2 more" in notes[0] and "longest 0.105 s" in notes[0]
+    assert notes[1].startswith("mag: 1 time gap(s)") and "1.02 s from t = 4.980 s" in notes[1]
+
+
+# ---------------------------------------------------------------------------------------------- spreadsheet flavours
+def _flavour(path: Path, sep: str, dec: str, quote: bool) -> Path:
+    """The same table as a spreadsheet saves it: another separator, decimal comma, quoted cells."""
+    q = '"' if quote else ""
+    lines = [sep.join(f"{q}{c.replace('.', dec) if i else c}{q}" for c in ln.split(","))
+             for i, ln in enumerate(path.read_text().splitlines())]
+    out = path.with_name("flavour_" + path.name)
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("fmt", CSV_FORMATS)
+@pytest.mark.parametrize(("sep", "dec", "quote"),
+                         [(";", ",", False), (";", ",", True), ("\t", ",", False), (",", ".", True), ("\t", ".", True)])
+def test_spreadsheet_csv_flavours_read_like_the_original(tmp_path: Path, fmt: str, sep: str, dec: str,
+                                                        quote: bool) -> None:
+    """European exports (';' between fields, decimal comma) and quoted numbers were "no importer recognises
+    this file" or "no row has a finite time"."""
+    ref_path = _write(tmp_path, fmt)
+    ref = load(ref_path)
+    rec = load(_flavour(ref_path, sep, dec, quote))
+    assert rec.meta.source_format == ref.meta.source_format
+    np.testing.assert_array_equal(rec.batch.acc_t_ns, ref.batch.acc_t_ns)
+    np.testing.assert_array_equal(rec.batch.acc, ref.batch.acc)
+    np.testing.assert_array_equal(rec.batch.gyr, ref.batch.gyr)
+    np.testing.assert_array_equal(rec.batch.mag, ref.batch.mag)
+
+
+def test_semicolon_csv_keeps_the_sample_policy(tmp_path: Path) -> None:
+    rows = _rows()
+    rows[50, 4:7] = np.nan
+    p = _flavour(write_a(tmp_path / "SensorConnectData_90.csv", rows, cut_last=True), ";", ",", True)
+    rec = load(p)
+    assert len(rec.batch) == N - 1 and len(rec.batch.gyr_t_ns) == N - 2
+    assert f"line {N + 1}" in _notes(rec) and "non-finite" in _notes(rec)
+
+
+def test_quoted_decimal_commas_in_a_comma_separated_file_are_refused_by_column(tmp_path: Path) -> None:
+    """"0,005" between commas is a decimal comma or a thousands separator: refused, not guessed."""
+    p = write_a(tmp_path / "SensorConnectData_90.csv", _rows())
+    lines = p.read_text().splitlines()
+    lines[1:] = [",".join(f'"{c.replace(".", ",")}"' for c in ln.split(",")) for ln in lines[1:]]
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImporterError, match="decimal comma or a thousands separator") as ei:
+        load(p)
+    assert ei.value.field == PREFIX + "scaledAccelX" and "line 2" in str(ei.value)  # its time 0 has no comma
+    assert "SensorConnectData_90.csv" in str(ei.value)
+
+
+def test_vicon_file_without_truth_loads_for_replay_and_is_refused_for_evaluation(tmp_path: Path) -> None:
+    """Before: "no importer recognises this file" (load) for the IMU log without its Vicon capture."""
+    p = write_vicon(tmp_path / "2099-01-01-00-00-00.mat", _rows(mag=False))
+    d = sio.loadmat(p)
+    sio.savemat(p, {k: v for k, v in d.items() if k in ("imu", "ts")})
+    rec = load(p)
+    assert rec.meta.source_format == "vicon-mat" and len(rec.batch) == N and rec.truth is None
+    assert "no Vicon ground truth" in _notes(rec)
+    with pytest.raises(ImporterError, match="not evaluated") as ei:
+        load_vicon(p)
+    assert ei.value.field == "gt"
+
+
+def test_an_unknown_table_is_refused_with_its_first_line(tmp_path: Path) -> None:
+    p = tmp_path / "walk.csv"
+    p.write_text("zeit;beschleunigung\n0,0;9,81\n")
+    with pytest.raises(ImporterError, match="no importer recognises this file; its first line: 'zeit;beschleunigung'"):
+        load(p)
+
+
+# ---------------------------------------------------------------------------------------------- gyroscope units
+@pytest.fixture(scope="module")
+def walk() -> SensorBatch:
+    """20 s of a synthetic foot sensor walking at 200 Hz (acc [m/s^2], gyr [rad/s]; |w| peaks at 6.5 rad/s)."""
+    from clients.synth import synthesize
+
+    b = synthesize("walk", seed=1, rate_hz=200.0).batch
+    return b.time_slice(b.t_start_ns, b.t_start_ns + 20 * 10**9)
+
+
+def _gaitmap_walk(path: Path, b: SensorBatch, gyr_scale: float, gyr_unit: str = "", acc_scale: float = 1.0,
+                  acc_unit: str = "") -> Path:
+    def names(kind: str, unit: str) -> list[str]:
+        return [f"{kind}_{a}" + (f" [{unit}]" if unit else "") for a in "xyz"]
+
+    rows = np.column_stack([(b.acc_t_ns - b.acc_t_ns[0]) / 1e9, b.acc * acc_scale, b.gyr * gyr_scale])
+    return _csv(path, [""] + names("acc", acc_unit) + names("gyr", gyr_unit), rows)
+
+
+def test_gaitmap_gyroscope_in_rad_s_is_not_divided_by_57(tmp_path: Path, walk: SensorBatch) -> None:
+    """A gaitmap-style CSV written in rad/s: it was read as deg/s and the foot turned 57 times too slowly."""
+    rec = load(_gaitmap_walk(tmp_path / "walk_rad.csv", walk, 1.0))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    assert rec.meta.units_converted["gyr"].startswith("rad/s, used as is")
+    assert "not the format's deg/s" in _notes(rec) and "= 6.49" in _notes(rec)
+
+
+def test_gaitmap_gyroscope_in_deg_s_is_converted_without_a_note(tmp_path: Path, walk: SensorBatch) -> None:
+    rec = load(_gaitmap_walk(tmp_path / "walk_deg.csv", walk, 180.0 / np.pi))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    how = rec.meta.units_converted["gyr"]
+    assert how.startswith("deg/s -> rad/s") and "motion agrees" in how
+    assert "gyroscope" not in _notes(rec)
+
+
+@pytest.mark.parametrize(("gyr_unit", "gyr_scale"), [("rad/s", 1.0), ("deg/s", 180.0 / np.pi), ("°/s", 180.0 / np.pi),
+                                                     ("DPS", 180.0 / np.pi)])
+@pytest.mark.parametrize(("acc_unit", "acc_scale"), [("", 1.0), ("m/s^2", 1.0), ("g", 1.0 / G0)])
+def test_gaitmap_units_stated_in_the_header(tmp_path: Path, walk: SensorBatch, gyr_unit: str, gyr_scale: float,
+                                            acc_unit: str, acc_scale: float) -> None:
+    rec = load(_gaitmap_walk(tmp_path / "walk.csv", walk, gyr_scale, gyr_unit, acc_scale, acc_unit))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(rec.batch.acc, walk.acc, rtol=1e-6, atol=1e-9)
+    assert "stated by the header" in rec.meta.units_converted["gyr"]
+    assert ("acc" in rec.meta.units_converted) == (acc_unit == "g")
+
+
+def test_gaitmap_header_unit_the_data_contradict_is_refused(tmp_path: Path, walk: SensorBatch) -> None:
+    with pytest.raises(ImporterError, match="the header says deg/s but the values are rad/s") as ei:
+        load(_gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "deg/s"))
+    assert ei.value.field == "gyr_x" and "walk.csv" in str(ei.value)
+
+
+@pytest.mark.parametrize(("units", "words"), [(("rad/s", "rad/s", "deg/s"), "different units"),
+                                              (("rad/s", "rad/s", ""), "different units"),
+                                              (("rpm", "rpm", "rpm"), "'rpm' not understood")])
+def test_gaitmap_header_units_that_cannot_be_read_are_refused(tmp_path: Path, walk: SensorBatch,
+                                                              units: tuple[str, ...],
+                                                              words: str) -> None:
+    p = _gaitmap_walk(tmp_path / "walk.csv", walk, 1.0, "rad/s")
+    lines = p.read_text().splitlines()
+    lines[0] = ",".join(["", "acc_x", "acc_y", "acc_z"] + [f"gyr_{a}" + (f" [{u}]" if u else "")
+                                                           for a, u in zip("xyz", units)])
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ImporterError, match=words) as ei:
+        load_gaitmap(p)
+    assert ei.value.field.startswith("gyr_x")
+
+
+def test_gaitmap_gyroscope_that_fits_neither_unit_is_refused(tmp_path: Path, walk: SensorBatch) -> None:
+    """p99 |w| of 36 while walking: 36 rad/s is a sprint, 36 deg/s a foot that hardly turns. Not guessed."""
+    with pytest.raises(ImporterError, match="fit neither rad/s nor deg/s") as ei:
+        load(_gaitmap_walk(tmp_path / "walk.csv", walk, 5.5))
+    assert ei.value.field == "gyr_x" and "gyr_x [deg/s]" in str(ei.value)
+
+
+def test_gaitmap_still_recording_keeps_deg_s_and_says_it_was_not_checked(tmp_path: Path) -> None:
+    rec = load(_write(tmp_path, "gaitmap"))
+    np.testing.assert_allclose(rec.batch.gyr, _rows(mag=False)[:, 4:7], rtol=1e-6, atol=1e-9)
+    assert "not checked: too little motion" in _notes(rec)
+
+
+@pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
+def test_rad_s_formats_refuse_a_walk_logged_in_deg_s_naming_the_column(tmp_path: Path, walk: SensorBatch,
+                                                                         fmt: str) -> None:
+    t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
+    cols = [t[:, None], walk.acc / G0, np.rad2deg(walk.gyr)]
+    if FORMATS[fmt][2]:
+        cols.append(np.tile([0.2, 0.0, -0.4], (t.size, 1)))
+    with pytest.raises(ImporterError, match="says rad/s but the values are deg/s") as ei:
+        load(_write(tmp_path, fmt, np.hstack(cols)))
+    assert ei.value.field in ("scaledGyroX", "estAngularRateX", "imu_data[:,3]", "imu[:,3] gyr_x")
+
+
+@pytest.mark.parametrize("fmt", ["A", "B", "C", "vicon"])
+def test_rad_s_formats_accept_the_walk_in_rad_s(tmp_path: Path, walk: SensorBatch, fmt: str) -> None:
+    t = (walk.acc_t_ns - walk.acc_t_ns[0]) / 1e9
+    cols = [t[:, None], walk.acc / G0, walk.gyr]
+    if FORMATS[fmt][2]:
+        cols.append(np.tile([0.2, 0.0, -0.4], (t.size, 1)))
+    rec = load(_write(tmp_path, fmt, np.hstack(cols)))
+    np.testing.assert_allclose(rec.batch.gyr, walk.gyr, rtol=1e-6, atol=1e-8)
+
+
+def test_gaitmap_magnetometer_stated_in_ut_is_imported_without_a_scale(tmp_path: Path, walk: SensorBatch) -> None:
+    p = _gaitmap_walk(tmp_path / "walk.csv", walk, 180.0 / np.pi)
+    lines = p.read_text().splitlines()
+    lines[0] += ",mag_x [uT],mag_y [uT],mag_z [uT]"
+    lines[1:] = [ln + ",20.5,0,-40" for ln in lines[1:]]
+    p.write_text("\n".join(lines) + "\n")
+    rec = load(p)
+    np.testing.assert_allclose(rec.batch.mag[0], [20.5, 0.0, -40.0])
+    assert rec.meta.units_converted["mag"].startswith("uT (stated)")

@@ -47,3 +47,41 @@ def test_replay_reports_what_the_importer_noted(tmp_path: Path, capsys: pytest.C
     assert main(["replay", str(f)]) == 0
     assert "note: magnetometer" in capsys.readouterr().err
     assert np.isfinite(doc["gyro_on_fraction"])
+
+
+def test_replay_tells_the_user_of_a_time_gap(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: a recording with a 5-s hole replayed without a word about it."""
+    rows = [",acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z"]
+    rows += [f"{k / 100 + (5.0 if k >= 300 else 0.0):.2f},0,0,9.81,0,0,0" for k in range(600)]
+    f = tmp_path / "paused.csv"
+    f.write_text("\n".join(rows) + "\n")
+    assert main(["replay", str(f), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert any("time gap" in n and "5.01 s from t = 2.990 s" in n for n in doc["notes"])
+    assert main(["replay", str(f)]) == 0
+    assert "note: acc/gyr: 1 time gap(s)" in capsys.readouterr().err
+
+
+def test_replay_rate_hz_replays_the_desampled_recording(capsys: pytest.CaptureFixture[str]) -> None:
+    """--rate-hz 50: the engine gets the anti-aliased 50-Hz version of the 200-Hz recording, and says so."""
+    from clients.commands.replay import desampled, replay_local
+    from clients.synth import synthesize
+
+    with pytest.raises(SystemExit):
+        main(["replay", "--help"])
+    assert "--rate-hz HZ" in capsys.readouterr().out
+    assert main(["replay", "walk", "--rate-hz", "50", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert any("--rate-hz 50: de-sampled" in n and "acc 200 -> 50 Hz" in n for n in doc["notes"])
+    ref = replay_local(desampled(synthesize("walk"), 50.0), 1.0)
+    assert len(doc["positions"]) == len(ref["positions"]) > 10
+    np.testing.assert_allclose(doc["positions"], ref["positions"], atol=1e-9)
+    full = replay_local(synthesize("walk"), 1.0)
+    assert doc["positions"] != full["positions"]
+
+
+@pytest.mark.parametrize("rate", ["0", "-25"])
+def test_replay_rate_hz_must_be_positive(capsys: pytest.CaptureFixture[str], rate: str) -> None:
+    assert main(["replay", "walk", "--rate-hz", rate]) == 1
+    err = capsys.readouterr().err
+    assert "--rate-hz must be a positive rate" in err and "Traceback" not in err

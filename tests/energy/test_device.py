@@ -124,3 +124,38 @@ def test_replay_batches_as_long_as_the_configuration_says() -> None:
     assert eng.fed[2].acc_t_ns[-1] - eng.fed[1].acc_t_ns[-1] == pytest.approx(2.5e9, abs=40e6)
     fixed = replay(_ScriptedEngine(script), recording(seconds=6.0), batch_seconds=1.0)  # type: ignore[arg-type]
     assert fixed.batches == 6  # a fixed duration overrides the configuration's
+
+
+def test_desample_is_the_streaming_decimator_over_the_whole_recording() -> None:
+    """pednav replay --rate-hz: the recording as a sensor set to a lower rate delivers it, tail included."""
+    from energy.device import desample
+    from models.fir import Decimator
+
+    rec = recording()  # 200 Hz acc/gyr/mag
+    t = np.arange(1200) * 5_000_000
+    rec = SensorBatch(acc_t_ns=rec.acc_t_ns, acc=rec.acc, gyr_t_ns=rec.gyr_t_ns, gyr=rec.gyr,
+                      mag_t_ns=t[::4], mag=rec.mag[::4])  # the magnetometer at 50 Hz
+    low = desample(rec, 50.0)
+    dec = Decimator(200.0, 50.0)
+    (t1, v1), (t2, v2) = dec.process(rec.acc_t_ns, rec.acc), dec.flush()
+    np.testing.assert_array_equal(low.acc_t_ns, np.concatenate([t1, t2]))
+    np.testing.assert_array_equal(low.acc, np.concatenate([v1, v2]))
+    assert low.rate_hz("acc") == pytest.approx(50.0) and low.rate_hz("gyr") == pytest.approx(50.0)
+    assert low.acc_t_ns[0] == rec.acc_t_ns[0] and low.acc_t_ns[-1] == rec.acc_t_ns[-4]  # no lost tail
+    np.testing.assert_array_equal(low.mag_t_ns, rec.mag_t_ns)  # already at 50 Hz: kept, not filtered
+    np.testing.assert_array_equal(low.mag, rec.mag)
+    assert desample(rec, 400.0).acc.shape == rec.acc.shape  # never up-sampled
+    with pytest.raises(ValueError, match="positive"):
+        desample(rec, 0.0)
+
+
+def test_desample_removes_what_would_alias() -> None:
+    from energy.device import desample
+
+    t = np.arange(4000) / 200.0
+    slow = np.sin(2 * np.pi * 1.0 * t)
+    tone = 0.5 * np.sin(2 * np.pi * 24.0 * t)  # folds onto 1 Hz at 25 Hz without a filter
+    low = desample(SensorBatch.from_arrays(t, np.c_[slow + tone, slow, 9.81 + 0 * t], np.zeros((t.size, 3))), 25.0)
+    ref = np.sin(2 * np.pi * 1.0 * low.acc_t_ns / 1e9)
+    assert np.abs(low.acc[20:-20, 0] - ref[20:-20]).max() < 0.05
+    assert np.abs(low.acc[20:-20, 0] - (slow + tone)[::8][20:-20]).max() > 0.3  # plain every-8th sample aliases
