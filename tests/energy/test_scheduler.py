@@ -60,6 +60,24 @@ def test_table1_standing_while_a_moving_behaviour_has_no_model_leaves_the_gyro_t
     assert s.idle()
 
 
+def test_table1_standing_without_a_heading_source_leaves_the_gyro_to_the_device() -> None:
+    """Every behaviour calibrated, but the compass not trusted: the walk that may follow needs the gyroscope for its
+    turns from the first stride, so the device wakes it on motion instead of the host after a long upload."""
+    from energy.scheduler import LOW_POWER_BATCH_S
+
+    s = aligned("auto", CFG, calibrated("walk", "run"))
+    s.zupt_aligned = True
+    s.deviation_pending.clear()
+    s.on_behaviour("stand", 1.0, 1)
+    assert s.idle()
+    s.compass_ready = False
+    cfg = s.sensor_config()
+    assert not s.idle() and not cfg.gyro_on and cfg.gyro_wake_on_motion
+    assert cfg.batch_s == LOW_POWER_BATCH_S  # the device needs no answer to wake it
+    s.compass_ready = True
+    assert s.idle()
+
+
 def test_standing_with_a_gyroscope_the_device_woke_keeps_it_until_the_device_puts_it_down() -> None:
     """The "stand" label lags the data by up to 1.5 s: a gyroscope the device woke for a foot that already walks
     stays with the device (wake-on-motion) instead of being switched off (gdin exp43, returning: 10.9 m)."""
