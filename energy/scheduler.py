@@ -8,6 +8,7 @@ to run and which sensor configuration the device must use next. No numerics here
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from energy.config import EngineConfig
@@ -132,11 +133,12 @@ class Scheduler:
             return False
         return self.l_zupt_m >= self.config.l0_m or (self.pattern_left is not None and self.pattern_left <= 0)
 
-    def on_cadence(self, f_s: float, fitted: tuple[float, float] | None, t_ns: int) -> list[Event]:
-        """A Gait-DR stride of step frequency ``f_s`` [Hz]; ``fitted`` the cadences [Hz] the current
-        behaviour's step-length model was fitted on (:meth:`models.step_length.StepLengthCalibrator.cadence_range`).
+    def on_cadence(self, f_s: float, fitted: Sequence[tuple[float, float]] | None, t_ns: int) -> list[Event]:
+        """A Gait-DR stride of step frequency ``f_s`` [Hz]; ``fitted`` the ranges of cadences [Hz] the current
+        behaviour's step-length model was fitted on (:meth:`models.step_length.StepLengthCalibrator.cadence_ranges`:
+        a model fitted on a slow and a fast walk has not seen the paces between them).
 
-        004 Table 2 (ii): when the median cadence of the latest ``PATTERN_STRIDES`` strides leaves that range, and
+        004 Table 2 (ii): when the median cadence of the latest ``PATTERN_STRIDES`` strides leaves those ranges, and
         so does the mean of their middle periods, the model would extrapolate to a walking pattern it has not seen
         (a walk fitted at 0.87 Hz put the 0.98 Hz strides of a faster walk 5-11 % short, and the 3-sigma
         examination passed them): the ZUPT-KF takes ``PATTERN_INIT_STRIDES`` strides of the new pattern, which
@@ -156,10 +158,12 @@ class Scheduler:
         f = sorted(self.cadences)[PATTERN_STRIDES // 2]  # median (PATTERN_STRIDES odd)
         periods = sorted(1.0 / c for c in self.cadences)
         f_mid = (len(periods) - 2) / sum(periods[1:-1])  # 1 / the mean of the middle periods
-        if fitted[0] <= f <= fitted[1] or fitted[0] <= f_mid <= fitted[1]:
+        if any(lo <= f <= hi or lo <= f_mid <= hi for lo, hi in fitted):
             return []
         b = self.behaviour
-        events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f, "fitted_hz": list(fitted)})]
+        events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f,
+                                                           "fitted_hz": [fitted[0][0], fitted[-1][1]],
+                                                           "fitted_ranges_hz": [list(r) for r in fitted]})]
         return events + self._pattern_init(b, t_ns)
 
     def _pattern_init(self, b: str, t_ns: int) -> list[Event]:
