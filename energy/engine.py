@@ -809,8 +809,8 @@ class Engine:
             b = label if label in ("walk", "run") else "walk"
             d_sl, _ = gait.step_length(e, b)
             passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
-            fitted = gait.cal.cadence_range(b, 1.0 / gait.rate_hz)
-            new_pattern = fitted is not None and not fitted[0] <= e.f_s <= fitted[1]
+            fitted = gait.cal.cadence_ranges(b, 1.0 / gait.rate_hz)
+            new_pattern = fitted is not None and not any(lo <= e.f_s <= hi for lo, hi in fitted)
         # a deviation from the profile, not yet confirmed in this session: tested before KF II takes the stride
         pending = sorted(sched.deviation_pending)
         tested = label in pending and label == sched.behaviour
@@ -859,7 +859,7 @@ class Engine:
             positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
             events += self._sched.tick(step.t_s, t_ns)
             if not e.after_rest:  # 004 Table 2 (ii): a walking pattern the step-length model has not seen
-                fitted = gait.cal.cadence_range(self._sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
+                fitted = gait.cal.cadence_ranges(self._sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
                 events += self._sched.on_cadence(e.f_s, fitted, t_ns)
             self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
             if self._disturbed_run >= _ASSIST_AFTER_STEPS:

@@ -8,6 +8,7 @@ to run and which sensor configuration the device must use next. No numerics here
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from energy.config import EngineConfig
@@ -132,11 +133,12 @@ class Scheduler:
             return False
         return self.l_zupt_m >= self.config.l0_m or (self.pattern_left is not None and self.pattern_left <= 0)
 
-    def on_cadence(self, f_s: float, fitted: tuple[float, float] | None, t_ns: int) -> list[Event]:
-        """A Gait-DR stride of step frequency ``f_s`` [Hz]; ``fitted`` the cadences [Hz] the current
-        behaviour's step-length model was fitted on (:meth:`models.step_length.StepLengthCalibrator.cadence_range`).
+    def on_cadence(self, f_s: float, fitted: Sequence[tuple[float, float]] | None, t_ns: int) -> list[Event]:
+        """A Gait-DR stride of step frequency ``f_s`` [Hz]; ``fitted`` the ranges of cadences [Hz] the current
+        behaviour's step-length model was fitted on (:meth:`models.step_length.StepLengthCalibrator.cadence_ranges`:
+        a model fitted on a slow and a fast walk has not seen the paces between them).
 
-        004 Table 2 (ii): when the median cadence of the latest ``PATTERN_STRIDES`` strides leaves that range, and
+        004 Table 2 (ii): when the median cadence of the latest ``PATTERN_STRIDES`` strides leaves those ranges, and
         so does the mean of their middle periods, the model would extrapolate to a walking pattern it has not seen
         (a walk fitted at 0.87 Hz put the 0.98 Hz strides of a faster walk 5-11 % short, and the 3-sigma
         examination passed them): the ZUPT-KF takes ``PATTERN_INIT_STRIDES`` strides of the new pattern, which
@@ -156,10 +158,12 @@ class Scheduler:
         f = sorted(self.cadences)[PATTERN_STRIDES // 2]  # median (PATTERN_STRIDES odd)
         periods = sorted(1.0 / c for c in self.cadences)
         f_mid = (len(periods) - 2) / sum(periods[1:-1])  # 1 / the mean of the middle periods
-        if fitted[0] <= f <= fitted[1] or fitted[0] <= f_mid <= fitted[1]:
+        if any(lo <= f <= hi or lo <= f_mid <= hi for lo, hi in fitted):
             return []
         b = self.behaviour
-        events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f, "fitted_hz": list(fitted)})]
+        events = [Event(t_ns, "walking_pattern_changed", {"behaviour": b, "f_s_hz": f,
+                                                           "fitted_hz": [fitted[0][0], fitted[-1][1]],
+                                                           "fitted_ranges_hz": [list(r) for r in fitted]})]
         return events + self._pattern_init(b, t_ns)
 
     def _pattern_init(self, b: str, t_ns: int) -> list[Event]:
@@ -329,7 +333,7 @@ class Scheduler:
             # model for, and while the device has it awake: "stand" is the label of data up to a second and a
             # half old, and a gyroscope woken by a foot that already walks was switched off (gdin
             # leave-one-out exp43: Gait-DR placed 9 running strides with one held heading, stride error 10.9 m)
-            return self._unmodelled_motion() or self.device_gyro_awake
+            return self._walk_needs_gyro() or self.device_gyro_awake
         if not self.nav_ready:
             return True
         if self.working == "zupt" or (self.mode == "auto" and not self.compass_ready):
@@ -368,6 +372,15 @@ class Scheduler:
         session): standing, the motion that follows may be it, and its first strides need the ZUPT-KF."""
         return any(not self._resumable(b) for b in _MOVING)
 
+    def _walk_needs_gyro(self) -> bool:
+        """Standing, the motion that may follow needs the gyroscope from its first stride: Gait-DR has no model
+        for it (:meth:`_unmodelled_motion`), or no heading source to follow its turns (auto mode: the compass is
+        not trusted). Woken by the host after the recognition delay and a long upload instead, the gyroscope
+        came on 9 s into a walk; Gait-DR had held its heading through a 90-deg turn the untrusted compass half
+        saw, and the ZUPT-KF went on 48 deg off, in which frame the compass was then fitted (held-out synthetic
+        day, seed 7: 36 m mean error)."""
+        return self._unmodelled_motion() or (self.mode == "auto" and not self.compass_ready)
+
     def run_wake(self) -> bool:
         """Gait-DR of a walk while running has no model: let the device wake the gyroscope by itself when its
         accelerometer goes beyond this person's walking (``run_wake_ms2``), as it does on the first motion of a
@@ -393,7 +406,7 @@ class Scheduler:
         must reach the scheduler quickly); long in auto mode once the gyroscope is off and Gait-DR can navigate
         (fewer radio wake-ups and fewer per-batch computations; nothing is waiting for the answer)."""
         # a stand whose gyroscope is wanted only for a motion Gait-DR has no model for: the device wakes it itself
-        for_unmodelled = self.behaviour == "stand" and self._unmodelled_motion()
+        for_unmodelled = self.behaviour == "stand" and self._walk_needs_gyro()
         if self.mode == "auto" and (not gyro_on or for_unmodelled) and self._gait_dr_can_start() and not self._exam_near():
             return LOW_POWER_BATCH_S
         return BATCH_S

@@ -39,7 +39,7 @@ import numpy as np
 from models.stats import median
 from models.steps import G0
 
-__all__ = ["MODELS", "FORM", "MAX_PAIRS", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
+__all__ = ["MODELS", "FORM", "MAX_PAIRS", "CADENCE_GAP_HZ", "StepFeatures", "regressors", "default_prior", "robust_fit", "sigma_d",
            "StepLengthCalibrator"]
 
 MODELS: tuple[str, ...] = ("eq15", "eq15_run", "weinberg", "height_freq")
@@ -48,6 +48,12 @@ FORM = "eq15-abar"  # regressor form the stored fits were made with (states with
 # for the per-band fits of two or three walking patterns, and it bounds the state and the profile (~12 kB per
 # behaviour); a sliding window also follows a gait that changes slowly over weeks of use.
 MAX_PAIRS = 300
+# Largest gap [Hz] between fitted cadences that a model interpolates across (StepLengthCalibrator.cadence_ranges):
+# the strides of one pace spread by a few hundredths of a Hz; the synthetic paces lie 0.11-0.13 Hz apart, and a
+# slow and a fast walk fitted without the pace between them leave a gap of 0.1-0.2 Hz (held-out synthetic days).
+# 0.15 left seed 2's walk 9 % long; 0.05 also re-initialised a 1.2-s pace between 1.32-s and 1.16-s fitted ones
+# (mixed day, seed 10).
+CADENCE_GAP_HZ = 0.1
 
 
 @dataclass(frozen=True)
@@ -319,19 +325,36 @@ class StepLengthCalibrator:
         return out
 
     def cadence_range(self, behaviour: str, period_res_s: float = 0.0) -> tuple[float, float] | None:
-        """Step frequencies [Hz] the behaviour's fitted model has seen: min and max over the pairs its pooled
-        fit used (None when not fitted), each widened by half the cadence resolution of a step period measured
-        to ``period_res_s`` [s] (``f^2 period_res_s / 2``: a cadence within half a resolution step of a
-        fitted one is the same walking pattern). Outside this range the model extrapolates along the prior's
-        shape (004 Section 4.2: a changed step frequency may leave the calibrated model inaccurate).
+        """Lowest and highest step frequency [Hz] the behaviour's fitted model has seen (:meth:`cadence_ranges`'
+        outer ends; None when not fitted)."""
+        ranges = self.cadence_ranges(behaviour, period_res_s)
+        return None if ranges is None else (ranges[0][0], ranges[-1][1])
+
+    def cadence_ranges(self, behaviour: str, period_res_s: float = 0.0,
+                       gap_hz: float = CADENCE_GAP_HZ) -> list[tuple[float, float]] | None:
+        """Step frequencies [Hz] the behaviour's fitted model has seen, as ranges (None when not fitted).
+
+        The cadences of the pairs its pooled fit used, split where two neighbours lie more than ``gap_hz`` (or
+        three cadence resolution steps, ``3 f^2 period_res_s``) apart: a model fitted on a slow and a fast walk
+        has seen neither cadence between them, and it interpolated the walk there 9 % long, within its
+        examination's 3 sigma (held-out synthetic day, seed 2: 0.74 and 0.98 Hz fitted, 0.87 Hz walked). Each
+        range is widened by half the resolution of a step period measured to ``period_res_s`` [s]
+        (``f^2 period_res_s / 2``: a cadence within half a resolution step of a fitted one is the same walking
+        pattern). Outside these ranges the model extrapolates along the prior's shape (004 Section 4.2: a
+        changed step frequency may leave the calibrated model inaccurate).
         """
         e = self._fits.get(behaviour)
         pairs = self._pairs.get(behaviour, [])
         if e is None or not pairs or int(e["n"]) <= 0:
             return None  # not fitted, or every pair the fit used has since been dropped (max_pairs)
-        f = [q[0] for q in pairs[: int(e["n"])]]
-        lo, hi = min(f), max(f)
-        return lo - 0.5 * lo * lo * period_res_s, hi + 0.5 * hi * hi * period_res_s
+        f = sorted(q[0] for q in pairs[: int(e["n"])])
+        ranges = [[f[0], f[0]]]
+        for a, b in zip(f[:-1], f[1:]):
+            if b - a > max(gap_hz, 3.0 * b * b * period_res_s):
+                ranges.append([b, b])
+            else:
+                ranges[-1][1] = b
+        return [(lo - 0.5 * lo * lo * period_res_s, hi + 0.5 * hi * hi * period_res_s) for lo, hi in ranges]
 
     def _entry(self, behaviour: str, f_s: float) -> dict | None:
         return self._fits.get(f"{behaviour}/{self.band(f_s)}") or self._fits.get(behaviour)

@@ -60,6 +60,24 @@ def test_table1_standing_while_a_moving_behaviour_has_no_model_leaves_the_gyro_t
     assert s.idle()
 
 
+def test_table1_standing_without_a_heading_source_leaves_the_gyro_to_the_device() -> None:
+    """Every behaviour calibrated, but the compass not trusted: the walk that may follow needs the gyroscope for its
+    turns from the first stride, so the device wakes it on motion instead of the host after a long upload."""
+    from energy.scheduler import LOW_POWER_BATCH_S
+
+    s = aligned("auto", CFG, calibrated("walk", "run"))
+    s.zupt_aligned = True
+    s.deviation_pending.clear()
+    s.on_behaviour("stand", 1.0, 1)
+    assert s.idle()
+    s.compass_ready = False
+    cfg = s.sensor_config()
+    assert not s.idle() and not cfg.gyro_on and cfg.gyro_wake_on_motion
+    assert cfg.batch_s == LOW_POWER_BATCH_S  # the device needs no answer to wake it
+    s.compass_ready = True
+    assert s.idle()
+
+
 def test_standing_with_a_gyroscope_the_device_woke_keeps_it_until_the_device_puts_it_down() -> None:
     """The "stand" label lags the data by up to 1.5 s: a gyroscope the device woke for a foot that already walks
     stays with the device (wake-on-motion) instead of being switched off (gdin exp43, returning: 10.9 m)."""
@@ -422,7 +440,7 @@ def test_a_session_start_on_an_unconfirmed_deviation_leaves_the_first_strides_to
 
 
 # ---------------------------------------------------------------- Table 2 (ii): walking pattern
-FITTED_HZ = (0.71, 0.90)  # cadences the walk model was fitted on
+FITTED_HZ = [(0.71, 0.90)]  # cadences the walk model was fitted on
 
 
 def walking_in_gait_dr(mode: str = "auto") -> Scheduler:
@@ -449,7 +467,7 @@ def test_a_sustained_cadence_change_re_initialises_the_walking_pattern_and_one_o
         assert s.on_cadence(f, FITTED_HZ, 2) == []
     events = s.on_cadence(fast[n_out - 1], FITTED_HZ, 3)
     assert [e.kind for e in events] == ["walking_pattern_changed", "mode_switch"]
-    assert events[0].detail["f_s_hz"] > FITTED_HZ[1] and len(s.cadences) == 0
+    assert events[0].detail["f_s_hz"] > FITTED_HZ[0][1] and len(s.cadences) == 0
     assert s.working == "zupt" and s.gyro_wanted() and s.calibrating == "walk" and s.l_zupt_m == 0.0
     assert PATTERN_STRIDES < PATTERN_INIT_STRIDES  # the hysteresis is shorter than the re-initialisation
     for _ in range(PATTERN_INIT_STRIDES - 1):  # far shorter than L0
@@ -465,12 +483,28 @@ def test_a_pace_between_two_sample_counts_is_not_a_new_walking_pattern() -> None
     """Periods in whole 0.04-s samples: a 1.11-s pace reads as 1.08 and 1.16 s. Three 1.08-s strides in five make
     the median cadence (0.926 Hz) leave a range fitted up to 0.909 Hz; the middle periods' mean (1.107 s) does
     not. One sample shorter throughout (1.04 s) is a new pattern."""
-    fitted = (0.70, 0.909)
+    fitted = [(0.70, 0.909)]
     s = walking_in_gait_dr()
     mixed = [1 / 1.08, 1 / 1.16, 1 / 1.08, 1 / 1.16, 1 / 1.08, 1 / 1.24, 1 / 1.08, 1 / 1.16, 1 / 1.08]
     assert not [e for f in mixed for e in s.on_cadence(f, fitted, 1)] and s.working == "pdr"
     events = [e for f in [1 / 1.04] * 3 for e in s.on_cadence(f, fitted, 2)]
     assert [e.kind for e in events] == ["walking_pattern_changed", "mode_switch"] and s.working == "zupt"
+
+
+def test_a_pace_between_two_fitted_paces_is_a_new_walking_pattern() -> None:
+    """A model fitted on a slow and a fast walk (two cadence ranges) has not seen the walk between them (held-out
+    synthetic day, seed 2: interpolated 9 % long, within its examination's 3 sigma); paces within either are
+    known."""
+    fitted = [(0.72, 0.77), (0.95, 1.0)]
+    s = walking_in_gait_dr()
+    known = [0.74, 0.75, 0.98, 0.97, 0.74, 0.99, 0.75]
+    assert not [e for f in known for e in s.on_cadence(f, fitted, 1)] and s.working == "pdr"
+    s.on_behaviour("stand", 30.0, 30)
+    s.on_behaviour("walk", 33.0, 33)
+    events = [e for f in [0.87] * 5 for e in s.on_cadence(f, fitted, 34)]
+    assert [e.kind for e in events] == ["walking_pattern_changed", "mode_switch"] and s.working == "zupt"
+    assert events[0].detail["fitted_hz"] == [0.72, 1.0]
+    assert events[0].detail["fitted_ranges_hz"] == [[0.72, 0.77], [0.95, 1.0]]
 
 
 def test_the_walking_pattern_trigger_needs_auto_mode_gait_dr_and_a_fitted_model() -> None:

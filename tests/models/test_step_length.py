@@ -240,6 +240,41 @@ def test_cadence_range_is_that_of_the_fitted_pairs_widened_by_half_a_resolution_
     assert r.cadence_range("walk") == cal.cadence_range("walk")
 
 
+def test_cadence_ranges_leave_out_the_paces_between_a_slow_and_a_fast_walk() -> None:
+    """A model fitted on a slow and a fast walk has not seen the pace between them: the fitted cadences split where
+    two neighbours lie more than CADENCE_GAP_HZ apart (or three resolution steps), each part widened by half a
+    resolution step; one continuous spread stays one range."""
+    from models.step_length import CADENCE_GAP_HZ
+
+    rng = np.random.default_rng(5)
+    cal = StepLengthCalibrator()
+    slow, fast = _features(rng, 15, 0.72, 0.76), _features(rng, 15, 0.96, 1.0)
+    for x in slow:
+        cal.add("walk", x, 1.05)
+    for x in fast:
+        cal.add("walk", x, 1.6)
+    cal.fit("walk")
+    res = 0.04
+    ranges = cal.cadence_ranges("walk", res)
+    assert len(ranges) == 2
+    (lo0, hi0), (lo1, hi1) = ranges
+    f_slow, f_fast = [x.f_s for x in slow], [x.f_s for x in fast]
+    assert lo0 == pytest.approx(min(f_slow) - min(f_slow) ** 2 * res / 2)
+    assert hi0 == pytest.approx(max(f_slow) + max(f_slow) ** 2 * res / 2)
+    assert lo1 == pytest.approx(min(f_fast) - min(f_fast) ** 2 * res / 2)
+    assert hi1 == pytest.approx(max(f_fast) + max(f_fast) ** 2 * res / 2)
+    assert not any(lo <= 0.87 <= hi for lo, hi in ranges)  # the walk between them
+    assert cal.cadence_range("walk", res) == pytest.approx((lo0, hi1))  # the outer ends
+    assert len(cal.cadence_ranges("walk", res, gap_hz=0.3)) == 1  # a gap the model may interpolate across
+    assert CADENCE_GAP_HZ < min(f_fast) - max(f_slow)
+    for x in _features(rng, 30, 0.76, 0.96):  # the paces between, seen and fitted
+        cal.add("walk", x, 1.35)
+    cal.fit("walk")
+    assert len(cal.cadence_ranges("walk", res)) == 1
+    r = StepLengthCalibrator.from_state(loads(dumps(cal.get_state())))
+    assert r.cadence_ranges("walk", res) == cal.cadence_ranges("walk", res)
+
+
 def test_pairs_are_bounded_to_the_newest_and_the_fit_keeps_counting_its_own() -> None:
     """Every ZUPT-KF stride adds a pair; the newest ``max_pairs`` are kept (the state and the profile stayed
     bounded), and the pooled fit's ``n`` still counts the kept pairs it used (cadence_range, refits)."""
