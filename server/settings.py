@@ -46,9 +46,10 @@ class Settings(BaseSettings):
     token_max_ttl_s : int
         Longest lifetime a client may ask for when minting a token [s].
     rate_limit_per_s : float
-        Sustained requests per second allowed per token (per server process); 0 = no limit.
+        Sustained requests per second allowed per user, shared by all of the user's tokens (per server process);
+        0 = no limit.
     rate_limit_burst : int
-        Requests a token may make at once after being idle.
+        Requests a user may make at once after being idle.
     max_profile_bytes : int
         Largest calibration profile a client may store (``PUT /v1/profiles/{behaviour}``), as compact JSON
         [bytes]; larger gets HTTP 413. At least 256 kB: a profile the engine hands out reaches about 180 kB at its

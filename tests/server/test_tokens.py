@@ -1,4 +1,4 @@
-"""Token expiry and the per-token rate limit: clear 401/429 messages, settings validated at start-up."""
+"""Token expiry and the per-user rate limit: clear 401/429 messages, settings validated at start-up."""
 
 from __future__ import annotations
 
@@ -194,25 +194,39 @@ def limited(settings):  # type: ignore[no-untyped-def]
     a.state.db_engine.dispose()
 
 
-def test_rate_limit_is_per_token_with_429_and_retry_after(limited, make_user) -> None:  # type: ignore[no-untyped-def]
+def test_rate_limit_is_per_user_with_429_and_retry_after(limited, make_user) -> None:  # type: ignore[no-untyped-def]
     app, c = limited
     _, tok = make_user()
     _, other = make_user()
     codes = [c.get("/v1/users/me", headers=auth(tok)).status_code for _ in range(3)]
     assert codes == [200, 200, 200]  # the burst
     r = c.get("/v1/users/me", headers=auth(tok))
-    assert r.status_code == 429 and "at most 2 requests/s per token" in r.json()["detail"]
+    assert r.status_code == 429 and "at most 2 requests/s per user" in r.json()["detail"]
     assert int(r.headers["retry-after"]) >= 1
-    assert c.get("/v1/users/me", headers=auth(other)).status_code == 200  # another token is not affected
+    assert c.get("/v1/users/me", headers=auth(other)).status_code == 200  # another user is not affected
     sid = c.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(other)).json()["id"]
     c.get("/v1/users/me", headers=auth(other))
     r = c.put(f"/v1/sessions/{sid}/batches/0", content=encode_msgpack(still_batch(T0)),
               headers={**auth(other), "content-type": MSGPACK_TYPE})
-    assert r.status_code == 429  # uploads share the token's bucket; the refused batch is not stored
+    assert r.status_code == 429  # uploads share the user's bucket; the refused batch is not stored
     with app.state.sessionmaker() as db:
         from server.models import TrackSession
 
         assert db.get(TrackSession, sid).next_seq == 0
+
+
+def test_a_users_tokens_share_one_rate_limit(limited, make_user) -> None:  # type: ignore[no-untyped-def]
+    """A bucket per token let a user multiply the rate limit by minting tokens (each new token came with a full
+    burst); all tokens of a user now draw from the user's one bucket, on the normal and the upload route."""
+    app, c = limited
+    _, tok = make_user()
+    fresh = [c.post("/v1/tokens", headers=auth(tok)).json()["token"] for _ in range(2)]  # 2 of the burst of 3
+    assert c.get("/v1/users/me", headers=auth(fresh[0])).status_code == 200  # the 3rd
+    r = c.get("/v1/users/me", headers=auth(fresh[1]))  # a token that has not made a request yet
+    assert r.status_code == 429 and "shared by all of the user's tokens" in r.json()["detail"], r.text
+    r = c.put("/v1/sessions/1/batches/0", content=encode_msgpack(still_batch(T0)),
+              headers={**auth(fresh[1]), "content-type": MSGPACK_TYPE})
+    assert r.status_code == 429, r.text  # the upload fast path draws from the same bucket
 
 
 def test_sdk_waits_out_a_429_and_the_batch_is_applied_once(limited, make_user) -> None:  # type: ignore[no-untyped-def]
