@@ -23,6 +23,8 @@ from server.security import hash_token, new_token
 __all__ = [
     "create_user",
     "issue_token",
+    "list_tokens",
+    "get_token",
     "user_by_token",
     "create_device",
     "list_devices",
@@ -64,6 +66,16 @@ def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | Non
     db.add(row)
     db.flush()
     return token, row
+
+
+def list_tokens(db: Session, user: User) -> list[Token]:
+    """All tokens of ``user`` (live, expired and revoked), oldest first."""
+    return list(db.execute(select(Token).where(Token.user_id == user.id).order_by(Token.id)).scalars())
+
+
+def get_token(db: Session, user: User, token_id: int) -> Token | None:
+    """``user``'s token ``token_id``; None when there is none or it belongs to someone else."""
+    return db.execute(select(Token).where(Token.id == token_id, Token.user_id == user.id)).scalar_one_or_none()
 
 
 def user_by_token(db: Session, token: str) -> User | None:

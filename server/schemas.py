@@ -13,6 +13,7 @@ __all__ = [
     "UserOut",
     "TokenCreate",
     "TokenOut",
+    "TokenInfoOut",
     "DeviceCreate",
     "DeviceOut",
     "SessionCreate",
@@ -62,9 +63,29 @@ class TokenCreate(BaseModel):
 
 
 class TokenOut(BaseModel):
+    """A token just minted: the secret is in this answer only (the server keeps its hash)."""
+
     user_id: int
     token: str
     expires_at: datetime | None = None
+    id: int | None = Field(default=None, description="the token's id (GET /v1/tokens, DELETE /v1/tokens/{id})")
+    label: str | None = None
+
+
+class TokenInfoOut(_Out):
+    """One of the caller's tokens as ``GET /v1/tokens`` lists it: never the token itself nor its hash.
+
+    When a token was last used is not recorded (that would be a database write on every request, the batch
+    uploads included).
+    """
+
+    id: int
+    label: str
+    created_at: datetime
+    expires_at: datetime | None = Field(description="null: never expires")
+    revoked: bool
+    live: bool = Field(description="usable: neither revoked nor expired")
+    current: bool = Field(description="the token of this request")
 
 
 class DeviceCreate(BaseModel):

@@ -1,4 +1,4 @@
-"""Accounts and tokens: admins create users; every user can mint and revoke their own tokens."""
+"""Accounts and tokens: admins create users; every user can mint, list and revoke their own tokens."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
 from server import crud
-from server.deps import CurrentUser, SessionDep, SettingsDep
+from server.deps import CurrentUser, PathId, SessionDep, SettingsDep
 from server.models import Token
-from server.schemas import TokenCreate, TokenOut, UserCreate
+from server.schemas import TokenCreate, TokenInfoOut, TokenOut, UserCreate
 from server.security import hash_token
 
 __all__ = ["router"]
@@ -31,7 +31,7 @@ def create_user(body: UserCreate, db: SessionDep, user: CurrentUser, settings: S
     except IntegrityError:
         db.rollback()
         raise HTTPException(status.HTTP_409_CONFLICT, f"name: user {body.name!r} already exists") from None
-    return TokenOut(user_id=new.id, token=token, expires_at=row.expires_at)
+    return TokenOut(user_id=new.id, token=token, expires_at=row.expires_at, id=row.id, label=row.label)
 
 
 @router.post("/tokens", response_model=TokenOut, status_code=status.HTTP_201_CREATED)
@@ -73,14 +73,45 @@ def new_token(request: Request, db: SessionDep, user: CurrentUser, settings: Set
         row.expires_at = minting_exp
         db.flush()
     db.commit()
-    return TokenOut(user_id=user.id, token=token, expires_at=row.expires_at)
+    return TokenOut(user_id=user.id, token=token, expires_at=row.expires_at, id=row.id, label=row.label)
+
+
+@router.get("/tokens", response_model=list[TokenInfoOut])
+def list_tokens(request: Request, db: SessionDep, user: CurrentUser) -> list[TokenInfoOut]:
+    """The calling user's tokens, oldest first: live, expired and revoked ones, each with its ``id`` (for
+    ``DELETE /v1/tokens/{id}``), ``label``, ``created_at``, ``expires_at``, ``revoked``, ``live`` and whether it
+    is the token of this request (``current``). Never a token itself (shown once, when minted) nor its hash.
+    When a token was last used is not recorded.
+    """
+    now = datetime.now(timezone.utc)
+    mine = hash_token(request.state.token)
+    return [
+        TokenInfoOut(id=t.id, label=t.label, created_at=t.created_at, expires_at=t.expires_at, revoked=t.revoked,
+                     live=not t.revoked and (t.expires_at is None or t.expires_at > now), current=t.token_hash == mine)
+        for t in crud.list_tokens(db, user)
+    ]
 
 
 @router.delete("/tokens/current", status_code=status.HTTP_204_NO_CONTENT)
 def revoke_current(request: Request, db: SessionDep, user: CurrentUser) -> None:
-    """Revoke the token used for this request."""
+    """Revoke the token used for this request (``DELETE /v1/tokens/{id}`` revokes any other of the caller's)."""
     # the token current_user authenticated, not the header parsed again (another scheme with ``?token=``, or
     # extra blanks after "Bearer", named a token that does not exist: HTTP 500)
     row = db.query(Token).filter(Token.token_hash == hash_token(request.state.token), Token.user_id == user.id).one()
+    row.revoked = True
+    db.commit()
+
+
+# declared after /tokens/current: a route matches in declaration order, and "current" is no id
+@router.delete("/tokens/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
+def revoke(token_id: PathId, db: SessionDep, user: CurrentUser) -> None:
+    """Revoke one of the calling user's tokens by its ``id`` (``GET /v1/tokens``; the token of this request too).
+
+    Revoking a revoked token again is a no-op (204). Another user's token id is 404, like an id that does not
+    exist, so ids cannot be probed.
+    """
+    row = crud.get_token(db, user, token_id)
+    if row is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"token {token_id} not found")
     row.revoked = True
     db.commit()

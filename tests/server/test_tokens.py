@@ -153,7 +153,9 @@ def test_revoking_the_current_token_revokes_the_one_that_authenticated(client, m
     ("get", "/v1/sessions/{sid}/trajectory"),
     ("get", "/v1/profiles"),
     ("post", "/v1/tokens"),
+    ("get", "/v1/tokens"),
     ("delete", "/v1/tokens/current"),
+    ("delete", "/v1/tokens/1"),
     ("put", "/v1/sessions/{sid}/batches/0"),  # the upload fast path
     ("post", "/v1/sensorlogger/phone-q/flush"),
 ])
@@ -288,3 +290,52 @@ def test_admin_cli_token_lifetime(tmp_path, capsys) -> None:  # type: ignore[no-
     with pytest.raises(SystemExit):
         main(["admin", "token", "ann", "--json", "--database-url", url, "--ttl-s", "5"])
     assert "at least 60" in capsys.readouterr().err
+
+
+def test_a_user_lists_their_tokens_without_secrets(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """There was no way to see one's tokens: a user could only revoke the token in hand."""
+    _, tok = make_user()
+    _, other = make_user()
+    client.post("/v1/tokens", headers=auth(other))  # someone else's token is not listed
+    minted = client.post("/v1/tokens", json={"label": "watch", "ttl_s": 3600}, headers=auth(tok)).json()
+    assert isinstance(minted["id"], int) and minted["label"] == "watch"  # added to the answer; nothing renamed
+    assert {"user_id", "token", "expires_at"} <= minted.keys()
+    gone = client.post("/v1/tokens", json={"label": "old phone"}, headers=auth(tok)).json()
+    assert client.delete("/v1/tokens/current", headers=auth(gone["token"])).status_code == 204
+    r = client.get("/v1/tokens", headers=auth(minted["token"]))
+    assert r.status_code == 200, r.text
+    rows = r.json()
+    assert [t["label"] for t in rows] == ["initial", "watch", "old phone"]  # oldest first, only the caller's
+    for t in rows:
+        assert set(t) == {"id", "label", "created_at", "expires_at", "revoked", "live", "current"}
+    assert "pn_" not in r.text and tok not in r.text and hash_token(tok) not in r.text
+    by_label = {t["label"]: t for t in rows}
+    assert by_label["watch"]["id"] == minted["id"] and by_label["watch"]["current"] is True
+    assert by_label["watch"]["expires_at"] is not None and by_label["watch"]["live"] is True
+    assert by_label["initial"]["current"] is False and by_label["initial"]["expires_at"] is None
+    assert by_label["old phone"]["revoked"] is True and by_label["old phone"]["live"] is False
+
+
+def test_a_user_revokes_a_token_by_id_and_another_users_id_is_404(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, tok = make_user()
+    _, other = make_user()
+    lost = client.post("/v1/tokens", json={"label": "lost phone"}, headers=auth(tok)).json()
+    theirs = client.post("/v1/tokens", headers=auth(other)).json()
+    r = client.delete(f"/v1/tokens/{lost['id']}", headers=auth(tok))
+    assert r.status_code == 204, r.text
+    r = client.get("/v1/users/me", headers=auth(lost["token"]))
+    assert r.status_code == 401 and r.json()["detail"] == "token revoked"
+    assert client.delete(f"/v1/tokens/{lost['id']}", headers=auth(tok)).status_code == 204  # again: no-op
+    # someone else's token: 404 like an id that does not exist (not 403: ids are not probed), and it still works
+    for tid in (theirs["id"], 10**9):
+        r = client.delete(f"/v1/tokens/{tid}", headers=auth(tok))
+        assert r.status_code == 404 and r.json()["detail"] == f"token {tid} not found", r.text
+    assert client.get("/v1/users/me", headers=auth(theirs["token"])).status_code == 200
+    r = client.delete("/v1/tokens/abc", headers=auth(tok))
+    assert r.status_code == 422 and r.json()["field"] == "path.token_id"
+    r = client.delete(f"/v1/tokens/{2**63}", headers=auth(tok))
+    assert r.status_code == 422 and r.json()["field"] == "path.token_id"
+    assert client.get("/v1/users/me", headers=auth(tok)).status_code == 200
+    # DELETE /v1/tokens/current still revokes the token of the request, not a token with some id
+    assert client.delete("/v1/tokens/current", headers=auth(tok)).status_code == 204
+    assert client.get("/v1/users/me", headers=auth(tok)).json()["detail"] == "token revoked"
