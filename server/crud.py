@@ -25,6 +25,9 @@ __all__ = [
     "issue_token",
     "list_tokens",
     "get_token",
+    "lock_user",
+    "count_live_tokens",
+    "prune_dead_tokens",
     "user_by_token",
     "create_device",
     "list_devices",
@@ -76,6 +79,35 @@ def list_tokens(db: Session, user: User) -> list[Token]:
 def get_token(db: Session, user: User, token_id: int) -> Token | None:
     """``user``'s token ``token_id``; None when there is none or it belongs to someone else."""
     return db.execute(select(Token).where(Token.id == token_id, Token.user_id == user.id)).scalar_one_or_none()
+
+
+def lock_user(db: Session, user: User) -> None:
+    """Lock ``user``'s row until the transaction ends (PostgreSQL ``SELECT ... FOR UPDATE``), so that two
+    requests of one user that count and then add rows (tokens) take turns. SQLite has no row locks: there the
+    first write of a transaction takes the database's write lock, which serializes the same way."""
+    db.execute(select(User.id).where(User.id == user.id).with_for_update())
+
+
+def _live(now: datetime) -> Any:
+    return Token.revoked.is_(False) & (Token.expires_at.is_(None) | (Token.expires_at > now))
+
+
+def count_live_tokens(db: Session, user: User) -> int:
+    """Tokens of ``user`` that are neither revoked nor expired."""
+    q = select(func.count()).select_from(Token).where(Token.user_id == user.id, _live(utcnow()))
+    return int(db.execute(q).scalar_one())
+
+
+def prune_dead_tokens(db: Session, user: User, keep: int) -> int:
+    """Delete ``user``'s revoked and expired tokens but the newest ``keep`` of them; returns how many went.
+
+    A deleted token is still refused (401 "invalid token" instead of "token revoked" / "expired").
+    """
+    dead = select(Token.id).where(Token.user_id == user.id, ~_live(utcnow()))
+    ids = list(db.execute(dead.order_by(Token.id.desc()).offset(keep)).scalars())
+    if ids:
+        db.execute(delete(Token).where(Token.id.in_(ids)))
+    return len(ids)
 
 
 def user_by_token(db: Session, token: str) -> User | None:

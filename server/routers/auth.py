@@ -50,6 +50,11 @@ def new_token(request: Request, db: SessionDep, user: CurrentUser, settings: Set
 
     Longer-lived tokens come from an admin: ``pednav admin token NAME --ttl-s S`` (or a new user's first
     token, ``POST /v1/users``).
+
+    A user holds at most the server's ``max_tokens_per_user`` live (unexpired, unrevoked) tokens: one more is
+    refused with 409 naming ``tokens`` and the limit; ``GET /v1/tokens`` lists them and ``DELETE
+    /v1/tokens/{id}`` revokes one. Minting also deletes the user's oldest revoked and expired tokens beyond that
+    many. (All of a user's tokens share one rate limit.)
     """
     opts = body or TokenCreate()
     if opts.ttl_s is not None and opts.ttl_s > settings.token_max_ttl_s:
@@ -68,10 +73,21 @@ def new_token(request: Request, db: SessionDep, user: CurrentUser, settings: Set
                 "admin ('pednav admin token NAME --ttl-s S')"))
         if ttl is None or ttl > left_s:
             ttl = None  # capped below: the new token ends with the minting one
+    # the new token is added first and counted with the others: on SQLite its insert takes the write lock, on
+    # PostgreSQL the user's row lock makes concurrent mints of one user wait, so they cannot all pass the count
+    crud.lock_user(db, user)
     token, row = crud.issue_token_row(db, user, opts.label, ttl)
     if minting_exp is not None and (row.expires_at is None or row.expires_at > minting_exp):
         row.expires_at = minting_exp
         db.flush()
+    live = crud.count_live_tokens(db, user)
+    if live > settings.max_tokens_per_user:
+        db.rollback()
+        raise HTTPException(status.HTTP_409_CONFLICT, (
+            f"tokens: at most {settings.max_tokens_per_user} live (unexpired, unrevoked) tokens per user on this "
+            f"server, and this user holds {live - 1}; revoke one (GET /v1/tokens lists them, DELETE "
+            "/v1/tokens/{id} revokes one) or wait until one expires"))
+    crud.prune_dead_tokens(db, user, keep=settings.max_tokens_per_user)
     db.commit()
     return TokenOut(user_id=user.id, token=token, expires_at=row.expires_at, id=row.id, label=row.label)
 

@@ -262,6 +262,8 @@ def test_rate_limiter_refills_at_the_rate() -> None:
     ({"PEDNAV_RATE_LIMIT_BURST": "many"}, "PEDNAV_RATE_LIMIT_BURST"),
     ({"PEDNAV_MAX_PROFILE_BYTES": "1000"}, "PEDNAV_MAX_PROFILE_BYTES"),  # below what the engine hands out
     ({"PEDNAV_MAX_PROFILE_VERSIONS": "0"}, "PEDNAV_MAX_PROFILE_VERSIONS"),  # the current version must stay
+    ({"PEDNAV_MAX_TOKENS_PER_USER": "0"}, "PEDNAV_MAX_TOKENS_PER_USER"),  # no user could mint a token
+    ({"PEDNAV_MAX_TOKENS_PER_USER": "many"}, "PEDNAV_MAX_TOKENS_PER_USER"),
 ])
 def test_bad_settings_fail_fast_naming_the_variable(monkeypatch, env, problem) -> None:  # type: ignore[no-untyped-def]
     for k, v in env.items():
@@ -273,6 +275,7 @@ def test_bad_settings_fail_fast_naming_the_variable(monkeypatch, env, problem) -
 def test_default_settings_are_valid() -> None:
     s = Settings()
     assert s.token_ttl_s == 30 * 86_400 and s.rate_limit_per_s > 0 and s.rate_limit_burst >= 1
+    assert s.max_tokens_per_user >= 1
     assert Settings(token_ttl_s=0).token_ttl_s == 0  # never expires
 
 
@@ -339,3 +342,72 @@ def test_a_user_revokes_a_token_by_id_and_another_users_id_is_404(client, make_u
     # DELETE /v1/tokens/current still revokes the token of the request, not a token with some id
     assert client.delete("/v1/tokens/current", headers=auth(tok)).status_code == 204
     assert client.get("/v1/users/me", headers=auth(tok)).json()["detail"] == "token revoked"
+
+
+@pytest.fixture()
+def capped(settings):  # type: ignore[no-untyped-def]
+    """The app with at most 3 live tokens per user (and no rate limit, which is not under test here)."""
+    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_tokens_per_user": 3,
+                                               "rate_limit_per_s": 0.0}))
+    with TestClient(a) as c:
+        yield a, c
+    a.state.db_engine.dispose()
+
+
+def test_a_user_holds_at_most_max_tokens_per_user_live_tokens(capped, make_user) -> None:  # type: ignore[no-untyped-def]
+    """Any token could mint tokens without limit: the tokens table grew at the client's will (and, before the
+    rate limit was per user, every token added a rate limit). Beyond the cap: 409 naming it, nothing minted."""
+    app, c = capped
+    uid, tok = make_user()
+    minted = [c.post("/v1/tokens", headers=auth(tok)).json() for _ in range(2)]  # with the initial one: 3
+    assert all("token" in m for m in minted)
+    r = c.post("/v1/tokens", json={"label": "one too many"}, headers=auth(tok))
+    assert r.status_code == 409, r.text
+    detail = r.json()["detail"]
+    assert detail.startswith("tokens: at most 3 live") and "holds 3" in detail and "DELETE /v1/tokens/{id}" in detail
+    assert _token_count(app, uid) == 3  # nothing minted
+    # a slot comes back when a token is revoked ...
+    assert c.delete(f"/v1/tokens/{minted[0]['id']}", headers=auth(tok)).status_code == 204
+    third = c.post("/v1/tokens", headers=auth(tok))
+    assert third.status_code == 201, third.text
+    assert c.post("/v1/tokens", headers=auth(tok)).status_code == 409
+    # ... or expires
+    _expire(app, third.json()["token"], datetime.now(timezone.utc) - timedelta(seconds=1))
+    assert c.post("/v1/tokens", headers=auth(tok)).status_code == 201
+    live = [t for t in c.get("/v1/tokens", headers=auth(tok)).json() if t["live"]]
+    assert len(live) == 3
+    # other users are not affected
+    _, other = make_user()
+    assert c.post("/v1/tokens", headers=auth(other)).status_code == 201
+
+
+def test_revoked_and_expired_tokens_are_pruned_when_minting(capped, make_user) -> None:  # type: ignore[no-untyped-def]
+    """With a cap on live tokens only, mint-and-revoke in a loop still grew the table without bound: minting now
+    keeps the newest max_tokens_per_user dead tokens of the user and deletes the older ones."""
+    app, c = capped
+    uid, tok = make_user()
+    dead = []
+    for k in range(6):
+        m = c.post("/v1/tokens", json={"label": f"t{k}"}, headers=auth(tok)).json()
+        assert c.delete(f"/v1/tokens/{m['id']}", headers=auth(tok)).status_code == 204
+        dead.append(m)
+    # minting t5 kept the newest 3 dead (t2..t4) and deleted t0, t1; t5 was revoked after it
+    assert _token_count(app, uid) == 1 + 3 + 1
+    rows = c.get("/v1/tokens", headers=auth(tok)).json()
+    assert [t["label"] for t in rows] == ["initial", "t2", "t3", "t4", "t5"]
+    r = c.get("/v1/users/me", headers=auth(dead[0]["token"]))
+    assert r.status_code == 401 and r.json()["detail"] == "invalid token"  # pruned: still refused
+    assert c.get("/v1/users/me", headers=auth(tok)).status_code == 200  # live tokens are never pruned
+
+
+def test_concurrent_mints_do_not_pass_the_cap_together(capped, make_user) -> None:  # type: ignore[no-untyped-def]
+    """Each mint counts the user's live tokens; concurrent mints of one user take turns (PostgreSQL: a row lock
+    on the user; SQLite: the write lock), so they cannot all see room for one more."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    app, c = capped
+    uid, tok = make_user()
+    with ThreadPoolExecutor(8) as pool:
+        codes = list(pool.map(lambda _: c.post("/v1/tokens", headers=auth(tok)).status_code, range(8)))
+    assert sorted(codes) == [201, 201] + [409] * 6, codes
+    assert _token_count(app, uid) == 3
