@@ -44,15 +44,17 @@ __all__ = [
 ]
 
 
-def create_user(db: Session, name: str, is_admin: bool = False, ttl_s: float | None = None) -> tuple[User, str]:
+def create_user(db: Session, name: str, is_admin: bool = False, ttl_s: float | None = None, *,
+                expires_at: datetime | None = None) -> tuple[User, str]:
     """Create a user and its first token; returns ``(user, token)`` (the token is shown only once).
 
-    ``ttl_s``: lifetime of the token [s]; None = never expires.
+    ``ttl_s``: lifetime of the token [s]; None = never expires. ``expires_at``, when given, is the token's expiry
+    instead.
     """
     user = User(name=name, is_admin=is_admin)
     db.add(user)
     db.flush()
-    token = issue_token(db, user, "initial", ttl_s)
+    token, _ = issue_token_row(db, user, "initial", ttl_s, expires_at=expires_at)
     return user, token
 
 
@@ -62,9 +64,12 @@ def issue_token(db: Session, user: User, label: str = "", ttl_s: float | None = 
     return token
 
 
-def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | None = None) -> tuple[str, Token]:
+def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | None = None, *,
+                    expires_at: datetime | None = None) -> tuple[str, Token]:
+    """:func:`issue_token` returning ``(secret, row)``; ``expires_at``, when given, wins over ``ttl_s``."""
     token = new_token()
-    expires = None if not ttl_s else datetime.now(timezone.utc) + timedelta(seconds=ttl_s)
+    expires = expires_at if expires_at is not None else (
+        None if not ttl_s else datetime.now(timezone.utc) + timedelta(seconds=ttl_s))
     row = Token(user_id=user.id, token_hash=hash_token(token), label=label, expires_at=expires)
     db.add(row)
     db.flush()

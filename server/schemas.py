@@ -43,6 +43,9 @@ class UserCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.@-]+$")
+    ttl_s: int | None = Field(default=None, ge=60, description="lifetime of the new user's first token [s], as for "
+                              "POST /v1/tokens: at most token_max_ttl_s and the remaining lifetime of the admin's "
+                              "token (422 beyond); default: the server's token_ttl_s, ending no later than it")
 
 
 class UserOut(_Out):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 from datetime import datetime, timedelta, timezone
 
 import pytest
@@ -113,7 +114,8 @@ def test_a_token_mints_shorter_tokens_and_the_default_ends_with_it(client, make_
 
 
 def test_a_token_cannot_outlive_its_minter_when_tokens_never_expire(settings, make_user) -> None:  # type: ignore[no-untyped-def]
-    """``PEDNAV_TOKEN_TTL_S=0`` (default lifetime: never) from a token that expires: the new one ends with it."""
+    """``PEDNAV_TOKEN_TTL_S=0`` (default lifetime: never) from a token that expires: the new one ends with it
+    (a minted token and a new user's first token alike)."""
     a = create_app(settings.model_copy(update={"migrate_on_startup": False, "token_ttl_s": 0}))
     try:
         with TestClient(a) as c:
@@ -122,6 +124,13 @@ def test_a_token_cannot_outlive_its_minter_when_tokens_never_expire(settings, ma
             r = c.post("/v1/tokens", headers=auth(short["token"]))
             assert r.status_code == 201 and r.json()["expires_at"] == short["expires_at"]
             assert c.post("/v1/tokens", headers=auth(tok)).json()["expires_at"] is None
+            # so does a new user's first token, created by an admin token that expires
+            _, adm = make_user(admin=True)
+            short = c.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(adm)).json()
+            r = c.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}"}, headers=auth(short["token"]))
+            assert r.status_code == 201 and r.json()["expires_at"] == short["expires_at"]
+            r = c.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}"}, headers=auth(adm))
+            assert r.json()["expires_at"] is None
     finally:
         a.state.db_engine.dispose()
 
@@ -411,3 +420,46 @@ def test_concurrent_mints_do_not_pass_the_cap_together(capped, make_user) -> Non
         codes = list(pool.map(lambda _: c.post("/v1/tokens", headers=auth(tok)).status_code, range(8)))
     assert sorted(codes) == [201, 201] + [409] * 6, codes
     assert _token_count(app, uid) == 3
+
+
+def _user_exists(app, name: str) -> bool:  # type: ignore[no-untyped-def]
+    from server import crud
+
+    with app.state.sessionmaker() as db:
+        return crud.user_by_name(db, name) is not None
+
+
+def test_a_new_users_first_token_does_not_outlive_the_admins_token(client, app, make_user, settings) -> None:  # type: ignore[no-untyped-def]
+    """POST /v1/users gave the new user's first token the full token_ttl_s (30 days) whatever the admin's token:
+    an admin token that expired in an hour could leave behind an account usable for a month."""
+    _, admin = make_user(admin=True)
+    short = client.post("/v1/tokens", json={"ttl_s": 3600}, headers=auth(admin)).json()
+    name = f"n{uuid.uuid4().hex[:10]}"
+    r = client.post("/v1/users", json={"name": name}, headers=auth(short["token"]))
+    assert r.status_code == 201, r.text
+    assert settings.token_ttl_s > 3600
+    assert datetime.fromisoformat(r.json()["expires_at"]) == datetime.fromisoformat(short["expires_at"])
+    assert isinstance(r.json()["id"], int) and r.json()["label"] == "initial"
+    assert client.get("/v1/users/me", headers=auth(r.json()["token"])).json()["name"] == name
+    # an explicit lifetime beyond the admin's token: 422 naming ttl_s, and no user is created
+    name2 = f"n{uuid.uuid4().hex[:10]}"
+    r = client.post("/v1/users", json={"name": name2, "ttl_s": 7200}, headers=auth(short["token"]))
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith("ttl_s: at most 3") and "cannot outlive" in r.json()["detail"]
+    assert not _user_exists(app, name2)
+    r = client.post("/v1/users", json={"name": name2, "ttl_s": 600}, headers=auth(short["token"]))
+    assert r.status_code == 201
+    assert abs((datetime.fromisoformat(r.json()["expires_at"]) - datetime.now(timezone.utc)).total_seconds() - 600) < 30
+    # an admin token that never expires: the server's default lifetime, or ttl_s up to token_max_ttl_s
+    r = client.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}"}, headers=auth(admin))
+    expected = datetime.now(timezone.utc) + timedelta(seconds=settings.token_ttl_s)
+    assert abs((datetime.fromisoformat(r.json()["expires_at"]) - expected).total_seconds()) < 60
+    r = client.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}", "ttl_s": settings.token_max_ttl_s + 1},
+                    headers=auth(admin))
+    assert r.status_code == 422 and r.json()["detail"].startswith(f"ttl_s: at most {settings.token_max_ttl_s} s")
+    r = client.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}", "ttl_s": 5}, headers=auth(admin))
+    assert r.status_code == 422 and r.json()["field"] == "ttl_s"
+    # still admins only
+    _, plain = make_user()
+    r = client.post("/v1/users", json={"name": f"n{uuid.uuid4().hex[:10]}"}, headers=auth(plain))
+    assert r.status_code == 403
