@@ -105,19 +105,26 @@ class DeviceOut(_Out):
     created_at: datetime
 
 
+_COORD = {"strict": True, "allow_inf_nan": False}
+"""A coordinate is a JSON number: a string ("12.5") or a boolean was converted and taken (strict), NaN and
+infinities are refused too."""
+
+
 class SessionCreate(BaseModel):
     """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
 
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
+    Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
+    altitude -500..10 000 m; anything else is 422 naming the field.
     """
 
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
     device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
-    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
-    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0)
-    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0)
+    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
+    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
+    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
 
 
 class SensorConfigOut(BaseModel):
