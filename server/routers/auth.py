@@ -137,7 +137,7 @@ def revoke_current(request: Request, db: SessionDep, user: CurrentUser) -> None:
 
 # declared after /tokens/current: a route matches in declaration order, and "current" is no id
 @router.delete("/tokens/{token_id}", status_code=status.HTTP_204_NO_CONTENT)
-def revoke(token_id: PathId, db: SessionDep, user: CurrentUser) -> None:
+def revoke_token(token_id: PathId, db: SessionDep, user: CurrentUser) -> None:
     """Revoke one of the calling user's tokens by its ``id`` (``GET /v1/tokens``; the token of this request too).
 
     Revoking a revoked token again is a no-op (204). Another user's token id is 404, like an id that does not
