@@ -1,10 +1,11 @@
-"""Bearer-token authentication with expiry, and a per-token request rate limit.
+"""Bearer-token authentication with expiry, and a per-user request rate limit.
 
 Every request with a token resolves it by its SHA-256 (one indexed SELECT): unknown, revoked and expired tokens
 get 401 with a message that says which (an expired token names its expiry time). A valid token then draws
-from its token bucket: ``rate_limit_per_s`` requests per second on average with bursts of ``rate_limit_burst``;
-an empty bucket gets 429 with ``Retry-After``. The buckets live in the server process, so with N worker
-processes a token may make up to N times the limit (the benchmarks and the default deployment use one).
+from its user's bucket: ``rate_limit_per_s`` requests per second on average with bursts of ``rate_limit_burst``;
+an empty bucket gets 429 with ``Retry-After``. All tokens of a user share one bucket: with a bucket per token,
+a user who minted k tokens had k times the limit. The buckets live in the server process, so with N worker
+processes a user may make up to N times the limit (the benchmarks and the default deployment use one).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Hashable
 from datetime import datetime, timezone
 from typing import Any
 
@@ -28,14 +30,14 @@ _T = Token.__table__
 
 
 class RateLimiter:
-    """Token buckets keyed by token hash.
+    """Token buckets keyed by user id (any hashable key).
 
     Parameters
     ----------
     rate_per_s : float
-        Sustained requests per second per token; 0 disables the limit.
+        Sustained requests per second per key; 0 disables the limit.
     burst : int
-        Bucket size: requests a token may make at once after being idle.
+        Bucket size: requests a key may make at once after being idle.
     max_keys : int
         Buckets kept; the least recently used full ones are dropped beyond this (a full bucket carries no
         information).
@@ -45,14 +47,14 @@ class RateLimiter:
         self.rate = float(rate_per_s)
         self.burst = float(burst)
         self.max_keys = max_keys
-        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, last refill time)
+        self._buckets: dict[Hashable, tuple[float, float]] = {}  # key -> (tokens, last refill time)
         self._lock = threading.Lock()
 
     @property
     def enabled(self) -> bool:
         return self.rate > 0
 
-    def hit(self, key: str, now: float | None = None) -> float:
+    def hit(self, key: Hashable, now: float | None = None) -> float:
         """Take one request from ``key``'s bucket; returns 0 when allowed, else the wait [s] until it would be."""
         if not self.enabled:
             return 0.0
@@ -100,7 +102,7 @@ def require_token(token: str | None) -> str:
 
 
 def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) -> int:
-    """The user id of a valid token, after taking one request from its rate limit.
+    """The user id of a valid token, after taking one request from its user's rate limit.
 
     Raises
     ------
@@ -114,7 +116,8 @@ def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) ->
 
 def admit(h: str, row: Any, limiter: RateLimiter | None) -> int:
     """The user id of the token whose hash is ``h`` and whose row ``(user_id, revoked, expires_at)`` was read
-    (``None``: no such token), after taking one request from its rate limit; raises as :func:`authenticate`."""
+    (``None``: no such token), after taking one request from its user's rate limit (shared by all the user's
+    tokens); raises as :func:`authenticate`."""
     if row is None or row[0] is None:
         raise _unauthorized("invalid token")
     user_id, revoked, expires_at = row[0], row[1], row[2]
@@ -130,12 +133,12 @@ def admit(h: str, row: Any, limiter: RateLimiter | None) -> int:
                 "token, or 'pednav admin token NAME')"
             )
     if limiter is not None:
-        wait = limiter.hit(h)
+        wait = limiter.hit(int(user_id))
         if wait > 0:
             raise HTTPException(
                 status.HTTP_429_TOO_MANY_REQUESTS,
-                f"rate limit exceeded: at most {limiter.rate:g} requests/s per token (bursts of {limiter.burst:g}); "
-                f"retry in {wait:.2f} s",
+                f"rate limit exceeded: at most {limiter.rate:g} requests/s per user, shared by all of the user's "
+                f"tokens (bursts of {limiter.burst:g}); retry in {wait:.2f} s",
                 headers={"Retry-After": str(max(1, math.ceil(wait)))},
             )
     return int(user_id)

@@ -23,6 +23,11 @@ from server.security import hash_token, new_token
 __all__ = [
     "create_user",
     "issue_token",
+    "list_tokens",
+    "get_token",
+    "lock_user",
+    "count_live_tokens",
+    "prune_dead_tokens",
     "user_by_token",
     "create_device",
     "list_devices",
@@ -39,15 +44,17 @@ __all__ = [
 ]
 
 
-def create_user(db: Session, name: str, is_admin: bool = False, ttl_s: float | None = None) -> tuple[User, str]:
+def create_user(db: Session, name: str, is_admin: bool = False, ttl_s: float | None = None, *,
+                expires_at: datetime | None = None) -> tuple[User, str]:
     """Create a user and its first token; returns ``(user, token)`` (the token is shown only once).
 
-    ``ttl_s``: lifetime of the token [s]; None = never expires.
+    ``ttl_s``: lifetime of the token [s]; None = never expires. ``expires_at``, when given, is the token's expiry
+    instead.
     """
     user = User(name=name, is_admin=is_admin)
     db.add(user)
     db.flush()
-    token = issue_token(db, user, "initial", ttl_s)
+    token, _ = issue_token_row(db, user, "initial", ttl_s, expires_at=expires_at)
     return user, token
 
 
@@ -57,13 +64,55 @@ def issue_token(db: Session, user: User, label: str = "", ttl_s: float | None = 
     return token
 
 
-def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | None = None) -> tuple[str, Token]:
+def issue_token_row(db: Session, user: User, label: str = "", ttl_s: float | None = None, *,
+                    expires_at: datetime | None = None) -> tuple[str, Token]:
+    """:func:`issue_token` returning ``(secret, row)``; ``expires_at``, when given, wins over ``ttl_s``."""
     token = new_token()
-    expires = None if not ttl_s else datetime.now(timezone.utc) + timedelta(seconds=ttl_s)
+    expires = expires_at if expires_at is not None else (
+        None if not ttl_s else datetime.now(timezone.utc) + timedelta(seconds=ttl_s))
     row = Token(user_id=user.id, token_hash=hash_token(token), label=label, expires_at=expires)
     db.add(row)
     db.flush()
     return token, row
+
+
+def list_tokens(db: Session, user: User) -> list[Token]:
+    """All tokens of ``user`` (live, expired and revoked), oldest first."""
+    return list(db.execute(select(Token).where(Token.user_id == user.id).order_by(Token.id)).scalars())
+
+
+def get_token(db: Session, user: User, token_id: int) -> Token | None:
+    """``user``'s token ``token_id``; None when there is none or it belongs to someone else."""
+    return db.execute(select(Token).where(Token.id == token_id, Token.user_id == user.id)).scalar_one_or_none()
+
+
+def lock_user(db: Session, user: User) -> None:
+    """Lock ``user``'s row until the transaction ends (PostgreSQL ``SELECT ... FOR UPDATE``), so that two
+    requests of one user that count and then add rows (tokens) take turns. SQLite has no row locks: there the
+    first write of a transaction takes the database's write lock, which serializes the same way."""
+    db.execute(select(User.id).where(User.id == user.id).with_for_update())
+
+
+def _live(now: datetime) -> Any:
+    return Token.revoked.is_(False) & (Token.expires_at.is_(None) | (Token.expires_at > now))
+
+
+def count_live_tokens(db: Session, user: User) -> int:
+    """Tokens of ``user`` that are neither revoked nor expired."""
+    q = select(func.count()).select_from(Token).where(Token.user_id == user.id, _live(utcnow()))
+    return int(db.execute(q).scalar_one())
+
+
+def prune_dead_tokens(db: Session, user: User, keep: int) -> int:
+    """Delete ``user``'s revoked and expired tokens but the newest ``keep`` of them; returns how many went.
+
+    A deleted token is still refused (401 "invalid token" instead of "token revoked" / "expired").
+    """
+    dead = select(Token.id).where(Token.user_id == user.id, ~_live(utcnow()))
+    ids = list(db.execute(dead.order_by(Token.id.desc()).offset(keep)).scalars())
+    if ids:
+        db.execute(delete(Token).where(Token.id.in_(ids)))
+    return len(ids)
 
 
 def user_by_token(db: Session, token: str) -> User | None:

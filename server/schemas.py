@@ -13,6 +13,7 @@ __all__ = [
     "UserOut",
     "TokenCreate",
     "TokenOut",
+    "TokenInfoOut",
     "DeviceCreate",
     "DeviceOut",
     "SessionCreate",
@@ -42,6 +43,9 @@ class UserCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.@-]+$")
+    ttl_s: int | None = Field(default=None, ge=60, description="lifetime of the new user's first token [s], as for "
+                              "POST /v1/tokens: at most token_max_ttl_s and the remaining lifetime of the admin's "
+                              "token (422 beyond); default: the server's token_ttl_s, ending no later than it")
 
 
 class UserOut(_Out):
@@ -62,9 +66,29 @@ class TokenCreate(BaseModel):
 
 
 class TokenOut(BaseModel):
+    """A token just minted: the secret is in this answer only (the server keeps its hash)."""
+
     user_id: int
     token: str
     expires_at: datetime | None = None
+    id: int | None = Field(default=None, description="the token's id (GET /v1/tokens, DELETE /v1/tokens/{id})")
+    label: str | None = None
+
+
+class TokenInfoOut(_Out):
+    """One of the caller's tokens as ``GET /v1/tokens`` lists it: never the token itself nor its hash.
+
+    When a token was last used is not recorded (that would be a database write on every request, the batch
+    uploads included).
+    """
+
+    id: int
+    label: str
+    created_at: datetime
+    expires_at: datetime | None = Field(description="null: never expires")
+    revoked: bool
+    live: bool = Field(description="usable: neither revoked nor expired")
+    current: bool = Field(description="the token of this request")
 
 
 class DeviceCreate(BaseModel):
@@ -81,19 +105,26 @@ class DeviceOut(_Out):
     created_at: datetime
 
 
+_COORD = {"strict": True, "allow_inf_nan": False}
+"""A coordinate is a JSON number: a string ("12.5") or a boolean was converted and taken (strict), NaN and
+infinities are refused too."""
+
+
 class SessionCreate(BaseModel):
     """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
 
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
+    Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
+    altitude -500..10 000 m; anything else is 422 naming the field.
     """
 
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
     device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
-    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0)
-    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0)
-    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0)
+    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
+    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
+    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
 
 
 class SensorConfigOut(BaseModel):

@@ -46,9 +46,16 @@ class Settings(BaseSettings):
     token_max_ttl_s : int
         Longest lifetime a client may ask for when minting a token [s].
     rate_limit_per_s : float
-        Sustained requests per second allowed per token (per server process); 0 = no limit.
+        Sustained requests per second allowed per user, shared by all of the user's tokens (per server process);
+        0 = no limit.
     rate_limit_burst : int
-        Requests a token may make at once after being idle.
+        Requests a user may make at once after being idle.
+    max_tokens_per_user : int
+        Live (unexpired, unrevoked) tokens a user may hold; ``POST /v1/tokens`` beyond it is refused with 409
+        until the user revokes one (``DELETE /v1/tokens/{id}``) or one expires. As many revoked or expired
+        tokens are kept per user (listed by ``GET /v1/tokens``); older ones are deleted when a token is minted,
+        so the tokens table holds at most about twice this per user. The admin CLI (``pednav admin token``)
+        is not held to it.
     max_profile_bytes : int
         Largest calibration profile a client may store (``PUT /v1/profiles/{behaviour}``), as compact JSON
         [bytes]; larger gets HTTP 413. At least 256 kB: a profile the engine hands out reaches about 180 kB at its
@@ -79,6 +86,7 @@ class Settings(BaseSettings):
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
     rate_limit_burst: int = Field(default=200, ge=1)
+    max_tokens_per_user: int = Field(default=20, ge=1, le=10_000)
     max_profile_bytes: int = Field(default=512 * 1024, ge=MIN_PROFILE_BYTES)
     max_profile_versions: int = Field(default=50, ge=1, le=100_000)
     pg_one_statement_writes: bool = True

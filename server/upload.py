@@ -236,7 +236,7 @@ class Uploader:
     host : EngineHost
         Engines (helper processes or in-process) and the per-session locks.
     limiter : RateLimiter
-        Per-token rate limit.
+        Per-user rate limit.
     """
 
     def __init__(self, db_engine: Any, host: EngineHost, limiter: RateLimiter | None) -> None:

@@ -275,7 +275,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
     port = int(url.rsplit(":", 1)[1])
     limits = httpx2.Limits(max_connections=devices + 10, max_keepalive_connections=devices + 10)
     async with httpx2.AsyncClient(base_url=url, timeout=60.0, limits=limits) as client:
-        token = tokens[-1]  # warm-up and set-up; every device has its own token (the per-token rate limit)
+        token = tokens[-1]  # warm-up; every device is a user of its own (the rate limit is per user)
         h = {"Authorization": f"Bearer {token}"}
         # warm-up sessions (engine JIT compilation), not measured: consecutive session ids, so each of up to
         # _WARM_SESSIONS engine helper processes (chosen by session id) runs its kernels once
@@ -365,8 +365,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from server.db import make_sessionmaker
 
         with make_sessionmaker(eng)() as db:
-            user, first = crud.create_user(db, f"load-{uuid.uuid4().hex[:8]}")
-            tokens = [crud.issue_token(db, user, f"device-{i}") for i in range(args.devices)] + [first]
+            # one user per device (independent people): the rate limit is per user, shared by a user's tokens,
+            # so one user's 200 devices at 1 batch/s would be held to 50 requests/s; the last one warms up
+            run_id = uuid.uuid4().hex[:8]
+            tokens = [crud.create_user(db, f"load-{run_id}-{i}")[1] for i in range(args.devices + 1)]
             db.commit()
         eng.dispose()
         res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid)))

@@ -159,6 +159,44 @@ def test_session_start_validation_names_the_field(client, make_user, body, field
     assert field in r.json()["detail"]
 
 
+_GEO = {"device_kind": "phone", "latitude_deg": 43.66, "longitude_deg": -79.39, "altitude_m": 80.0}
+
+
+@pytest.mark.parametrize("field", ["latitude_deg", "longitude_deg", "altitude_m"])
+@pytest.mark.parametrize("value", ["12.5", "0", True, None], ids=["number-string", "zero-string", "bool", "NaN"])
+def test_session_coordinates_are_strict_numbers(client, make_user, field, value) -> None:  # type: ignore[no-untyped-def]
+    """A number string ("12.5") was converted and stored as the geodetic start: coordinates are JSON numbers now
+    (422 naming the field); NaN (which Python's JSON parser reads) is refused as well."""
+    _, a = make_user()
+    if value is None:  # NaN: not valid JSON, but accepted by the parser
+        r = client.post("/v1/sessions", content=json.dumps({**_GEO, field: float("nan")}),
+                        headers={**auth(a), "content-type": "application/json"})
+    else:
+        r = client.post("/v1/sessions", json={**_GEO, field: value}, headers=auth(a))
+    assert r.status_code == 422, r.text
+    assert r.json()["field"] == field and r.json()["detail"].startswith(f"{field}: "), r.text
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []  # no session started
+
+
+@pytest.mark.parametrize("field, value", [
+    ("latitude_deg", 90.0001), ("latitude_deg", -91), ("longitude_deg", 180.5), ("longitude_deg", -181),
+    ("altitude_m", -501), ("altitude_m", 1e6),
+])
+def test_session_coordinates_out_of_range_name_the_field(client, make_user, field, value) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.post("/v1/sessions", json={**_GEO, field: value}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == field, r.text
+    assert "less than or equal" in r.json()["detail"] or "greater than or equal" in r.json()["detail"]
+
+
+def test_session_coordinates_take_integers_and_the_bounds(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    _, a = make_user()
+    r = client.post("/v1/sessions", json={"device_kind": "phone", "latitude_deg": -90, "longitude_deg": 180,
+                                          "altitude_m": 0}, headers=auth(a))
+    assert r.status_code == 201, r.text
+    assert (r.json()["latitude_deg"], r.json()["longitude_deg"], r.json()["altitude_m"]) == (-90.0, 180.0, 0.0)
+
+
 def test_sessions_isolated_between_users(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     _, b = make_user()
