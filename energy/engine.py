@@ -48,6 +48,7 @@ _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyros
 _STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
+_REANCHOR_STANCES = 3  # consecutive ZUPT-KF stances whose trusted compass agrees on an offset before it is taken
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
 _REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
 # ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start. 40 ms let a quiet moment in the
@@ -349,6 +350,7 @@ class Engine:
         self._rest_head = math.nan  # ... and the heading it restarted with [rad]
         self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
         self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
+        self._compass_offsets: list[float] = []  # trusted compass - ZUPT-KF heading at this segment's latest stances
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
         self._labels_pending: list[tuple[float, str]] = []
 
@@ -753,6 +755,7 @@ class Engine:
         if self._seg_first:
             # hand-over stance: Gait-DR walks the foot up to here, the ZUPT-KF continues from it
             self._seg_first = False
+            self._compass_offsets = []  # a new segment: its own offsets
             dr_steps = []
             lead, self._lead_d = self._lead_d, None
             if lead is not None and self._pos is not None:
@@ -798,7 +801,9 @@ class Engine:
             return
         e = gait.take_pair(st.t_start_s)
         if e is None:
+            self._compass_offsets = []
             return
+        st = self._compass_reanchor(st, e)
         if sched.assist_active:
             self._clean_run = self._clean_run + 1 if gait.field_clean(e) else 0
             if self._clean_run >= _ASSIST_RELEASE_STEPS:
@@ -837,6 +842,56 @@ class Engine:
                 "sigma_d_m": cal.sigma_d_m,
                 "n_steps": cal.n_steps,
             })
+
+    def _compass_reanchor(self, st: Stance, e: Any) -> Stance:
+        """Turn this ZUPT-KF segment to a trusted compass that disagrees with it, consistently, on the Earth's
+        field; returns the stance ``st`` (session frame) as turned.
+
+        A segment's heading starts from Gait-DR's, and a turn Gait-DR missed inside steel stays in it: the
+        ZUPT-KF cannot see it (held-out synthetic day, seed 2, 244 s: a 180-deg turn whose first stride changed
+        the field's dip by 3.2 deg was taken as 134 deg, and the ZUPT-KF segment after it ran 47 deg off; its
+        stances joined the compass fit with that heading). Where ``_REANCHOR_STANCES`` consecutive stances have
+        a trusted compass on the Earth's field (:meth:`energy.gait_dr.GaitPipeline.earth_compass`) whose offsets
+        from the ZUPT-KF heading agree within half the compass tolerance and whose mean is beyond it
+        (:meth:`models.compass.CompassFollower._tol`, 3 x sqrt(2) x its noise, at least 10 deg), the segment is
+        turned by that mean about this stance (the positions already out stay) and the follower's gyroscope
+        test starts again from here.
+        """
+        gait = self._gait
+        assert gait is not None
+        c = gait.earth_compass(e)
+        if c is None:
+            self._compass_offsets = []
+            return st
+        self._compass_offsets = (self._compass_offsets + [wrap_angle(c - float(st.heading))])[-_REANCHOR_STANCES:]
+        if len(self._compass_offsets) < _REANCHOR_STANCES:
+            return st
+        offs = np.asarray(self._compass_offsets)
+        mean = math.atan2(float(np.mean(np.sin(offs))), float(np.mean(np.cos(offs))))
+        tol = gait.follower._tol(gait._compass_sigma())
+        if not abs(mean) > tol or max(abs(wrap_angle(float(o) - mean)) for o in offs) > 0.5 * tol:
+            return st
+        self._compass_offsets = []
+        p_seg = self._turn_back(st.position - self._offset)
+        self._yaw = wrap_angle(self._yaw + mean)
+        self._offset = st.position - self._turn(p_seg)
+        self._head = wrap_angle(float(st.heading) + mean)
+        gait.follower.gyro_ref = None  # the heading it was tested against jumped
+        log.info("ZUPT-KF segment turned by %.1f deg to the compass at %.1f s", math.degrees(mean), st.t_end_s)
+        c_, s_ = math.cos(mean), math.sin(mean)
+        d = np.asarray(st.delta, dtype=float)
+        delta = np.array([c_ * d[0] - s_ * d[1], s_ * d[0] + c_ * d[1], d[2]])
+        return replace(st, heading=self._head, delta=delta)
+
+    def _turn_back(self, p: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`_turn`."""
+        if self._yaw == 0.0:
+            return np.asarray(p, dtype=float)
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        q = np.array(p, dtype=float, copy=True)
+        q[..., 0] = c * p[..., 0] + s * p[..., 1]
+        q[..., 1] = -s * p[..., 0] + c * p[..., 1]
+        return q
 
     def _reckon(self, before_s: float, positions: list[Position], events: list[Event]) -> list:
         """Gait-DR steps with onset before ``before_s`` [s]."""
@@ -967,6 +1022,7 @@ class Engine:
             "rest_head": self._rest_head,
             "disturbed_run": self._disturbed_run,
             "clean_run": self._clean_run,
+            "compass_offsets": list(self._compass_offsets),
             "nav_t": self._nav_t,
             "labels_pending": [[t, lab] for t, lab in self._labels_pending],
         }
@@ -1016,6 +1072,7 @@ class Engine:
         obj._rest_head = float(d.get("rest_head", math.nan))
         obj._disturbed_run = int(d["disturbed_run"])
         obj._clean_run = int(d["clean_run"])
+        obj._compass_offsets = [float(x) for x in d.get("compass_offsets", [])]  # absent in older states
         obj._nav_t = float(d["nav_t"])
         obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]
         return obj

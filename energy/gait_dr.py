@@ -810,6 +810,26 @@ class GaitPipeline:
         sigma = cal.heading_rms if math.isfinite(cal.heading_rms) else cal.max_heading_rms
         return turn, math.sqrt(2.0) * sigma
 
+    def earth_compass(self, e: StepEvent) -> float | None:
+        """Heading [rad] a trusted compass reads at a step's stance where its field is the Earth's (passes the
+        gate and is :meth:`_settled`) and steady since the previous stance (the follower's, within its
+        ``steady_tol``: not the edge of a disturbance); None anywhere else or without such a compass in this
+        session's frame."""
+        cal = self.mag
+        if not (self.has_mag and cal.ready and cal.trusted and self.mag_anchored):
+            return None
+        m = self.mag_at(e)
+        if m is None:
+            return None
+        acc = self.acc_at(e)
+        if cal.disturbed(acc, m):
+            return None
+        shape = cal.field_shape(acc, m)
+        prev = self.follower.prev
+        if not self._settled(shape) or prev is None or abs(shape[0] - prev[1]) > self.follower.steady_tol * max(prev[1], 1e-9):
+            return None
+        return cal.heading(acc, m)
+
     def field_clean(self, e: StepEvent) -> bool:
         """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""
         m = self.mag_at(e)

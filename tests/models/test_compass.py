@@ -781,6 +781,39 @@ def test_a_walk_that_began_in_steel_gets_a_trusted_compass_from_its_later_stance
     assert back._row_swings == cal._row_swings and len(back._row_swings) == back.n_stances
 
 
+def test_a_field_turning_for_longer_than_a_walking_turn_is_given_back() -> None:
+    """Steel can turn the field by 6-9 deg a stride, its shape steady, for more strides than a walking turn takes
+    (held-out synthetic day, seed 12, 386-418 s: 8 strides one way, then back). What such a run took once past
+    ``min_turn`` is given back at its fifth stride, and it takes no more until the compass stops turning that way
+    (before: it was taken again four strides at a time, 64 deg here); a run that starts after a still stride is a
+    turn again. The run survives a state round trip, also one stored before the run kept its start."""
+    from models.compass import CompassFollower
+
+    f = CompassFollower()
+    h0 = 0.3
+    h, c = f.step(h0, -0.4, False, 38.0, 1.0), -0.4
+    out = []
+    for k in range(8):
+        c += math.radians(8.0)
+        h = f.step(h, c, False, 38.0, 1.0)
+        out.append(math.degrees(h - h0))
+        if k == 1:
+            f = CompassFollower.from_state(f.get_state())
+    assert out == pytest.approx([0.0, 0.0, 24.0, 32.0, 0.0, 0.0, 0.0, 0.0], abs=1e-9)
+    c += math.radians(1.0)
+    h = f.step(h, c, False, 38.0, 1.0)  # the field stops turning
+    assert f.run is None and math.degrees(h - h0) == pytest.approx(0.0, abs=1e-9)
+    for k in range(3):  # a walking turn of 3 x 8 deg after it
+        c += math.radians(8.0)
+        h = f.step(h, c, False, 38.0, 1.0)
+        if k == 0:  # a state stored before the run kept its start: [accumulated, taken, |m|, dip, strides]
+            old = f.get_state()
+            old["run"] = old["run"][:5]
+            f = CompassFollower.from_state(old)
+            assert f.run == pytest.approx([math.radians(8.0), 0.0, 38.0, 1.0, 1, 38.0, 1.0])
+    assert math.degrees(h - h0) == pytest.approx(24.0, abs=1e-9)
+
+
 @pytest.mark.parametrize("drift, taken", [(0.0, True), (0.07, False)])
 def test_a_gradual_turn_through_a_disturbance_is_taken_from_its_run_of_changes(drift: float, taken: bool) -> None:
     """Inside a disturbance (the heading held, turns only from compass changes) a 45-deg walking turn shows as
