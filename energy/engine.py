@@ -20,9 +20,9 @@ from numba import njit
 
 from energy import codec
 from energy.config import EngineConfig
-from energy.gait_dr import PAIR_TOL_S, GaitPipeline
+from energy.gait_dr import PAIR_TOL_S, GaitPipeline, _event_from_row, _event_row
 from energy.profile import BehaviourCalibration, Profile
-from energy.scheduler import SLEEP_AFTER_S, Scheduler
+from energy.scheduler import PATTERN_STRIDES, SLEEP_AFTER_S, Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.attitude import align_at_rest
 from models.batch import BatchError, SensorBatch
@@ -62,6 +62,19 @@ _HEADING_SIGMAS = 3.0  # a stored heading deviation fits a stride within this ma
 # deg walking, 7.9 deg running (synthetic demo and mixed days, seeds 0-5, new and returning: 2410 stance pairs,
 # RMS 1.0 / 1.8 deg), more than 3 sigma of its calibration residual (1-2 deg) allows
 _MISSED_TURN_MIN = math.radians(10.0)
+# Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern): more than the detection window
+# (PATTERN_STRIDES) plus the strides placed until the ZUPT-KF takes over (2-6 on the synthetic mixed day: one long
+# upload and the hand-over stance)
+_DR_LOG = 24
+# ... a stride of it whose period exceeds its median by this factor holds a pause: the synthetic strides' periods
+# scatter by 3 % and come in 0.04-s samples at 25 Hz (a 1.0-s pace reads 0.96-1.04 s), two walking paces lie 10-15 %
+# apart
+_PAUSE_PERIOD = 1.25
+
+
+def _step_model(label: str) -> str:
+    """Behaviour whose step model serves a label (as :mod:`energy.gait_dr`: ``stand``/``other`` use walking)."""
+    return label if label in ("walk", "run") else "walk"
 
 
 def _heading_test(z: float, kf: HeadingDeviationKF) -> dict[str, Any]:
@@ -353,6 +366,10 @@ class Engine:
         self._compass_offsets: list[float] = []  # trusted compass - ZUPT-KF heading at this segment's latest stances
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
         self._labels_pending: list[tuple[float, str]] = []
+        # the latest Gait-DR strides: [behaviour, step event row, length [m], unit direction north, east]
+        self._dr_log: list[list[Any]] = []
+        # (behaviour, time [s] of its first stride) of a walking pattern the ZUPT-KF is initialising
+        self._pattern: tuple[str, float] | None = None
 
     # ------------------------------------------------------------------ contract
     @property
@@ -810,6 +827,7 @@ class Engine:
                 events += sched.release_heading_assist(t_ns)
                 self._clean_run = 0
         exam = sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest
+        fitted = None
         if exam:
             b = label if label in ("walk", "run") else "walk"
             d_sl, _ = gait.step_length(e, b)
@@ -828,6 +846,8 @@ class Engine:
         elif heading is not None:
             verdict = sched.on_heading_check(heading, st.t_end_s, t_ns)
         events += verdict
+        if any(ev.kind == "examination_failed" and ev.detail.get("cause") == "walking_pattern" for ev in verdict):
+            self._note_pattern(sched.behaviour, fitted)
         if any(ev.kind == "examination_failed" and ev.detail.get("cause") == "heading_deviation" for ev in verdict):
             gait.forget_mount(pending)  # the sensor was re-mounted: its stored deviations and compass are stale
         sched.compass_ready = gait.heading_source()
@@ -836,6 +856,9 @@ class Engine:
         if sched.ready_for_pdr() and gait.ready(label):
             fits = gait.fit(label)
             cal = self._store_calibration(label, fits)
+            pattern, self._pattern = self._pattern, None
+            if pattern is not None and sched.pattern_left is not None and pattern[0] == _step_model(label):
+                events += self._correct_pattern(pattern, t_ns)
             events += sched.on_calibrated(st.t_end_s, t_ns, {
                 "heading_deviation_rad": cal.heading_deviation_rad,
                 "heading_deviation_var": cal.heading_deviation_var,
@@ -907,15 +930,21 @@ class Engine:
         self._moved = self._moved or bool(steps)
         if steps:
             self._step_s = float(steps[-1][0].t_s)
+        prev = self._pos
         for step, e, source in steps:
             self._apply_labels(step.t_s, events)
             t_ns = self._ns(step.t_s)
             pos = step.position
             positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
+            self._log_stride(step, e, prev)
+            prev = np.asarray(pos, dtype=float)
             events += self._sched.tick(step.t_s, t_ns)
             if not e.after_rest:  # 004 Table 2 (ii): a walking pattern the step-length model has not seen
                 fitted = gait.cal.cadence_ranges(self._sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
-                events += self._sched.on_cadence(e.f_s, fitted, t_ns)
+                found = self._sched.on_cadence(e.f_s, fitted, t_ns)
+                if any(ev.kind == "walking_pattern_changed" for ev in found):
+                    self._note_pattern(self._sched.behaviour, fitted)
+                events += found
             self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
             if self._disturbed_run >= _ASSIST_AFTER_STEPS:
                 events += self._sched.request_heading_assist(t_ns)
@@ -926,6 +955,67 @@ class Engine:
             self._pos = np.asarray(steps[-1][0].position, dtype=float)
             self._head = gait.heading
         return steps
+
+    def _log_stride(self, step: Any, e: Any, prev: np.ndarray | None) -> None:
+        """Keep a placed Gait-DR stride (its event, length and direction) for :meth:`_correct_pattern`."""
+        if prev is None:
+            return
+        dn, de = float(step.position[0] - prev[0]), float(step.position[1] - prev[1])
+        n = math.hypot(dn, de)
+        if not (step.length > 0.0 and n > 0.0):
+            return
+        self._dr_log.append([_step_model(step.behaviour), _event_row(e), float(step.length), dn / n, de / n])
+        del self._dr_log[:-_DR_LOG]
+
+    def _note_pattern(self, behaviour: str, fitted: Any) -> None:
+        """A walking pattern of ``behaviour`` the step model was not fitted on was detected: remember where its
+        strides began, the first of the latest cadence-tested Gait-DR strides (the scheduler's detection window)
+        whose cadence lies outside the ``fitted`` ranges."""
+        b = _step_model(behaviour)
+        window = [r for r in self._dr_log if r[0] == b and r[1][9] < 0.5][-PATTERN_STRIDES:]
+        out = [r[1][0] for r in window if fitted and not any(lo <= r[1][2] <= hi for lo, hi in fitted)]
+        self._pattern = (b, float(out[0]) if out else math.inf)
+
+    def _correct_pattern(self, pattern: tuple[str, float], t_ns: int) -> list[Event]:
+        """The ZUPT-KF has initialised a new walking pattern and its step model is refitted: re-place the Gait-DR
+        strides of that pattern placed before (while the detection window filled and until the gyroscope came on)
+        with the refitted model, moving the position by the sum of the changes along their directions.
+
+        Those strides had the old model's extrapolation to a cadence it was not fitted on (synthetic mixed day:
+        walk_fast strides placed 8 % short on average, 2-13 % either way, 8-13 strides per seed); the ZUPT-KF's
+        strides of the new pattern now fit it."""
+        gait = self._gait
+        if gait is None or self._pos is None:
+            return []
+        b, t_from = pattern
+        rows = [r for r in self._dr_log if r[0] == b and r[1][0] >= t_from]
+        if not rows:
+            return []
+        d_new = [max(gait.step_length(_event_from_row(r[1]), b)[0], 0.0) for r in rows]
+        periods = [r[1][1] for r in rows]
+        per = float(np.median(periods))
+        paced = [d for d, q in zip(d_new, periods) if q <= _PAUSE_PERIOD * per]
+        if paced:
+            # a stride far longer than its pattern's holds a pause (the segmenter takes one as such only when the
+            # stance before lasted most of a stride): its cadence and mean force describe the pause, not the
+            # stride, the first of the new pace (mixed day seed 12: 1.48 s among 1.00-s strides, placed 1.25 m,
+            # re-placed at its own cadence 1.13 m, for 1.66 m); it gets the pattern's median stride
+            d_new = [d if q <= _PAUSE_PERIOD * per else float(np.median(paced)) for d, q in zip(d_new, periods)]
+        delta = np.zeros(3)
+        for (_, _, d_old, un, ue), d in zip(rows, d_new):
+            delta[0] += (d - d_old) * un
+            delta[1] += (d - d_old) * ue
+        if not np.all(np.isfinite(delta)):
+            return []
+        self._pos = self._pos + delta
+        self._offset = self._offset + delta
+        before = [r[1][0] for r in self._dr_log if r[1][0] < rows[0][1][0]]
+        start = before[-1] if before else rows[0][1][0] - rows[0][1][1]  # onset of the stride before the first
+        self._dr_log = [r for r in self._dr_log if r not in rows]
+        return [Event(t_ns, "strides_corrected", {"behaviour": b, "n_strides": len(rows), "from_s": t_from,
+                                                   "start_s": float(start), "to_s": float(rows[-1][1][0]),
+                                                   "placed_m": float(math.fsum(d_new)),
+                                                   "moved_m": [float(delta[0]), float(delta[1])]})]
 
     def _store_calibration(self, behaviour: str, fits: dict) -> BehaviourCalibration:
         """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
@@ -1025,6 +1115,8 @@ class Engine:
             "compass_offsets": list(self._compass_offsets),
             "nav_t": self._nav_t,
             "labels_pending": [[t, lab] for t, lab in self._labels_pending],
+            "dr_log": [list(r) for r in self._dr_log],
+            "pattern": None if self._pattern is None else list(self._pattern),
         }
 
     @classmethod
@@ -1075,6 +1167,10 @@ class Engine:
         obj._compass_offsets = [float(x) for x in d.get("compass_offsets", [])]  # absent in older states
         obj._nav_t = float(d["nav_t"])
         obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]
+        obj._dr_log = [[str(r[0]), [float(v) for v in r[1]], float(r[2]), float(r[3]), float(r[4])]
+                       for r in d.get("dr_log", [])]  # absent in older states
+        pat = d.get("pattern")
+        obj._pattern = None if pat is None else (str(pat[0]), float(pat[1]))
         return obj
 
     def to_bytes(self) -> bytes:
