@@ -32,6 +32,15 @@ def aligned(mode: str, config: EngineConfig, profile: Profile) -> Scheduler:
     return s
 
 
+def standing(profile: Profile) -> Scheduler:
+    """An auto scheduler whose ZUPT-KF has levelled on the still foot, no stored deviation pending, standing."""
+    s = aligned("auto", CFG, profile)
+    s.zupt_aligned = True
+    s.deviation_pending.clear()
+    s.on_behaviour("stand", 1.0, 1)
+    return s
+
+
 # ---------------------------------------------------------------- Table 1: gyroscope strategy
 @pytest.mark.parametrize("working", ["zupt", "pdr"])
 def test_table1_static_behaviour_turns_gyro_off(working: str) -> None:
@@ -49,10 +58,7 @@ def test_table1_standing_while_a_moving_behaviour_has_no_model_leaves_the_gyro_t
     model for (the mixed day's first run after a stand: five strides on the generic prior, 2.5 m short)."""
     from energy.scheduler import LOW_POWER_BATCH_S
 
-    s = aligned("auto", CFG, profile)
-    s.zupt_aligned = True
-    s.deviation_pending.clear()
-    s.on_behaviour("stand", 1.0, 1)
+    s = standing(profile)
     cfg = s.sensor_config()
     assert not cfg.gyro_on and cfg.gyro_wake_on_motion and cfg.mag_follows_gyro and not s.idle()
     assert cfg.batch_s == LOW_POWER_BATCH_S  # the device needs no answer to wake it
@@ -65,10 +71,7 @@ def test_table1_standing_without_a_heading_source_leaves_the_gyro_to_the_device(
     turns from the first stride, so the device wakes it on motion instead of the host after a long upload."""
     from energy.scheduler import LOW_POWER_BATCH_S
 
-    s = aligned("auto", CFG, calibrated("walk", "run"))
-    s.zupt_aligned = True
-    s.deviation_pending.clear()
-    s.on_behaviour("stand", 1.0, 1)
+    s = standing(calibrated("walk", "run"))
     assert s.idle()
     s.compass_ready = False
     cfg = s.sensor_config()
@@ -81,10 +84,7 @@ def test_table1_standing_without_a_heading_source_leaves_the_gyro_to_the_device(
 def test_standing_with_a_gyroscope_the_device_woke_keeps_it_until_the_device_puts_it_down() -> None:
     """The "stand" label lags the data by up to 1.5 s: a gyroscope the device woke for a foot that already walks
     stays with the device (wake-on-motion) instead of being switched off (gdin exp43, returning: 10.9 m)."""
-    s = aligned("auto", CFG, calibrated("walk", "run"))
-    s.zupt_aligned = True
-    s.deviation_pending.clear()
-    s.on_behaviour("stand", 1.0, 1)
+    s = standing(calibrated("walk", "run"))
     assert s.idle()
     s.device_gyro_awake = True
     assert not s.idle() and s.sensor_config().gyro_wake_on_motion

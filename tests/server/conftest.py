@@ -13,7 +13,9 @@ from __future__ import annotations
 import os
 import uuid
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -87,6 +89,18 @@ def make_user(app) -> Callable[[str], tuple[int, str]]:  # type: ignore[no-untyp
             return user.id, token
 
     return _make
+
+
+@contextmanager
+def app_with(settings: Settings, **overrides: Any) -> Iterator[tuple[Any, TestClient]]:
+    """A second app on the test database with these settings changed (no migration: the schema is there), and a
+    client of it; the app's database engine is disposed afterwards."""
+    a = create_app(settings.model_copy(update={"migrate_on_startup": False, **overrides}))
+    try:
+        with TestClient(a) as c:
+            yield a, c
+    finally:
+        a.state.db_engine.dispose()
 
 
 def auth(token: str) -> dict[str, str]:

@@ -12,7 +12,7 @@ import pytest
 
 from models.batch import SensorBatch
 from server.formats import MSGPACK_TYPE, encode_json, encode_msgpack
-from tests.server.conftest import auth, still_batch
+from tests.server.conftest import app_with, auth, still_batch
 
 T0 = 1_700_000_000_000_000_000  # UTC epoch ns
 
@@ -485,14 +485,8 @@ def test_a_profile_beyond_the_size_limit_is_413_and_not_stored(client, make_user
 
 @pytest.fixture()
 def few_versions(settings):  # type: ignore[no-untyped-def]
-    from fastapi.testclient import TestClient
-
-    from server.app import create_app
-
-    app = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_profile_versions": 3}))
-    with TestClient(app) as c:
+    with app_with(settings, max_profile_versions=3) as (_, c):
         yield c
-    app.state.db_engine.dispose()
 
 
 def test_profile_history_keeps_the_newest_versions(few_versions, make_user) -> None:  # type: ignore[no-untyped-def]

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from tests.server.conftest import auth
+from tests.server.conftest import app_with, auth
 
 T0 = 1_700_000_000_000_000_000
 
@@ -195,15 +195,8 @@ def test_held_back_samples_unusable_together_are_skipped_not_blocking(client, ap
 # ---------------------------------------------------------------- sample limits
 @pytest.fixture()
 def small_limit(settings):  # type: ignore[no-untyped-def]
-    from fastapi.testclient import TestClient
-
-    from server.app import create_app
-
-    app = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_samples_per_stream": 150,
-                                                 "sensorlogger_hold_s": 10.0}))
-    with TestClient(app) as c:
-        yield app, c
-    app.state.db_engine.dispose()
+    with app_with(settings, max_samples_per_stream=150, sensorlogger_hold_s=10.0) as ac:
+        yield ac
 
 
 def test_a_push_beyond_the_sample_limit_is_413_and_stores_nothing(small_limit, make_user) -> None:  # type: ignore[no-untyped-def]

@@ -15,7 +15,7 @@ from server.formats import MSGPACK_TYPE, encode_msgpack
 from server.models import Token
 from server.security import hash_token
 from server.settings import Settings, SettingsError, load_settings
-from tests.server.conftest import auth, still_batch
+from tests.server.conftest import app_with, auth, still_batch
 
 T0 = 1_700_000_000_000_000_000
 
@@ -201,10 +201,8 @@ def test_the_sensor_logger_push_takes_a_query_token(client, make_user) -> None: 
 def limited(settings):  # type: ignore[no-untyped-def]
     # one request back every 20 s: a slow machine (the first session of a run imports the engine) refills nothing
     # between the requests a test counts
-    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "rate_limit_per_s": 0.05, "rate_limit_burst": 3}))
-    with TestClient(a) as c:
-        yield a, c
-    a.state.db_engine.dispose()
+    with app_with(settings, rate_limit_per_s=0.05, rate_limit_burst=3) as ac:
+        yield ac
 
 
 def test_rate_limit_is_per_user_with_429_and_retry_after(limited, make_user) -> None:  # type: ignore[no-untyped-def]
@@ -358,11 +356,8 @@ def test_a_user_revokes_a_token_by_id_and_another_users_id_is_404(client, make_u
 @pytest.fixture()
 def capped(settings):  # type: ignore[no-untyped-def]
     """The app with at most 3 live tokens per user (and no rate limit, which is not under test here)."""
-    a = create_app(settings.model_copy(update={"migrate_on_startup": False, "max_tokens_per_user": 3,
-                                               "rate_limit_per_s": 0.0}))
-    with TestClient(a) as c:
-        yield a, c
-    a.state.db_engine.dispose()
+    with app_with(settings, max_tokens_per_user=3, rate_limit_per_s=0.0) as ac:
+        yield ac
 
 
 def test_a_user_holds_at_most_max_tokens_per_user_live_tokens(capped, make_user) -> None:  # type: ignore[no-untyped-def]
