@@ -244,6 +244,21 @@ class PednavClient:
     def me(self) -> dict[str, Any]:
         return self._json("GET", "/v1/users/me")
 
+    def new_token(self, label: str = "api", ttl_s: int | None = None) -> dict[str, Any]:
+        """Mint another token for this user (e.g. one per device), at most as long-lived as the one in use."""
+        body: dict[str, Any] = {"label": label}
+        if ttl_s is not None:
+            body["ttl_s"] = ttl_s
+        return self._json("POST", "/v1/tokens", json=body)
+
+    def tokens(self) -> list[dict[str, Any]]:
+        """This user's tokens (ids, labels, lifetimes; never the tokens themselves)."""
+        return self._json("GET", "/v1/tokens")
+
+    def revoke_token(self, token_id: int) -> None:
+        """Revoke one of this user's tokens by id (a lost device's)."""
+        self._json("DELETE", f"/v1/tokens/{token_id}")
+
     def create_device(self, kind: str, name: str = "") -> dict[str, Any]:
         return self._json("POST", "/v1/devices", json={"kind": kind, "name": name})
 

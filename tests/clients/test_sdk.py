@@ -312,3 +312,27 @@ def test_async_stream_with_spool(app, make_user, tmp_path) -> None:  # type: ign
 
     seqs, left = asyncio.run(go())
     assert seqs == [0, 1, 2] and left == []
+
+
+def test_a_device_token_is_minted_listed_and_revoked_through_the_sdk(client, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
+    """A phone mints a token for a watch, lists the user's tokens (no secrets in the list) and revokes the watch's
+    when it is lost: the watch is then refused, the phone is not; another user cannot revoke it (404)."""
+    from clients.sdk import ApiError
+
+    _, tok = make_user()
+    phone = PednavClient(token=tok, http=client)
+    minted = phone.new_token("watch", ttl_s=3600)
+    watch = PednavClient(token=minted["token"], http=client)
+    assert watch.me()["id"] == phone.me()["id"]
+    listed = {t["id"]: t for t in phone.tokens()}
+    assert listed[minted["id"]]["label"] == "watch" and all("token" not in t for t in listed.values())
+    _, other_tok = make_user()
+    with pytest.raises(ApiError) as err:
+        PednavClient(token=other_tok, http=client).revoke_token(minted["id"])
+    assert err.value.status == 404
+    assert watch.me()["id"]  # still valid
+    phone.revoke_token(minted["id"])
+    with pytest.raises(ApiError) as err:
+        watch.me()
+    assert err.value.status == 401
+    assert phone.me()["id"]
