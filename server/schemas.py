@@ -115,13 +115,13 @@ class SessionCreate(BaseModel):
 
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
     Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
-    altitude -500..10 000 m; anything else is 422 naming the field.
+    altitude -500..10 000 m, and ``device_id`` a JSON integer; anything else is 422 naming the field.
     """
 
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
-    device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1)
+    device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1, strict=True)  # "5" or true: 422
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)

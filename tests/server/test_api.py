@@ -178,6 +178,15 @@ def test_session_coordinates_are_strict_numbers(client, make_user, field, value)
     assert client.get("/v1/sessions", headers=auth(a)).json() == []  # no session started
 
 
+@pytest.mark.parametrize("value", ["5", True, 5.5], ids=["number-string", "bool", "fraction"])
+def test_session_device_id_is_a_strict_integer(client, make_user, value) -> None:  # type: ignore[no-untyped-def]
+    """A device id sent as "5" (or true) was converted and taken: it is a JSON integer now (422 naming it)."""
+    _, a = make_user()
+    r = client.post("/v1/sessions", json={"device_kind": "phone", "device_id": value}, headers=auth(a))
+    assert r.status_code == 422 and r.json()["field"] == "device_id", r.text
+    assert client.get("/v1/sessions", headers=auth(a)).json() == []
+
+
 @pytest.mark.parametrize("field, value", [
     ("latitude_deg", 90.0001), ("latitude_deg", -91), ("longitude_deg", 180.5), ("longitude_deg", -181),
     ("altitude_m", -501), ("altitude_m", 1e6),
