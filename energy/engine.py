@@ -20,7 +20,7 @@ from numba import njit
 
 from energy import codec
 from energy.config import EngineConfig
-from energy.gait_dr import PAIR_TOL_S, GaitPipeline, _event_from_row, _event_row
+from energy.gait_dr import PAIR_TOL_S, GaitPipeline, event_from_row, event_row, model_behaviour
 from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import PATTERN_STRIDES, SLEEP_AFTER_S, Scheduler
 from energy.types import Event, Position, SensorConfig, Update
@@ -70,11 +70,6 @@ _DR_LOG = 24
 # scatter by 3 % and come in 0.04-s samples at 25 Hz (a 1.0-s pace reads 0.96-1.04 s), two walking paces lie 10-15 %
 # apart
 _PAUSE_PERIOD = 1.25
-
-
-def _step_model(label: str) -> str:
-    """Behaviour whose step model serves a label (as :mod:`energy.gait_dr`: ``stand``/``other`` use walking)."""
-    return label if label in ("walk", "run") else "walk"
 
 
 def _heading_test(z: float, kf: HeadingDeviationKF) -> dict[str, Any]:
@@ -829,7 +824,7 @@ class Engine:
         exam = sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest
         fitted = None
         if exam:
-            b = label if label in ("walk", "run") else "walk"
+            b = model_behaviour(label)
             d_sl, _ = gait.step_length(e, b)
             passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
             fitted = gait.cal.cadence_ranges(b, 1.0 / gait.rate_hz)
@@ -857,7 +852,7 @@ class Engine:
             fits = gait.fit(label)
             cal = self._store_calibration(label, fits)
             pattern, self._pattern = self._pattern, None
-            if pattern is not None and sched.pattern_left is not None and pattern[0] == _step_model(label):
+            if pattern is not None and sched.pattern_left is not None and pattern[0] == model_behaviour(label):
                 events += self._correct_pattern(pattern, t_ns)
             events += sched.on_calibrated(st.t_end_s, t_ns, {
                 "heading_deviation_rad": cal.heading_deviation_rad,
@@ -964,16 +959,17 @@ class Engine:
         n = math.hypot(dn, de)
         if not (step.length > 0.0 and n > 0.0):
             return
-        self._dr_log.append([_step_model(step.behaviour), _event_row(e), float(step.length), dn / n, de / n])
+        self._dr_log.append([model_behaviour(step.behaviour), event_row(e), float(step.length), dn / n, de / n])
         del self._dr_log[:-_DR_LOG]
 
     def _note_pattern(self, behaviour: str, fitted: Any) -> None:
         """A walking pattern of ``behaviour`` the step model was not fitted on was detected: remember where its
         strides began, the first of the latest cadence-tested Gait-DR strides (the scheduler's detection window)
         whose cadence lies outside the ``fitted`` ranges."""
-        b = _step_model(behaviour)
-        window = [r for r in self._dr_log if r[0] == b and r[1][9] < 0.5][-PATTERN_STRIDES:]
-        out = [r[1][0] for r in window if fitted and not any(lo <= r[1][2] <= hi for lo, hi in fitted)]
+        b = model_behaviour(behaviour)
+        events = [event_from_row(r[1]) for r in self._dr_log if r[0] == b]
+        window = [e for e in events if not e.after_rest][-PATTERN_STRIDES:]
+        out = [e.t_s for e in window if fitted and not any(lo <= e.f_s <= hi for lo, hi in fitted)]
         self._pattern = (b, float(out[0]) if out else math.inf)
 
     def _correct_pattern(self, pattern: tuple[str, float], t_ns: int) -> list[Event]:
@@ -988,11 +984,12 @@ class Engine:
         if gait is None or self._pos is None:
             return []
         b, t_from = pattern
-        rows = [r for r in self._dr_log if r[0] == b and r[1][0] >= t_from]
+        rows = [r for r in self._dr_log if r[0] == b and event_from_row(r[1]).t_s >= t_from]
         if not rows:
             return []
-        d_new = [max(gait.step_length(_event_from_row(r[1]), b)[0], 0.0) for r in rows]
-        periods = [r[1][1] for r in rows]
+        strides = [event_from_row(r[1]) for r in rows]
+        d_new = [max(gait.step_length(e, b)[0], 0.0) for e in strides]
+        periods = [e.period_s for e in strides]
         per = float(np.median(periods))
         paced = [d for d, q in zip(d_new, periods) if q <= _PAUSE_PERIOD * per]
         if paced:
@@ -1009,17 +1006,18 @@ class Engine:
             return []
         self._pos = self._pos + delta
         self._offset = self._offset + delta
-        before = [r[1][0] for r in self._dr_log if r[1][0] < rows[0][1][0]]
-        start = before[-1] if before else rows[0][1][0] - rows[0][1][1]  # onset of the stride before the first
+        first = strides[0]
+        before = [t for t in (event_from_row(r[1]).t_s for r in self._dr_log) if t < first.t_s]
+        start = before[-1] if before else first.t_s - first.period_s  # onset of the stride before the first
         self._dr_log = [r for r in self._dr_log if r not in rows]
         return [Event(t_ns, "strides_corrected", {"behaviour": b, "n_strides": len(rows), "from_s": t_from,
-                                                   "start_s": float(start), "to_s": float(rows[-1][1][0]),
+                                                   "start_s": float(start), "to_s": float(strides[-1].t_s),
                                                    "placed_m": float(math.fsum(d_new)),
                                                    "moved_m": [float(delta[0]), float(delta[1])]})]
 
     def _store_calibration(self, behaviour: str, fits: dict) -> BehaviourCalibration:
         """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
-        b = behaviour if behaviour in ("walk", "run") else "walk"
+        b = model_behaviour(behaviour)
         gait = self._gait
         assert gait is not None
         pooled = fits.get(b, {})

@@ -29,7 +29,7 @@ from models.step_length import FORM, StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
 
-__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S"]
+__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S", "event_from_row", "event_row", "model_behaviour"]
 
 PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
 SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
@@ -56,16 +56,17 @@ _PEAK_STRIDES = 16  # walking strides whose largest peak sets the run-wake thres
 _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
 
-def _event_row(e: StepEvent) -> list[float]:
+def event_row(e: StepEvent) -> list[float]:
     """A step event as plain numbers (engine state)."""
     return [e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, float(e.after_rest), float(e.index)]
 
 
-def _event_from_row(q: list[float]) -> StepEvent:
+def event_from_row(q: list[float]) -> StepEvent:
+    """Inverse of :func:`event_row`."""
     return StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), bool(q[9]), int(q[10]))
 
 
-def _behaviour(label: str) -> str:
+def model_behaviour(label: str) -> str:
     """Behaviour whose step model serves a label (``stand``/``other`` steps use the walking model)."""
     return label if label in _BEHAVIOURS else "walk"
 
@@ -546,7 +547,7 @@ class GaitPipeline:
         With a magnetometer the hand-over waits until the stances span enough headings for the
         hard-iron fit (otherwise Gait-DR would have to hold one heading through every turn).
         """
-        if self.cal.n_pairs(_behaviour(behaviour)) < self.cal.min_pairs:
+        if self.cal.n_pairs(model_behaviour(behaviour)) < self.cal.min_pairs:
             return False
         return self.compass_ready()
 
@@ -589,7 +590,7 @@ class GaitPipeline:
 
     def fit(self, behaviour: str) -> dict:
         self._fit_compass()
-        return self.cal.fit(_behaviour(behaviour))
+        return self.cal.fit(model_behaviour(behaviour))
 
     def calibration_state(self) -> dict[str, Any]:
         """What a profile keeps of this session's step-length calibration (opaque ``step_model`` of the
@@ -627,7 +628,7 @@ class GaitPipeline:
         Before the behaviour's model is fitted, the median of the latest ZUPT-KF strides stands in for it
         (a person's stride is far better known from their own last strides than from a generic prior).
         """
-        b = _behaviour(behaviour)
+        b = model_behaviour(behaviour)
         if self.conventional:
             return self._generic.predict(b, _features(e))  # generic model (never fitted)
         if not self.cal.calibrated(b) and self.recent_scale[b]:
@@ -645,7 +646,7 @@ class GaitPipeline:
         (no KF II update, e.g. ``run`` steps in a walk before a run was calibrated) borrows the one with the most
         updates instead of 0 (gdin leave-one-out exp35: run-labelled steps placed 180 deg off).
         """
-        kf = self.kf2[_behaviour(behaviour)]
+        kf = self.kf2[model_behaviour(behaviour)]
         if kf.n_updates == 0:
             kf = max(self.kf2.values(), key=lambda k: k.n_updates)
         return kf.deviation
@@ -655,7 +656,7 @@ class GaitPipeline:
         ``behaviours`` (loaded from the profile) and the compass calibration (the hard/soft iron includes the
         shoe the sensor sat on); both are learned again from this session's ZUPT-KF strides."""
         for b in behaviours:
-            self.kf2[_behaviour(b)] = HeadingDeviationKF()
+            self.kf2[model_behaviour(b)] = HeadingDeviationKF()
         self.own_mag = None
         self._use_compass(MagCalibrator(), loaded=False)
         self._mag_fit_n = -1
@@ -678,7 +679,7 @@ class GaitPipeline:
     def load_calibration(self, behaviour: str, step_model: dict[str, Any], deviation_rad: float,
                          deviation_var: float) -> None:
         """Take a behaviour's calibration from a user profile (:class:`energy.profile.BehaviourCalibration`)."""
-        b = _behaviour(behaviour)
+        b = model_behaviour(behaviour)
         stored = step_model.get("calibrator")
         if isinstance(stored, dict):
             state = self.cal.get_state()
@@ -732,7 +733,7 @@ class GaitPipeline:
         if self.dr is None:
             return out
         for e in todo:
-            b = _behaviour(label_at(e.t_s))
+            b = model_behaviour(label_at(e.t_s))
             d, _ = self.step_length(e, b)
             m = self.mag_at(e)
             acc_st = self.acc_at(e)
@@ -846,7 +847,7 @@ class GaitPipeline:
             "kf2": {b: k.get_state() for b, k in self.kf2.items()},
             "mag": self.mag.get_state(),
             "dr": None if self.dr is None else self.dr.get_state(),
-            "queue": [_event_row(e) for e in self.queue],
+            "queue": [event_row(e) for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
@@ -873,7 +874,7 @@ class GaitPipeline:
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
-        obj.queue = [_event_from_row(q) for q in d["queue"]]
+        obj.queue = [event_from_row(q) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
         # states stored before the tilt was taken from the field's own samples: no specific force kept (NaN rows,
