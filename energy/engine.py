@@ -708,11 +708,13 @@ class Engine:
         self.trace.append(self._ns_many(t), p, self._labels.at_many(t),
                           np.full(len(t), "zupt"), np.ones(len(t), dtype=bool))
 
-    def _turn(self, p: np.ndarray) -> np.ndarray:
-        """NED vectors [m] (last axis 3) of this segment's ZUPT-KF frame turned by ``_yaw`` about the vertical."""
-        if self._yaw == 0.0:
+    def _turn(self, p: np.ndarray, yaw: float | None = None) -> np.ndarray:
+        """NED vectors [m] (last axis 3) of this segment's ZUPT-KF frame turned by ``_yaw`` (or ``yaw`` [rad])
+        about the vertical."""
+        yaw = self._yaw if yaw is None else yaw
+        if yaw == 0.0:
             return p
-        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        c, s = math.cos(yaw), math.sin(yaw)
         q = np.array(p, dtype=float, copy=True)
         q[..., 0] = c * p[..., 0] - s * p[..., 1]
         q[..., 1] = s * p[..., 0] + c * p[..., 1]
@@ -890,26 +892,13 @@ class Engine:
         if not abs(mean) > tol or max(abs(wrap_angle(float(o) - mean)) for o in offs) > 0.5 * tol:
             return st
         self._compass_offsets = []
-        p_seg = self._turn_back(st.position - self._offset)
+        p_seg = self._turn(st.position - self._offset, -self._yaw)
         self._yaw = wrap_angle(self._yaw + mean)
         self._offset = st.position - self._turn(p_seg)
         self._head = wrap_angle(float(st.heading) + mean)
         gait.follower.gyro_ref = None  # the heading it was tested against jumped
         log.info("ZUPT-KF segment turned by %.1f deg to the compass at %.1f s", math.degrees(mean), st.t_end_s)
-        c_, s_ = math.cos(mean), math.sin(mean)
-        d = np.asarray(st.delta, dtype=float)
-        delta = np.array([c_ * d[0] - s_ * d[1], s_ * d[0] + c_ * d[1], d[2]])
-        return replace(st, heading=self._head, delta=delta)
-
-    def _turn_back(self, p: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`_turn`."""
-        if self._yaw == 0.0:
-            return np.asarray(p, dtype=float)
-        c, s = math.cos(self._yaw), math.sin(self._yaw)
-        q = np.array(p, dtype=float, copy=True)
-        q[..., 0] = c * p[..., 0] + s * p[..., 1]
-        q[..., 1] = -s * p[..., 0] + c * p[..., 1]
-        return q
+        return replace(st, heading=self._head, delta=self._turn(np.asarray(st.delta, dtype=float), mean))
 
     def _reckon(self, before_s: float, positions: list[Position], events: list[Event]) -> list:
         """Gait-DR steps with onset before ``before_s`` [s]."""
