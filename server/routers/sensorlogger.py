@@ -220,7 +220,12 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id,
                             watermark_ns=0, late_samples=0)
     db.add(link)
-    db.flush()
+    try:
+        db.flush()
+    except IntegrityError:  # a concurrent first push of this session created it (was HTTP 500): take that one
+        db.rollback()
+        return db.execute(select(SensorLoggerLink).where(
+            SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)).scalar_one()
     return link
 
 
