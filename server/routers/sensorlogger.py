@@ -16,6 +16,12 @@ in part of a message whose median passed), that window is skipped so that the se
 still taken, and its answer says how many samples were skipped and why (``skipped_samples``, ``skipped``);
 they stay stored with their messages.
 
+Pushes of one session may arrive at once (the app sends a message per interval and retries; several workers):
+each stores its message holding the session's write lock, so it is checked against the watermark and messages
+as they are, and then feeds what is held back read afresh, a piece written only if nothing it was read from
+changed meanwhile (else read again). So a push is never answered 4xx after its message was stored, and no sample
+is fed twice.
+
 Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``). This push
 is the only route that takes ``?token=`` (the app cannot set headers); every other route, the flush below
 included, refuses it with 401 (URLs end up in access logs). Give the app a token of its own (``POST /v1/tokens``
@@ -28,7 +34,7 @@ from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, status
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
 from models.batch import BatchError, SensorBatch
@@ -36,7 +42,7 @@ from server import crud
 from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
 from server.formats import PayloadTooLarge
 from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
-from server.models import SensorLoggerLink, SensorLoggerMessage, User
+from server.models import SensorLoggerLink, SensorLoggerMessage, TrackSession, User
 from server.schemas import SensorLoggerPush
 from server.statecodec import pack_state
 
@@ -237,40 +243,103 @@ def _unfed(db: SessionDep, link: SensorLoggerLink) -> list[SensorLoggerMessage]:
     ).scalars())
 
 
-def _feed(db: SessionDep, user: User, link: SensorLoggerLink, host: Any, pieces: list[tuple[SensorBatch, int]],
-          acc_name: str) -> tuple[list[dict[str, Any]], str | None, dict[str, Any]]:
-    """Feed the pieces of a window as sequenced batches, each moving the watermark to its end in its own write
-    transaction (fed samples are never fed again); a piece the engine would refuse is skipped instead (watermark
-    moved, nothing fed). Returns (new positions, the last behaviour or None, ``{"skipped_samples", "skipped"}``)."""
+_FEED_ATTEMPTS = 10  # pieces read again in a row after other pushes or flushes of the session changed them
+
+
+class _Moved(Exception):
+    """The held-back samples of a piece changed between its read and its write: read again."""
+
+
+def _lock_session(db: SessionDep, session_id: int) -> None:
+    """Take the session's write lock before this transaction reads anything (held until it ends).
+
+    A no-op update holds the session row on PostgreSQL (as ``SELECT ... FOR UPDATE``) and, as the transaction's
+    first write, the database's write lock on SQLite (``BEGIN IMMEDIATE``): pushes of one session store their
+    messages one at a time, each checked against the watermark and messages as they are.
+    """
+    ts = TrackSession.__table__
+    db.execute(update(ts).where(ts.c.id == session_id).values(status=ts.c.status))
+
+
+def _feed(db: SessionDep, user: User, link_id: int, host: Any, limit: int,
+          hold_ns: int | None) -> tuple[list[dict[str, Any]], str | None, dict[str, Any]]:
+    """Feed the held-back samples up to the horizon (``hold_ns`` behind the newest sample stored; None: all) as
+    sequenced batches of at most ``limit`` samples per stream, each moving the watermark to its end in its own
+    write transaction (fed samples are never fed again); a piece the engine would refuse is skipped instead
+    (watermark moved, nothing fed). Returns (new positions, the last behaviour or None, ``{"skipped_samples",
+    "skipped"}``).
+
+    Pushes and flushes of one session may feed at once (also in other workers). Each piece is read afresh
+    (watermark, next sequence number, unfed messages) and written only if, in its write transaction, the
+    watermark and the unfed messages are still those it was read from and its sequence number is still free;
+    else it is read again (another push fed it, or stored samples into it). Raises :class:`IngestConflict`
+    when there is something to feed and the session is closed.
+    """
     positions: list[dict[str, Any]] = []
     behaviour = None
     skipped: dict[str, Any] = {"skipped_samples": 0, "skipped": None}
-    link_id = link.id
-    for piece, end_ns in pieces:
-        if piece.is_empty:
-            continue
+    uid = user.id
+    moved = 0
+    while moved < _FEED_ATTEMPTS:
+        # the sequence number before the watermark: a piece read after another push's write then carries a used
+        # number (refused by apply_batch before the engine sees it), never a free one with samples already fed
+        sess = db.execute(
+            select(TrackSession.next_seq, TrackSession.status)
+            .join(SensorLoggerLink, SensorLoggerLink.session_id == TrackSession.id).where(SensorLoggerLink.id == link_id)
+        ).first()
+        link = db.get(SensorLoggerLink, link_id, populate_existing=True)
+        if link is None or sess is None:  # the session was deleted
+            db.rollback()
+            break
+        sid, lo_ns = link.session_id, link.watermark_ns
+        if hold_ns is None:
+            horizon = _I64_MAX
+        else:
+            newest = db.execute(select(func.max(SensorLoggerMessage.t_max_ns))
+                                .where(SensorLoggerMessage.session_id == sid)).scalar_one()
+            horizon = int(newest - hold_ns)
+        unfed = _unfed(db, link) if horizon > lo_ns else []
+        pieces = _pieces(_window(unfed, lo_ns, horizon), lo_ns, horizon, limit) if unfed else []
+        piece, end_ns = next(((p, e) for p, e in pieces if not p.is_empty), (None, horizon))
+        if piece is None:
+            db.rollback()
+            break
+        if sess.status != "open":
+            db.rollback()
+            raise IngestConflict(f"session {sid} is closed; no more batches accepted", sess.next_seq)
+        acc_name = _acc_name(it for m in unfed for it in m.payload)
+        db.rollback()  # the write transaction starts afresh
+
+        def advance(tx: Any, lo_ns: int = lo_ns, end_ns: int = end_ns, n_unfed: int = len(unfed), sid: int = sid) -> None:
+            # in the piece's write transaction: the watermark and the unfed messages still those it was read from
+            res = tx.execute(update(SensorLoggerLink).where(
+                SensorLoggerLink.id == link_id, SensorLoggerLink.watermark_ns == lo_ns).values(watermark_ns=end_ns))
+            n_now = tx.execute(select(func.count()).select_from(SensorLoggerMessage).where(
+                SensorLoggerMessage.session_id == sid, SensorLoggerMessage.t_max_ns > lo_ns)).scalar_one()
+            if res.rowcount != 1 or n_now != n_unfed:
+                raise _Moved()
+
         try:
-            piece.validate()
-        except BatchError as problem:
-            exc = _refusal(problem, acc_name)
-            skipped["skipped_samples"] += int(len(piece.acc_t_ns) + len(piece.gyr_t_ns) + len(piece.mag_t_ns))
-            skipped["skipped"] = skipped["skipped"] or {"field": exc.field, "problem": exc.problem}
-            with host.write_lock:
-                db.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
-                db.commit()
-            continue
-
-        def advance(tx: Any, end_ns: int = end_ns) -> None:
-            tx.execute(update(SensorLoggerLink).where(SensorLoggerLink.id == link_id).values(watermark_ns=end_ns))
-
-        sess = crud.get_session(db, user, link.session_id)
-        assert sess is not None
-        next_seq = sess.next_seq
-        db.rollback()
-        out = apply_batch(db, host, user.id, link.session_id, next_seq, piece, also=advance)
-        if out:
-            positions += out[0]["positions"]
-            behaviour = out[0]["behaviour"]
+            try:
+                piece.validate()
+            except BatchError as problem:
+                with host.write_lock:
+                    advance(db)
+                    db.commit()
+                exc = _refusal(problem, acc_name)
+                skipped["skipped_samples"] += int(len(piece.acc_t_ns) + len(piece.gyr_t_ns) + len(piece.mag_t_ns))
+                skipped["skipped"] = skipped["skipped"] or {"field": exc.field, "problem": exc.problem}
+            else:
+                out = apply_batch(db, host, uid, sid, sess.next_seq, piece, also=advance)
+                if out is None:  # the session was deleted
+                    break
+                if not out[1]:  # (a replayed piece was fed by another push, whose answer has its positions)
+                    positions += out[0]["positions"]
+                    behaviour = out[0]["behaviour"]
+            moved = 0
+        except (_Moved, IngestConflict):  # another push fed or stored meanwhile (a closed session: raised above)
+            db.rollback()
+            moved += 1
     return positions, behaviour, skipped
 
 
@@ -294,6 +363,8 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
     _check_size(items, settings.max_samples_per_stream)
     _check_samples(items)
     link = _link(db, user, body, settings, host)
+    _lock_session(db, link.session_id)  # until the message is committed: concurrent pushes of the session wait
+    db.refresh(link)  # the watermark as it is now
     t_max = max((int(it["time"]) for it in items), default=0)
     late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
     msg = SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items)
@@ -313,7 +384,7 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
         .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
     ).scalar_one()
     horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
-    pieces, acc_name = None, _acc_name(items)
+    pieces = None
     if horizon > link.watermark_ns:
         # the window this push feeds, checked before the message is stored: refused when its samples spoil it
         unfed = _unfed(db, link)
@@ -328,10 +399,16 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
             raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
     if late:
         link.late_samples += late
+    session_id, late_samples = link.session_id, link.late_samples
     db.commit()  # the message is stored before it is answered
-    positions, behaviour, skipped = _feed(db, user, link, host, pieces, acc_name) if pieces is not None else (
-        [], None, {"skipped_samples": 0, "skipped": None})
-    return {"session_id": link.session_id, "duplicate": False, "late_samples": link.late_samples,
+    positions, behaviour, skipped = [], None, {"skipped_samples": 0, "skipped": None}
+    if pieces is not None:  # this push moved the horizon: feed up to it (read again: other pushes may feed too)
+        try:
+            positions, behaviour, skipped = _feed(db, user, link.id, host, settings.max_samples_per_stream,
+                                                  int(settings.sensorlogger_hold_s * 1e9))
+        except IngestConflict:  # closed after the message was stored: it is kept, and answered as stored
+            pass
+    return {"session_id": session_id, "duplicate": False, "late_samples": late_samples,
             "positions": positions, "behaviour": behaviour, **skipped}
 
 
@@ -344,8 +421,5 @@ def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep, 
     ).scalar_one_or_none()
     if link is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"Sensor Logger session {sl_session_id!r} not found")
-    horizon = _I64_MAX
-    unfed = _unfed(db, link)
-    pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, settings.max_samples_per_stream)
-    positions, _, skipped = _feed(db, user, link, host, pieces, _acc_name(it for m in unfed for it in m.payload))
+    positions, _, skipped = _feed(db, user, link.id, host, settings.max_samples_per_stream, None)
     return {"session_id": link.session_id, "positions": positions, **skipped}
