@@ -77,6 +77,48 @@ def test_two_workers_never_apply_the_same_batch_twice(settings, client, make_use
     assert all(all(b == group[0] for b in group) for group in by_seq.values())
 
 
+
+@pytest.mark.parametrize("one_statement", [True, False], ids=["driver-write", "orm-write"])
+def test_two_workers_given_other_batches_under_one_seq_apply_exactly_one(settings, backend, client, make_user,  # type: ignore[no-untyped-def]
+                                                                         one_statement) -> None:
+    """Uploads of different batches under the same number at once, through two workers (only the database orders
+    them): one is applied and answered 200, every other one 409 with the expected number and nothing of it
+    stored; the session goes on at the next number."""
+    from server.formats import canonical_bytes
+
+    if backend == "sqlite" and not one_statement:
+        pytest.skip("SQLite uploads always take the driver path")
+    _, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    upd = {"migrate_on_startup": False, "pg_one_statement_writes": one_statement}
+    apps = [create_app(settings.model_copy(update=upd)) for _ in range(2)]
+    clients = [TestClient(a) for a in apps]
+    try:
+        for seq in range(3):
+            barrier = threading.Barrier(4)
+            results: dict[int, tuple[int, dict]] = {}  # type: ignore[type-arg]
+
+            def send(k: int, seq: int = seq) -> None:
+                barrier.wait()
+                r = _put(clients[k % 2], tok, sid, seq, seed=10 + k)
+                results[k] = (r.status_code, r.json())
+
+            threads = [threading.Thread(target=send, args=(k,)) for k in range(4)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            won = [k for k, (code, _) in results.items() if code == 200]
+            assert len(won) == 1, results
+            assert all(body["expected_seq"] == seq + 1 for code, body in results.values() if code != 200), results
+            raw = client.get(f"/v1/sessions/{sid}/batches/{seq}/raw", headers=auth(tok)).content
+            assert raw == canonical_bytes(still_batch(T0 + seq * 10**9, seed=(10 + won[0]) * 1000 + seq))
+    finally:
+        for a in apps:
+            a.state.db_engine.dispose()
+    assert [b["seq"] for b in client.get(f"/v1/sessions/{sid}/batches", headers=auth(tok)).json()] == [0, 1, 2]
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()["next_seq"] == 3
+
 def test_engine_helper_process_gives_identical_results(settings, client, make_user) -> None:  # type: ignore[no-untyped-def]
     from clients.sdk import PednavClient
     from clients.simulators import FootSensorSimulator
