@@ -839,3 +839,20 @@ def test_a_gradual_turn_through_a_disturbance_is_taken_from_its_run_of_changes(d
         assert out == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-12)
     h = f.step(h, c + math.radians(3.0), False, 38.0 * (1.0 + drift), 1.0)  # below a run's step: the run ends
     assert f.run is None
+
+
+@pytest.mark.parametrize("weak", [False, True])
+def test_a_disturbed_field_too_weak_horizontally_turns_nothing(weak: bool) -> None:
+    """Steel that leaves 1.5 uT of a 22-uT horizontal field (dip 88 deg): a compass change of 32 deg with the
+    field's magnitude and dip unchanged is a turn by the usual rule, but such a field turns by tens of degrees
+    with a few uT of disturbance (synthetic mixed day seed 13: +32 and +52 deg taken while the foot walked
+    straight). With ``weak`` the heading is held; a clean and settled stance is still followed."""
+    from models.compass import CompassFollower
+
+    h_ref = 47.4 * math.cos(math.radians(62.3))
+    dip = math.radians(87.7)
+    f = CompassFollower()
+    assert f.step(0.0, 0.4, False, 36.3, dip, True, math.radians(0.5), False, h_ref, weak) == 0.0
+    out = f.step(0.0, 0.4 + math.radians(32.0), False, 36.2, dip + 0.003, True, math.radians(0.5), False, h_ref, weak)
+    assert math.degrees(out) == pytest.approx(0.0 if weak else 32.0, abs=1e-9)
+    assert f.run is None
