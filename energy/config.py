@@ -37,6 +37,12 @@ class EngineConfig:
         holding the last good compass heading. Off: on gdin it cost gyroscope time and made positions worse
         (the ZUPT-KF restarts from the held heading, so a turn missed before the gyroscope woke stays missed,
         and the compass no longer re-anchors the heading while the gyroscope runs).
+    weak_field_h : float
+        In Gait-DR (auto mode), turn the gyroscope on while the stance field's horizontal part is below this
+        fraction of the Earth's (the compass's reference m_n): a few uT of disturbance per stride turn such a
+        field by tens of degrees, so the compass can no longer tell a turn of the foot from one of the field
+        (synthetic mixed days, seeds 13 and 19: steel left 1.5-4 uT of a 22-uT horizontal field, the compass
+        swung by 30-50 deg a stride and Gait-DR ran 50-140 deg off). 0: never.
     pdr_conventional : bool
         Evaluation baseline: Gait-DR as "conventional PDR" (004 Table 6: generic step model, no heading-deviation
         compensation), see :class:`energy.gait_dr.GaitPipeline`. Off in the product.
@@ -51,6 +57,7 @@ class EngineConfig:
     max_sample_age_s: float = 0.05
     exam_timeout_s: float = 10.0
     heading_assist: bool = False
+    weak_field_h: float = 0.3
     pdr_conventional: bool = False
 
     def to_dict(self) -> dict[str, Any]:

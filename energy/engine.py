@@ -819,7 +819,11 @@ class Engine:
             return
         st = self._compass_reanchor(st, e)
         if sched.assist_active:
-            self._clean_run = self._clean_run + 1 if gait.field_clean(e) else 0
+            # a weak-field assist ends on the Earth's field as the compass re-anchoring sees it, so that a turn
+            # made before the gyroscope came is first taken back (random-day seed 2, returning user: released
+            # on a clean but unsettled field, the segment stayed 68 deg off)
+            ok = gait.earth_compass(e) is not None if sched.assist_weak else gait.field_clean(e)
+            self._clean_run = self._clean_run + 1 if ok else 0
             if self._clean_run >= _ASSIST_RELEASE_STEPS:
                 events += sched.release_heading_assist(t_ns)
                 self._clean_run = 0
@@ -906,7 +910,7 @@ class Engine:
         assert gait is not None
         if not gait.queue:  # nothing to reckon (standing, or every step taken): nothing changes
             return []
-        steps = gait.reckon(before_s, self._labels.at)
+        steps = gait.reckon(before_s, self._labels.at, self.config.weak_field_h if self.mode == "auto" else 0.0)
         if steps and not gait.has_mag and not self._warned_no_heading:
             self._warned_no_heading = True  # logging only: not part of the state
             log.warning("Gait-DR steps from %.1f s with the gyroscope off and no magnetometer: they keep the heading "
@@ -932,6 +936,8 @@ class Engine:
             self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
             if self._disturbed_run >= _ASSIST_AFTER_STEPS:
                 events += self._sched.request_heading_assist(t_ns)
+            if source == "disturbed" and gait.field_weak(e, self.config.weak_field_h):
+                events += self._sched.request_heading_assist(t_ns, weak_field=True)
             if self.trace is not None:
                 self.trace.append(np.array([t_ns], dtype=np.int64), np.array([pos]), np.array([step.behaviour]),
                                   np.array(["pdr"]), np.zeros(1, dtype=bool))

@@ -719,8 +719,11 @@ class GaitPipeline:
         self.heading = float(heading)
         self.follower.restart()  # turns are counted from this heading on
 
-    def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, str]]:
+    def reckon(self, before_s: float, label_at: Callable[[float], str],
+               weak_h: float = 0.0) -> list[tuple[PdrStep, StepEvent, str]]:
         """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
+        ``weak_h``: a disturbed stance field whose horizontal part is below this fraction of the Earth's turns
+        nothing (:meth:`models.compass.CompassFollower.step`'s ``weak``).
 
         Returns ``(step, event, heading source)`` with source ``"compass"`` (the field passed the disturbance
         test), ``"disturbed"`` (it failed) or ``"none"`` (no calibrated field in this session's frame at that
@@ -756,7 +759,7 @@ class GaitPipeline:
                 shape = self.mag.field_shape(acc_st, m)
                 self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
                                                   *shape, self.mag.trusted, self._compass_sigma(),
-                                                  self._settled(shape), self._h_ref())
+                                                  self._settled(shape), self._h_ref(), self._weak(shape, weak_h))
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
@@ -830,6 +833,18 @@ class GaitPipeline:
         if not self._settled(shape) or prev is None or abs(shape[0] - prev[1]) > self.follower.steady_tol * max(prev[1], 1e-9):
             return None
         return cal.heading(acc, m)
+
+    def field_weak(self, e: StepEvent, frac: float) -> bool:
+        """The horizontal part of the field at a step's stance is below ``frac`` of the Earth's (m_n's, the
+        compass's reference): False without a trusted compass anchored in this session's frame."""
+        m = self.mag_at(e)
+        if m is None or not self.mag.ready or not self.mag.trusted or not self.mag_anchored:
+            return False
+        return self._weak(self.mag.field_shape(self.acc_at(e), m), frac)
+
+    def _weak(self, shape: tuple[float, float], frac: float) -> bool:
+        """A field of magnitude [uT] and dip [rad] ``shape`` whose horizontal part is below ``frac`` of m_n's."""
+        return shape[0] * math.cos(shape[1]) < frac * self._h_ref()
 
     def field_clean(self, e: StepEvent) -> bool:
         """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""

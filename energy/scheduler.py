@@ -73,6 +73,7 @@ class Scheduler:
         self.nav_ready = False  # ZUPT-KF aligned and Gait-DR able to place a step (gyroscope needed until then)
         self.compass_ready = True  # Gait-DR has a heading source (a magnetometer with a fitted calibration)
         self.assist_active = False  # gyroscope carries the heading through a magnetic disturbance
+        self.assist_weak = False  # ... asked for because the field was too weak horizontally (weak_field_h)
         self.failed: set[str] = set()  # behaviours whose examination failed in this session
         self.zupt_aligned = False  # the ZUPT-KF has levelled on a still foot once in this session
         self.device_gyro_awake = False  # the device woke the gyroscope itself (wake-on-motion) and it still runs
@@ -202,19 +203,24 @@ class Scheduler:
     def start_exam(self, t_s: float, t_ns: int) -> list[Event]:
         return self._start_exam(t_s, t_ns, reason="T0 elapsed")
 
-    def request_heading_assist(self, t_ns: int) -> list[Event]:
-        """Gait-DR is holding its heading on a disturbed field: the gyroscope carries it (auto mode)."""
-        if self.mode != "auto" or self.assist_active or not self.config.heading_assist or self.working != "pdr":
+    def request_heading_assist(self, t_ns: int, weak_field: bool = False) -> list[Event]:
+        """Gait-DR is holding its heading on a disturbed field (``heading_assist``), or its stance field is too
+        weak horizontally for the compass to tell turns (``weak_field``, ``weak_field_h``): the gyroscope carries
+        the heading (auto mode)."""
+        wanted = self.config.weak_field_h > 0 if weak_field else self.config.heading_assist
+        if self.mode != "auto" or self.assist_active or not wanted or self.working != "pdr":
             return []
-        self.assist_active = True
-        return [Event(t_ns, "gyroscope_requested", {"reason": "magnetic disturbance"})]
+        self.assist_active, self.assist_weak = True, weak_field
+        return [Event(t_ns, "gyroscope_requested", {"reason": "weak magnetic field" if weak_field else "magnetic disturbance"})]
 
     def release_heading_assist(self, t_ns: int) -> list[Event]:
-        """The field is clean again: the compass takes the heading back."""
+        """The field is clean again (a weak-field assist: the Earth's, settled): the compass takes the heading
+        back."""
         if not self.assist_active:
             return []
         self.assist_active = False
-        return [Event(t_ns, "gyroscope_released", {"reason": "magnetic field clean"})]
+        return [Event(t_ns, "gyroscope_released", {"reason": "magnetic field clean" if not self.assist_weak else
+                                                   "Earth's magnetic field back"})]
 
     def tick(self, t_s: float, t_ns: int) -> list[Event]:
         """Data time advanced to ``t_s`` (a Gait-DR step): start a due examination, give up a stale one."""
@@ -490,6 +496,7 @@ class Scheduler:
             "nav_ready": self.nav_ready,
             "compass_ready": self.compass_ready,
             "assist_active": self.assist_active,
+            "assist_weak": self.assist_weak,
             "zupt_aligned": self.zupt_aligned,
             "device_gyro_awake": self.device_gyro_awake,
             "step_t_s": self.step_t_s,
@@ -511,6 +518,7 @@ class Scheduler:
                     "nav_ready", "compass_ready", "assist_active"):
             setattr(obj, key, d[key])
         obj.zupt_aligned = bool(d.get("zupt_aligned", False))  # absent in states stored before it existed
+        obj.assist_weak = bool(d.get("assist_weak", False))
         obj.device_gyro_awake = bool(d.get("device_gyro_awake", False))
         obj.step_t_s = float(d.get("step_t_s", 0.0))
         obj.exam_misses = int(d.get("exam_misses", 0))

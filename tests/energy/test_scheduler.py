@@ -592,3 +592,20 @@ def test_gait_dr_of_a_walk_lets_the_device_wake_the_gyro_on_a_run_it_has_no_mode
     p = walking_in_gait_dr("pdr")  # the fixed scheme never asks for the gyroscope
     p.run_wake_ms2 = 42.0
     assert not p.sensor_config().gyro_wake_on_motion and not p.sensor_config().gyro_on
+
+
+@pytest.mark.parametrize("weak_field_h, wanted", [(0.3, True), (0.0, False)])
+def test_a_weak_field_asks_for_the_gyroscope_without_heading_assist(weak_field_h: float, wanted: bool) -> None:
+    """``weak_field_h`` > 0 (the default) turns the gyroscope on in Gait-DR where the field is too weak for the
+    compass to tell turns, with ``heading_assist`` off; the request survives a state round trip."""
+    s = aligned("auto", EngineConfig(l0_m=20.0, weak_field_h=weak_field_h), Profile())
+    s.on_behaviour("walk", 1.0, 1)
+    walk_to(s, 20.0)
+    s.on_calibrated(10.0, 10)
+    assert s.request_heading_assist(0) == []  # a disturbance alone: heading_assist is off
+    got = s.request_heading_assist(0, weak_field=True)
+    assert [(e.kind, e.detail["reason"]) for e in got] == ([("gyroscope_requested", "weak magnetic field")] if wanted else [])
+    back = Scheduler.from_state(s.get_state())
+    assert back.gyro_wanted() == wanted and back.assist_weak == wanted
+    assert [e.kind for e in back.release_heading_assist(0)] == (["gyroscope_released"] if wanted else [])
+    assert not back.gyro_wanted()

@@ -839,3 +839,47 @@ def test_a_gradual_turn_through_a_disturbance_is_taken_from_its_run_of_changes(d
         assert out == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-12)
     h = f.step(h, c + math.radians(3.0), False, 38.0 * (1.0 + drift), 1.0)  # below a run's step: the run ends
     assert f.run is None
+
+
+@pytest.mark.parametrize("weak", [False, True])
+def test_a_disturbed_field_too_weak_horizontally_turns_nothing(weak: bool) -> None:
+    """Steel that leaves 1.5 uT of a 22-uT horizontal field (dip 88 deg): a compass change of 32 deg with the
+    field's magnitude and dip unchanged is a turn by the usual rule, but such a field turns by tens of degrees
+    with a few uT of disturbance (synthetic mixed day seed 13: +32 and +52 deg taken while the foot walked
+    straight). With ``weak`` the heading is held; a clean and settled stance is still followed."""
+    from models.compass import CompassFollower
+
+    h_ref = 47.4 * math.cos(math.radians(62.3))
+    dip = math.radians(87.7)
+    f = CompassFollower()
+    assert f.step(0.0, 0.4, False, 36.3, dip, True, math.radians(0.5), False, h_ref, weak) == 0.0
+    out = f.step(0.0, 0.4 + math.radians(32.0), False, 36.2, dip + 0.003, True, math.radians(0.5), False, h_ref, weak)
+    assert math.degrees(out) == pytest.approx(0.0 if weak else 32.0, abs=1e-9)
+    assert f.run is None
+
+
+@pytest.mark.parametrize(
+    ("norm0", "dip0_deg", "norm1", "dip1_deg", "turn_deg", "taken"),
+    [
+        (63.5, 68.6, 67.1, 69.2, 46.8, True),  # steel 5.7 % stronger: 2.6 uT about the vertical at most ~6 deg
+        (63.5, 68.6, 67.1, 69.2, 15.0, False),  # under min_turn
+        (36.8, 83.0, 36.3, 87.0, 40.0, False),  # 1.9-4.5 uT left horizontally: the field itself turns by ~55 deg
+        (47.0, 62.0, 47.1, 68.0, 30.0, False),  # dip moved 6 deg: 30 deg is within 3 sigma (34 deg)
+    ],
+)
+def test_a_large_compass_change_beyond_what_the_fields_change_can_turn_is_the_foot(
+        norm0, dip0_deg, norm1, dip1_deg, turn_deg, taken) -> None:
+    """A field that changed its shape between two stances also turned about the vertical, by an amount the
+    visible part of its change (vertical component, horizontal magnitude) scales: taken as isotropic, that
+    part over the horizontal field is the turn's standard deviation. A compass change beyond ``min_turn`` and
+    three of those is the foot (held-out synthetic day, seed 3, 195 s: a 47-deg stride of a 180-deg turn in
+    steel 5.7 % stronger than at the stance before was not taken, and the ZUPT-KF then ran 50 deg off)."""
+    from models.compass import CompassFollower
+
+    f = CompassFollower()
+    f.observe(0.3, False, norm0, math.radians(dip0_deg))
+    got = f.turn_since(0.3 + math.radians(turn_deg), norm1, math.radians(dip1_deg))
+    if taken:
+        assert got == pytest.approx(math.radians(turn_deg))
+    else:
+        assert got is None
