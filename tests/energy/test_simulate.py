@@ -54,6 +54,31 @@ def test_step_errors_leave_out_steps_shorter_than_a_stride():
     assert step_errors(t[:1], est[:1], ["zupt"], t, truth) == {}
 
 
+def test_step_errors_leave_out_a_jump_only_where_its_time_is_given():
+    """A 0.6-m sideways jump (a ``strides_corrected`` move) made after the position at 5 s was reported lies in
+    the step 5 s -> 6 s: with that time given, that step is left out of its mode (and counted), without it the
+    step reads a large direction error; the step ending at the jump's time is not the one."""
+    t = np.arange(10, dtype=np.int64) * 10**9
+    truth = np.c_[1.3 * np.arange(10.0), np.zeros(10)]
+    est = truth.copy()
+    est[6:, 1] += 0.6
+    modes = ["pdr"] * 6 + ["zupt"] * 4  # the jump falls in a ZUPT-KF step (charged to its end), as on the mixed day
+    plain = step_errors(t, est, modes, t, truth)
+    assert plain["zupt"]["steps"] == 4 and plain["zupt"]["jumps_left_out"] == 0
+    assert plain["zupt"]["direction_err_deg"] == pytest.approx(np.degrees(np.arctan2(0.6, 1.3)) / 4, rel=1e-9)
+    assert plain["pdr"] == step_errors(t, est, modes, t, truth, jump_t_ns=[])["pdr"]
+    cut = step_errors(t, est, modes, t, truth, jump_t_ns=[int(t[5])])
+    assert cut["zupt"]["steps"] == 3 and cut["zupt"]["jumps_left_out"] == 1
+    assert cut["zupt"]["direction_err_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert cut["zupt"]["length_err_pct"] == pytest.approx(0.0, abs=1e-9)
+    assert cut["pdr"] == plain["pdr"]  # the other mode is untouched
+    between = step_errors(t, est, modes, t, truth, jump_t_ns=[int(t[5]) + 400_000_000])  # inside the step
+    assert between["zupt"] == cut["zupt"]
+    wrong = step_errors(t, est, modes, t, truth, jump_t_ns=[int(t[6])])  # the step after the jump's step
+    assert wrong["zupt"]["jumps_left_out"] == 1
+    assert wrong["zupt"]["direction_err_deg"] > 5.0
+
+
 @pytest.fixture(scope="module")
 def demo_doc():
     pytest.importorskip("energy.engine")
