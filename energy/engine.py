@@ -48,6 +48,7 @@ _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyros
 _STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
+_WEAK_HANDOVER = 1.5  # a ZUPT-KF stance hands over to Gait-DR only on a field above this multiple of weak_field_h
 _REANCHOR_STANCES = 3  # consecutive ZUPT-KF stances whose trusted compass agrees on an offset before it is taken
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
 _REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
@@ -866,6 +867,11 @@ class Engine:
                 "sigma_d_m": cal.sigma_d_m,
                 "n_steps": cal.n_steps,
             })
+        if sched.working == "pdr" and gait.field_weak(e, _WEAK_HANDOVER * self.config.weak_field_h):
+            # an initialisation or examination ending on a field too weak for the compass: the gyroscope stays
+            # (held-out random day, seed 11, 172 s: a run's initialisation ended in steel, Gait-DR held its heading
+            # through a 45-deg turn before the gyroscope it then asked for came, and the ZUPT-KF ran 35 deg off)
+            events += sched.request_heading_assist(t_ns, weak_field=True)
 
     def _compass_reanchor(self, st: Stance, e: Any) -> Stance:
         """Turn this ZUPT-KF segment to a trusted compass that disagrees with it, consistently, on the Earth's

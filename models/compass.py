@@ -299,12 +299,14 @@ class CompassFollower:
         self.gyro_ref = None
         self.run = None
 
-    def restart(self) -> None:
+    def restart(self, h_ref: float = math.nan) -> None:
         """Gait-DR restarts from the heading of the ZUPT-KF stance observed last: a suspect compass, or one on an
-        established clean field, keeps that stance's reading (turns during the hand-over stride are its changes
-        from it); else :meth:`forget`."""
+        established clean field or on a field whose horizontal part is at least ``strong_h`` of the Earth's
+        (``h_ref`` [uT]; a few uT of disturbance turn it by a few degrees), keeps that stance's reading (turns
+        during the hand-over stride are its changes from it); else :meth:`forget`."""
         self.gyro_ref = None
-        if not (self.suspect or self.established):
+        strong = self.prev is not None and self.prev[1] * math.cos(self.prev[2]) >= self.strong_h * h_ref
+        if not (self.suspect or self.established or strong):
             self.prev = None
 
     def turn_since(self, compass: float, norm: float, dip: float) -> float | None:

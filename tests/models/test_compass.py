@@ -883,3 +883,21 @@ def test_a_large_compass_change_beyond_what_the_fields_change_can_turn_is_the_fo
         assert got == pytest.approx(math.radians(turn_deg))
     else:
         assert got is None
+
+
+@pytest.mark.parametrize(("dip_deg", "kept"), [(41.4, True), (80.0, False), (85.0, False)])
+def test_a_restart_keeps_the_last_zupt_kf_reading_on_a_strong_disturbed_field(dip_deg: float, kept: bool) -> None:
+    """Gait-DR restarts from the ZUPT-KF's last stance; a turn during the hand-over stride is the compass's change
+    from that stance's reading. Kept on a disturbed field whose horizontal part is at least ``strong_h`` of the
+    Earth's (61 uT at dip 41 deg: 46 uT against 22), forgotten where it is not (no change to take)."""
+    from models.compass import CompassFollower
+
+    h_ref = 47.4 * math.cos(math.radians(62.3))
+    f = CompassFollower()
+    f.observe(0.5, False, 61.3, math.radians(dip_deg))
+    f.restart(h_ref)
+    assert (f.prev is not None) == kept
+    g = CompassFollower()
+    g.observe(0.5, False, 61.3, math.radians(dip_deg))
+    g.restart()  # without the Earth's field to compare with: forgotten
+    assert g.prev is None
