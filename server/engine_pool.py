@@ -3,9 +3,20 @@
 The worker keeps HTTP, authentication and the database; a helper process (one per ``engine_processes``,
 chosen by session id so a session always meets its cached engine) restores, feeds and serialises the engine
 and sends back everything the worker stores: the answer (as a dict and as its JSON text), the canonical raw
-batch and its digest, and the new state (the worker compresses it). Helpers cache engines by ``(session id, version)``; on a
-miss the worker sends the stored state. Results are identical to in-process feeding (same engine code, same
-bytes), and the worker still commits state and outputs in one versioned write transaction.
+batch and its digest, and the new state (the worker compresses it). Results are identical to in-process feeding
+(same engine code, same bytes), and the worker still commits state and outputs in one versioned write transaction.
+
+A helper keeps the engine it fed last per session, under the version the worker is about to commit; the worker
+continues that engine only when it committed exactly that version from it (:meth:`EnginePool.committed`,
+used up by :meth:`EnginePool.take`), and otherwise sends the stored state, which the helper then always
+restores. The helper caches before the worker writes, and the write can fail: another worker (process) commits
+that version first with other content (a different batch under the same number, a Sensor Logger piece that
+took newer messages), or the write transaction is refused or breaks. The helper's engine is then not the
+stored one for that version, and continuing it gave wrong positions for the rest of the session. Vouching
+after the commit (as :class:`server.ingest.EngineHost` re-caches in-process engines only after the commit)
+covers every way a write can fail without naming them; a "forget" message on failure would have to reach the
+helper from each failure path, and a content digest in the key would need the stored state's digest, which the
+hot path does not read.
 
 Each worker thread talks to a helper over its own pipe (a fixed set of ``channels`` per helper, one per
 ingest thread): a request is one ``send`` and one blocking ``recv`` in the calling thread, both without the
@@ -80,19 +91,23 @@ def _unpack_streams(counts: tuple[int, ...], buf: bytearray) -> dict[str, np.nda
 def _feed(
     session_id: int, version: int, state: bytes | None, seq: int, counts: tuple[int, ...], buf: bytearray
 ) -> tuple[Any, ...]:
-    """In the helper: feed one batch; ("ok", Fed) | ("miss",) | ("batch_error", field, problem)."""
+    """In the helper: feed one batch; ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
+
+    ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state``,
+    also when an engine is cached at ``version`` (the worker does not vouch for it, see the module docstring).
+    """
     from energy.engine import Engine
     from models.batch import BatchError, SensorBatch
     from server.ingest import feed_engine
     from server.statecodec import unpack_state
 
     hit = _CACHE.pop(session_id, None)
-    if hit is not None and hit[0] == version:
-        engine = hit[1]
-    elif state is None:
-        return ("miss",)
-    else:
+    if state is not None:
         engine = Engine.from_bytes(unpack_state(state))
+    elif hit is not None and hit[0] == version:
+        engine = hit[1]
+    else:
+        return ("miss",)
     try:
         fed = feed_engine(engine, SensorBatch(**_unpack_streams(counts, buf)), session_id, seq)
     except BatchError as exc:  # sent back as plain values (the worker raises its own BatchError from them)
@@ -177,6 +192,9 @@ class EnginePool:
         self.channels = channels
         self._helpers: list[_Helper | None] | None = None
         self._lock = threading.Lock()
+        # session id -> version this worker committed from its helper's cached engine (LRU, as the helpers')
+        self._committed: OrderedDict[int, int] = OrderedDict()
+        self._committed_lock = threading.Lock()
 
     def _helper(self, session_id: int) -> _Helper:
         i = session_id % self.processes
@@ -191,8 +209,33 @@ class EnginePool:
                 h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
             return h
 
+    def committed(self, session_id: int, version: int) -> None:
+        """The worker committed ``version`` of the session from the state its helper fed last (the helper's
+        cached engine may continue it); call only after the commit."""
+        if self.cache_size <= 0:
+            return
+        with self._committed_lock:
+            self._committed[session_id] = version
+            self._committed.move_to_end(session_id)
+            while len(self._committed) > self.cache_size:
+                self._committed.popitem(last=False)
+
+    def take(self, session_id: int, version: int) -> bool:
+        """True when this worker committed ``version`` from the helper's cached engine (see :meth:`committed`).
+        Used up: the feed that follows changes that engine, and its write may fail."""
+        with self._committed_lock:
+            return self._committed.pop(session_id, None) == version
+
+    def forget(self, session_id: int) -> None:
+        """Do not continue the helper's cached engine of the session (its next feed sends the stored state)."""
+        with self._committed_lock:
+            self._committed.pop(session_id, None)
+
     def feed(self, session_id: int, version: int, state: bytes | None, seq: int, streams: dict[str, np.ndarray]) -> tuple[Any, ...]:
-        """Feed one batch in the session's helper: ("ok", Fed) | ("miss",) | ("batch_error", field, problem)."""
+        """Feed one batch in the session's helper: ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
+
+        ``state`` None: the helper's cached engine at ``version`` (only after :meth:`take`); else the engine
+        restored from ``state`` (the helper's cached one is then never used)."""
         h = self._helper(session_id)
         try:
             conn = h.free.get(timeout=120.0)

@@ -136,7 +136,13 @@ class EngineHost:
             return self.new(mode, engine_profile_from_stored(profile))
         return self.engine_cls.from_bytes(unpack_state(blob))
 
-    def remember(self, session_id: int, version: int, engine: EngineLike) -> None:
+    def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
+        """After the commit of ``version``: keep ``engine`` for the next batch (None: the engine helper's, which
+        fed it; see :mod:`server.engine_pool`)."""
+        if engine is None:
+            if self.pool is not None:
+                self.pool.committed(session_id, version)
+            return
         if self.cache_size <= 0:
             return
         self._cache[session_id] = (version, engine)
@@ -146,6 +152,8 @@ class EngineHost:
 
     def forget(self, session_id: int) -> None:
         self._cache.pop(session_id, None)
+        if self.pool is not None:
+            self.pool.forget(session_id)
 
     @contextmanager
     def lock(self, session_id: int) -> Iterator[None]:
@@ -310,13 +318,17 @@ def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: in
 
 def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: SensorBatch,
               load_blob: Callable[[], bytes]) -> Fed:
-    """Feed ``batch`` through the engine helper process: its cached engine when it holds ``version``, else the
-    stored state ``load_blob()`` (``BatchError`` from the engine's validation is raised here)."""
+    """Feed ``batch`` through the engine helper process: its cached engine when this worker committed
+    ``version`` from it (:meth:`EnginePool.take`) and the helper still holds it, else the stored state
+    ``load_blob()`` (``BatchError`` from the engine's validation is raised here). Call
+    ``host.remember(session_id, version + 1, None)`` after the commit."""
     streams: dict[str, Any] = {}
     for name in STREAMS:
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
-    with phase("engine"):
-        out = pool.feed(session_id, version, None, seq, streams)
+    out: tuple[Any, ...] = ("miss",)
+    if pool.take(session_id, version):
+        with phase("engine"):
+            out = pool.feed(session_id, version, None, seq, streams)
     if out[0] == "miss":
         with phase("load_state"):
             blob = load_blob()
@@ -509,8 +521,7 @@ def _apply_once(
         except (StaleDataError, IntegrityError):
             # another worker applied this sequence number first: answer as for a retry
             return _answer_as_retry(db, session_id, seq, h), True
-        if engine is not None:
-            host.remember(session_id, row.version + 1, engine)
+        host.remember(session_id, row.version + 1, engine)  # engine None: the helper's (vouched for now)
         return resp, False
 
 

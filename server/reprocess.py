@@ -192,7 +192,7 @@ def reprocess_session(
             db.rollback()
             raise
         finally:
-            host.forget(session_id)  # a cached engine is at the old version (helpers: the version moved on)
+            host.forget(session_id)  # a cached engine is at the old version (helpers: no longer continued either)
         result.stored = True
         result.reprocess_count = sess.reprocess_count + 1
         return result
