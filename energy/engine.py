@@ -48,6 +48,7 @@ _STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyros
 _STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
 _ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
 _ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
+_WEAK_RELEASE_GATE_STEPS = 10  # stances passing the gate that release a weak-field assist without a settled field
 _WEAK_HANDOVER = 1.5  # a ZUPT-KF stance hands over to Gait-DR only on a field above this multiple of weak_field_h
 _REANCHOR_STANCES = 3  # consecutive ZUPT-KF stances whose trusted compass agrees on an offset before it is taken
 _REST_GYR = 1.0  # |w| below this [rad/s] ...
@@ -359,6 +360,7 @@ class Engine:
         self._rest_head = math.nan  # ... and the heading it restarted with [rad]
         self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
         self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
+        self._gate_run = 0  # ... that passed the disturbance gate (a weak-field assist's fallback release)
         self._compass_offsets: list[float] = []  # trusted compass - ZUPT-KF heading at this segment's latest stances
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
         self._labels_pending: list[tuple[float, str]] = []
@@ -823,11 +825,16 @@ class Engine:
             # a weak-field assist ends on the Earth's field as the compass re-anchoring sees it, so that a turn
             # made before the gyroscope came is first taken back (random-day seed 2, returning user: released
             # on a clean but unsettled field, the segment stayed 68 deg off)
-            ok = gait.earth_compass(e) is not None if sched.assist_weak else gait.field_clean(e)
+            clean = gait.field_clean(e)
+            ok = gait.earth_compass(e) is not None if sched.assist_weak else clean
             self._clean_run = self._clean_run + 1 if ok else 0
-            if self._clean_run >= _ASSIST_RELEASE_STEPS:
-                events += sched.release_heading_assist(t_ns)
-                self._clean_run = 0
+            # ... or after a longer clean run where the field passes the gate but never settles on m_n's shape
+            # (a building whose field is a few percent off: the gyroscope would stay on for good)
+            self._gate_run = self._gate_run + 1 if clean else 0
+            if self._clean_run >= _ASSIST_RELEASE_STEPS or self._gate_run >= _WEAK_RELEASE_GATE_STEPS:
+                events += sched.release_heading_assist(
+                    t_ns, None if self._clean_run >= _ASSIST_RELEASE_STEPS else "magnetic field clean")
+                self._clean_run = self._gate_run = 0
         exam = sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest
         fitted = None
         if exam:
@@ -1111,6 +1118,7 @@ class Engine:
             "rest_head": self._rest_head,
             "disturbed_run": self._disturbed_run,
             "clean_run": self._clean_run,
+            "gate_run": self._gate_run,
             "compass_offsets": list(self._compass_offsets),
             "nav_t": self._nav_t,
             "labels_pending": [[t, lab] for t, lab in self._labels_pending],
@@ -1163,6 +1171,7 @@ class Engine:
         obj._rest_head = float(d.get("rest_head", math.nan))
         obj._disturbed_run = int(d["disturbed_run"])
         obj._clean_run = int(d["clean_run"])
+        obj._gate_run = int(d.get("gate_run", 0))  # absent in states stored before it existed
         obj._compass_offsets = [float(x) for x in d.get("compass_offsets", [])]  # absent in older states
         obj._nav_t = float(d["nav_t"])
         obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]

@@ -213,14 +213,15 @@ class Scheduler:
         self.assist_active, self.assist_weak = True, weak_field
         return [Event(t_ns, "gyroscope_requested", {"reason": "weak magnetic field" if weak_field else "magnetic disturbance"})]
 
-    def release_heading_assist(self, t_ns: int) -> list[Event]:
+    def release_heading_assist(self, t_ns: int, reason: str | None = None) -> list[Event]:
         """The field is clean again (a weak-field assist: the Earth's, settled): the compass takes the heading
         back."""
         if not self.assist_active:
             return []
         self.assist_active = False
-        return [Event(t_ns, "gyroscope_released", {"reason": "magnetic field clean" if not self.assist_weak else
-                                                   "Earth's magnetic field back"})]
+        if reason is None:
+            reason = "Earth's magnetic field back" if self.assist_weak else "magnetic field clean"
+        return [Event(t_ns, "gyroscope_released", {"reason": reason})]
 
     def tick(self, t_s: float, t_ns: int) -> list[Event]:
         """Data time advanced to ``t_s`` (a Gait-DR step): start a due examination, give up a stale one."""

@@ -116,3 +116,14 @@ def test_a_turn_before_the_gyroscope_came_is_taken_from_a_strong_disturbed_field
     ref = np.angle(np.mean(np.exp(1j * off[before])))
     drift = np.degrees(np.abs(np.angle(np.exp(1j * (off[after] - ref)))))
     assert drift.max() < 10.0, drift.max()
+
+
+def test_the_gyroscope_is_given_back_where_the_field_passes_the_gate_but_never_settles(day, monkeypatch) -> None:
+    """A building whose field passes the disturbance gate but stays a few percent off m_n's shape never gives
+    the compass re-anchoring its Earth's field: after a longer run of stances that pass the gate the weak-field
+    assist ends all the same (else the gyroscope would stay on for the rest of the session)."""
+    from energy.gait_dr import GaitPipeline
+
+    monkeypatch.setattr(GaitPipeline, "earth_compass", lambda self, e: None)
+    _, events = _run(day, EngineConfig())
+    assert events == [("gyroscope_requested", "weak magnetic field"), ("gyroscope_released", "magnetic field clean")]
