@@ -814,7 +814,7 @@ class GaitPipeline:
         clean = self.follower.established and not cal.disturbed(acc, m)
         # or steel whose horizontal field is strong: a few uT of change turn it by a few degrees (held-out random
         # day, seed 2, 503 s: 45 of a 90-deg turn made before the gyroscope came were lost in a 46-uT field)
-        if not clean and shape[0] * math.cos(shape[1]) < self.follower.strong_h * self._h_ref():
+        if not clean and not self.follower.strong(*shape, self._h_ref()):
             return None
         turn = self.follower.turn_since(cal.heading(acc, m), *shape)
         if turn is None:

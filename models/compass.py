@@ -305,9 +305,15 @@ class CompassFollower:
         (``h_ref`` [uT]; a few uT of disturbance turn it by a few degrees), keeps that stance's reading (turns
         during the hand-over stride are its changes from it); else :meth:`forget`."""
         self.gyro_ref = None
-        strong = self.prev is not None and self.prev[1] * math.cos(self.prev[2]) >= self.strong_h * h_ref
+        strong = self.prev is not None and self.strong(self.prev[1], self.prev[2], h_ref)
         if not (self.suspect or self.established or strong):
             self.prev = None
+
+    def strong(self, norm: float, dip: float, h_ref: float) -> bool:
+        """The horizontal part of a field of magnitude ``norm`` [uT] and dip ``dip`` [rad] is at least ``strong_h``
+        of the Earth's ``h_ref`` [uT] (False where ``h_ref`` is NaN): a few uT of disturbance turn it by a few
+        degrees."""
+        return math.isfinite(h_ref) and norm * math.cos(dip) >= self.strong_h * h_ref
 
     def turn_since(self, compass: float, norm: float, dip: float) -> float | None:
         """Compass change [rad] since the previous stance when the field's magnitude [uT] and dip [rad] stayed
@@ -446,7 +452,7 @@ class CompassFollower:
         if weak and not (clean and settled):
             self.run = None
             return heading
-        strong = math.isfinite(h_ref) and norm * math.cos(dip) >= self.strong_h * h_ref
+        strong = self.strong(norm, dip, h_ref)
         if self.suspect and not (clean and settled) and not strong:
             return heading  # the field turned by itself here: its changes are not the foot's
         return wrap_angle(heading + turned)
