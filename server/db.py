@@ -55,13 +55,16 @@ def make_sessionmaker(engine: Engine) -> sessionmaker[Session]:
 
 
 def migrate(engine: Engine, revision: str = "head") -> None:
-    """Upgrade the database behind ``engine`` to ``revision`` with Alembic."""
+    """Upgrade the database behind ``engine`` to ``revision`` with Alembic (each revision committed on its own)."""
     from alembic import command
     from alembic.config import Config
 
     cfg = Config(str(_HERE / "alembic.ini"))
     cfg.set_main_option("script_location", str(_HERE / "migrations"))
-    with engine.begin() as conn:
+    # a connection NOT in a transaction: the environment (migrations/env.py) runs each revision in a transaction
+    # of its own; inside one begun here every revision would share it, and SQLite's foreign keys could not be
+    # switched off for revisions that rebuild a referenced table (the PRAGMA is a no-op inside a transaction)
+    with engine.connect() as conn:
         cfg.attributes["connection"] = conn
         command.upgrade(cfg, revision)
 

@@ -406,9 +406,15 @@ _EVENTS = EventRecord.__table__
 
 
 def _answer_as_retry(db: Session, session_id: int, seq: int, h: str) -> dict[str, Any]:
-    """A concurrent writer applied ``seq`` first: roll back and answer as for a retried upload."""
+    """The version check failed: roll back; a concurrent writer that applied ``seq`` first makes this an upload
+    answered as a retry. One that changed the session otherwise (a close, a re-processing) raises
+    :class:`_Raced`: the session is read again and the upload decided afresh (a closed session is then refused
+    as closed, not as a sequence in the past)."""
     db.rollback()
     cur = db.execute(select(_TS.c.next_seq).where(_TS.c.id == session_id)).scalar_one()
+    if seq >= cur:
+        db.rollback()
+        raise _Raced()
     return _replayed_core(db, session_id, seq, h, cur)
 
 
@@ -519,7 +525,7 @@ def _apply_once(
                 with phase("commit"):
                     db.commit()
         except (StaleDataError, IntegrityError):
-            # another worker applied this sequence number first: answer as for a retry
+            # another worker changed the session first: a retry's answer if it applied this sequence number
             return _answer_as_retry(db, session_id, seq, h), True
         host.remember(session_id, row.version + 1, engine)  # engine None: the helper's (vouched for now)
         return resp, False

@@ -94,10 +94,13 @@ class TrackSession(Base):
     """One recording session of one device; holds the engine state between batches.
 
     ``version`` is an optimistic-concurrency counter: an update that does not find the version it read
-    fails, so two workers can never both apply the same batch.
+    fails, so two workers can never both apply the same batch. Ids are never reused (SQLite: AUTOINCREMENT,
+    migration 0005; PostgreSQL's sequences never hand one out twice): engine caches are keyed by session id and
+    version, and a deleted session's cached engine must never be continued for a new session.
     """
 
     __tablename__ = "sessions"
+    __table_args__ = {"sqlite_autoincrement": True}
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
     device_id: Mapped[int | None] = mapped_column(ForeignKey("devices.id", ondelete="SET NULL"), nullable=True)

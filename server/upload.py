@@ -364,9 +364,14 @@ class Uploader:
                     if not isinstance(exc, psycopg.IntegrityError):
                         raise
                     ok = False
-        if not ok:  # another worker applied this sequence number first: answer as for a retry
+        if not ok:  # the version check failed: another writer changed the session since it was read
             cur.execute(self._session_sql, (session_id,))
-            return self._replay(cur, session_id, seq, fed.digest, cur.fetchone()[1]), True
+            next_seq = cur.fetchone()[1]
+            if seq >= next_seq:
+                # not by applying this sequence number (a close, a re-processing): read the session again and
+                # decide afresh (a closed session is refused as closed, not as a sequence in the past)
+                raise _Raced()
+            return self._replay(cur, session_id, seq, fed.digest, next_seq), True  # applied by the other: a retry
         host.remember(session_id, sess.version + 1, engine)  # engine None: the helper's (vouched for now)
         return fed.resp_json, False
 

@@ -4,12 +4,16 @@ batch twice."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 
+from energy.engine import Engine
 from server.app import create_app
 from server.formats import MSGPACK_TYPE, encode_msgpack
+from server.ingest import IngestConflict, apply_batch
 from server.models import TrackSession
 from tests.server.conftest import auth, still_batch
 
@@ -178,3 +182,88 @@ def test_postgresql_one_statement_write_stores_what_the_transactional_write_stor
             a.state.db_engine.dispose()
     assert len(out[0][0]) > 5 and any(out[0][1])
     assert out[0] == out[1]
+
+
+class _OvertakenEngine(Engine):
+    """The engine of a worker whose upload another worker overtakes: while it takes the batch (after the worker
+    read the session, before it writes), the next action of :attr:`meanwhile` runs once."""
+
+    meanwhile: list[Callable[[], Any]] = []
+
+    def feed(self, batch: Any) -> Any:
+        upd = super().feed(batch)
+        if type(self).meanwhile:
+            type(self).meanwhile.pop()()
+        return upd
+
+
+def _overtaken_upload(settings, client, tok: str, uid: int, sid: int, seq: int, path: str,  # type: ignore[no-untyped-def]
+                      meanwhile: Callable[[], Any]) -> tuple[int, dict[str, Any]]:
+    """Upload ``seq`` through a second worker (``path``: its driver write, its ORM write, or ``apply_batch``
+    itself) while ``meanwhile`` runs between its read of the session and its write; (status, answer)."""
+    upd = {"migrate_on_startup": False, "pg_one_statement_writes": path != "orm-write"}
+    a = create_app(settings.model_copy(update=upd), engine_cls=_OvertakenEngine)
+    _OvertakenEngine.meanwhile[:] = [meanwhile]
+    try:
+        if path == "apply_batch":
+            with a.state.sessionmaker() as db:
+                try:
+                    resp, _ = apply_batch(db, a.state.host, uid, sid, seq, still_batch(T0 + seq * 10**9, seed=3000 + seq))
+                except IngestConflict as exc:
+                    return 409, {"detail": exc.message, "expected_seq": exc.expected_seq}
+                return 200, resp
+        with TestClient(a) as c2:
+            r = _put(c2, tok, sid, seq, seed=3)
+            return r.status_code, r.json()
+    finally:
+        assert _OvertakenEngine.meanwhile == []  # it did run in between
+        a.state.db_engine.dispose()
+
+
+_PATHS = pytest.mark.parametrize("path", ["driver-write", "orm-write", "apply_batch"])
+
+
+@_PATHS
+def test_upload_overtaken_by_a_close_is_refused_as_closed(settings, backend, client, make_user, path) -> None:  # type: ignore[no-untyped-def]
+    """Another worker closes the session between an upload's read of the session and its write: the upload is
+    refused with 409 naming the closed session (it was "sequence N is in the past; expected N"), nothing of it
+    is stored, and everything accepted before it stays."""
+    if backend == "sqlite" and path == "orm-write":
+        pytest.skip("SQLite uploads always take the driver path")
+    uid, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    assert all(_put(client, tok, sid, seq, seed=3).status_code == 200 for seq in range(2))
+    batches = client.get(f"/v1/sessions/{sid}/batches", headers=auth(tok)).json()
+    closed: list[Any] = []
+    code, body = _overtaken_upload(settings, client, tok, uid, sid, 2, path, lambda: closed.append(
+        client.post(f"/v1/sessions/{sid}/close", headers=auth(tok))))
+    assert closed[0].status_code == 200, (path, closed[0].text)
+    assert (code, body) == (409, {"detail": f"session {sid} is closed; no more batches accepted",
+                                  "expected_seq": 2}), path
+    assert client.get(f"/v1/sessions/{sid}/batches", headers=auth(tok)).json() == batches  # seq 2 not stored
+    s = client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()
+    assert (s["status"], s["next_seq"], s["n_positions"]) == ("closed", 2, closed[0].json()["n_positions"])
+    # a stale sequence number on an open session keeps its own refusal
+    other = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    assert _put(client, tok, other, 0, seed=3).status_code == 200
+    r = _put(client, tok, other, 0, seed=4)
+    assert (r.status_code, r.json()["detail"]) == (409, "sequence 0 was already used by a different batch; expected sequence 1")
+
+
+@_PATHS
+def test_upload_overtaken_by_a_reprocessing_is_applied(settings, backend, client, make_user, path) -> None:  # type: ignore[no-untyped-def]
+    """Another worker re-processes the (open) session between an upload's read and its write: the session's
+    version moved but its sequence did not, so the upload reads the session again and is applied on the
+    re-processed state (it was refused: "sequence N is in the past; expected N")."""
+    if backend == "sqlite" and path == "orm-write":
+        pytest.skip("SQLite uploads always take the driver path")
+    uid, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    assert all(_put(client, tok, sid, seq, seed=3).status_code == 200 for seq in range(2))
+    done: list[Any] = []
+    code, body = _overtaken_upload(settings, client, tok, uid, sid, 2, path, lambda: done.append(
+        client.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok))))
+    assert done[0].status_code == 200 and done[0].json()["stored"] is True, (path, done[0].text)
+    assert code == 200 and body["seq"] == 2 and body["next_seq"] == 3, (path, body)
+    assert [b["seq"] for b in client.get(f"/v1/sessions/{sid}/batches", headers=auth(tok)).json()] == [0, 1, 2]
+    assert _put(client, tok, sid, 2, seed=3).headers["x-pednav-replayed"] == "true"  # applied once
