@@ -555,9 +555,10 @@ class BatchStream:
         """The sensor configuration of the latest answer (what the device must use next).
 
         Keys as :class:`energy.types.SensorConfig`; with ``gyro_wake_on_motion`` the gyroscope is off but the
-        device turns it on by itself on motion (``wake_threshold_ms2``, ``sleep_after_s``; ``wake_mode`` says whether
-        the threshold applies to a departure from the still reference or to the absolute acceleration), see
-        :class:`energy.device.DeviceEmulator`.
+        device turns it on by itself (``sleep_after_s``; ``wake_mode`` says on what: ``"motion"``, a departure from
+        the still reference, and ``"high_g"``, the absolute acceleration, beyond ``wake_threshold_ms2``;
+        ``"weak_field"``, a still stance whose field calibrated by ``mag_offset_ut`` and ``mag_matrix`` has a
+        horizontal part below ``wake_field_ut``), see :class:`energy.device.DeviceEmulator`.
         """
         return None if self.last_response is None else self.last_response["sensor_config"]
 

@@ -15,6 +15,7 @@ threshold ``ACT_THS[6:0]`` and ``SLEEP_ON_INACT_EN``, "gyroscope operating mode 
 from __future__ import annotations
 
 import copy
+import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
@@ -24,6 +25,7 @@ import numpy as np
 from energy.types import Position, SensorConfig, Update
 from models.batch import STREAMS, SensorBatch
 from models.fir import Decimator
+from models.steps import G0
 
 if TYPE_CHECKING:
     from energy.engine import Engine, Trace
@@ -36,6 +38,11 @@ __all__ = ["GYRO_TURN_ON_S", "Desampler", "DeviceEmulator", "ReplayResult", "Spa
 # sleep mode", 2020) gives 80 ms maximum from power-down to active. The device below powers the gyroscope
 # down (SLEEP_ON_INACT_EN = 0: the power-down current the profiles charge), so it takes this maximum.
 GYRO_TURN_ON_S = 0.080
+
+# Weak-field wake (SensorConfig.wake_mode "weak_field"): a still stance as the device's controller tells it from its
+# accelerometer outputs (25 Hz in Gait-DR: 3 outputs = 120 ms, under a walking stance's flat foot of 0.3-0.6 s)
+STILL_SAMPLES = 3
+STILL_MS2 = 0.5  # [m/s^2] from 1 g in magnitude, and between consecutive outputs on every axis
 
 Span = tuple[int, int, float, float, float]  # (t0_ns, t1_ns, acc, gyr, mag rate [Hz]) of constant sensor state
 
@@ -141,6 +148,10 @@ class DeviceEmulator:
 
     With ``config.wake_mode == "high_g"`` an event is a sample whose absolute value exceeds the threshold on
     some axis (the IMU's high-g interrupt) instead of a departure from the reference; the rest is the same.
+    With ``"weak_field"`` an event is a still stance whose calibrated field is horizontally weaker than
+    ``wake_field_ut`` (:meth:`_weak_field_stances`, the device's controller on its accelerometer and magnetometer
+    outputs); the gyroscope sleeps ``sleep_after_s`` after the last one, and one the host left on when this
+    configuration arrives (an examination's) goes down at once.
 
     The decision is made by the device on the samples it actually produces, between uploads; the engine just
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
@@ -164,8 +175,13 @@ class DeviceEmulator:
         self._ref: np.ndarray | None = None  # activity reference sample [m/s^2]
         self._quiet_ns = 0  # time of the last departure from the reference [ns]
         self._armed_ns = np.iinfo(np.int64).min  # the activity detector looks at samples from this time on [ns]
-        self._blk_t = np.zeros(0, dtype=np.int64)  # native accelerometer samples of the unfinished ODR period
-        self._blk_v = np.zeros((0, 3))
+        # native samples of the unfinished output-data-rate period, per stream (the on-chip detectors' view)
+        self._blk: dict[str, tuple[np.ndarray, np.ndarray]] = {
+            name: (np.zeros(0, dtype=np.int64), np.zeros((0, 3))) for name in ("acc", "mag")}
+        self._still: list[np.ndarray] = []  # weak-field wake: the still accelerometer samples of the current run
+        self._still_prev: np.ndarray | None = None  # ... and the sample before
+        self._mag_last: np.ndarray | None = None  # ... the latest magnetometer output [uT]
+        self._weak_mode = False  # the last batch's configuration was a weak-field wake
         self._last_acc_ns = np.iinfo(np.int64).min
         self.last_spans: list[Span] = []
 
@@ -191,7 +207,15 @@ class DeviceEmulator:
         if self._acc_fast is not None:  # runs on all the time, like the other filters
             self._acc_fast.set_rate(config.gyr_rate_hz if config.gyr_rate_hz > 0 else self._acc_fast.native_rate_hz)
             fast_t, fast_v = self._acc_fast.process(*piece.stream("acc"))
-        blk_t, blk_v = self._odr_samples(*piece.stream("acc"), config.acc_rate_hz)
+        blk_t, blk_v = self._odr_samples("acc", *piece.stream("acc"), config.acc_rate_hz)
+        mblk_t, mblk_v = self._odr_samples("mag", *piece.stream("mag"), config.mag_rate_hz)
+        weak = wake and config.wake_mode == "weak_field"
+        events = self._weak_field_stances(blk_t, blk_v, mblk_t, mblk_v, config) if weak else None
+        if not weak:
+            self._still, self._still_prev, self._mag_last = [], None, None
+        elif not self._weak_mode:  # the host's gyroscope (an examination's) goes down at once; a weak stance wakes it
+            self._awake, self._armed_ns = False, t0_ns
+        self._weak_mode = weak
         if not wake:
             self._awake = bool(config.gyro_on)
             self._armed_ns = t1_ns
@@ -200,7 +224,7 @@ class DeviceEmulator:
             self.last_spans = [(t0_ns, t1_ns, config.acc_rate_hz, rates["gyr"], config.mag_rate_hz)]
         else:
             kw["acc_t_ns"], kw["acc"], windows = self._wake_on_motion(t0_ns, t1_ns, kw["acc_t_ns"], kw["acc"], fast_t, fast_v,
-                                                                      blk_t, blk_v, config)
+                                                                      blk_t, blk_v, config, events)
             for name in ("gyr", "mag") if config.mag_follows_gyro else ("gyr",):
                 s_t, s_v = kw[f"{name}_t_ns"], kw[name]
                 keep = np.zeros(len(s_t), dtype=bool)
@@ -223,23 +247,57 @@ class DeviceEmulator:
         assert self._ref is not None
         return bool(np.max(np.abs(v - self._ref)) > thr)
 
-    def _odr_samples(self, t: np.ndarray, v: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-        """The samples the sensor's own detector sees at ``rate_hz``: the mean of the native samples of each
-        output period, available at the period's last sample (causal). Returns ``(t_available_ns, mean)``."""
-        t = np.concatenate([self._blk_t, np.asarray(t, dtype=np.int64)])
-        v = np.concatenate([self._blk_v, np.asarray(v, dtype=np.float64).reshape(-1, 3)])
-        des = self._desamplers.get("acc")
+    def _odr_samples(self, name: str, t: np.ndarray, v: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """The samples the sensor's own detector sees of stream ``name`` at ``rate_hz``: the mean of the native
+        samples of each output period, available at the period's last sample (causal). Returns
+        ``(t_available_ns, mean)``."""
+        b_t, b_v = self._blk[name]
+        t = np.concatenate([b_t, np.asarray(t, dtype=np.int64)])
+        v = np.concatenate([b_v, np.asarray(v, dtype=np.float64).reshape(-1, 3)])
+        des = self._desamplers.get(name)
         k = 1 if des is None or rate_hz <= 0 else max(1, int(round(des.native_rate_hz / rate_hz)))
         n = (len(t) // k) * k
-        self._blk_t, self._blk_v = t[n:], v[n:]
+        self._blk[name] = (t[n:], v[n:])
         return t[k - 1 : n : k], v[:n].reshape(-1, k, 3).mean(axis=1)
+
+    def _weak_field_stances(self, acc_t: np.ndarray, acc_v: np.ndarray, mag_t: np.ndarray, mag_v: np.ndarray,
+                            config: SensorConfig) -> np.ndarray:
+        """Times [ns] of the still stances whose calibrated field is horizontally weaker than
+        ``config.wake_field_ut`` (``wake_mode == "weak_field"``), from the detectors' samples: a stance is
+        ``STILL_SAMPLES`` consecutive accelerometer outputs within ``STILL_MS2`` of 1 g in magnitude and of the
+        output before on every axis; it is decided once, at its ``STILL_SAMPLES``-th output, on their mean (the
+        vertical) and the latest magnetometer output."""
+        b = np.asarray(config.mag_offset_ut, dtype=np.float64)
+        w = np.asarray(config.mag_matrix, dtype=np.float64).reshape(3, 3)
+        out: list[int] = []
+        j = 0
+        for i in range(len(acc_t)):
+            a = acc_v[i]
+            while j < len(mag_t) and mag_t[j] <= acc_t[i]:
+                self._mag_last = mag_v[j]
+                j += 1
+            prev, self._still_prev = self._still_prev, a
+            if (abs(float(np.linalg.norm(a)) - G0) > STILL_MS2
+                    or prev is None or float(np.max(np.abs(a - prev))) > STILL_MS2):
+                self._still = []
+                continue
+            self._still.append(a)
+            if len(self._still) != STILL_SAMPLES or self._mag_last is None:
+                continue
+            m = w @ (self._mag_last - b)
+            f = np.mean(self._still, axis=0)
+            down = -float(m @ f) / max(float(np.linalg.norm(f)), 1e-9)
+            if math.sqrt(max(float(m @ m) - down * down, 0.0)) < config.wake_field_ut:
+                out.append(int(acc_t[i]))
+        return np.asarray(out, dtype=np.int64)
 
     def _wake_on_motion(
         self, t0: int, t1: int, low_t: np.ndarray, low_v: np.ndarray, fast_t: np.ndarray, fast_v: np.ndarray,
-        blk_t: np.ndarray, blk_v: np.ndarray, config: SensorConfig,
+        blk_t: np.ndarray, blk_v: np.ndarray, config: SensorConfig, events: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
         """Splice the low-rate (asleep) and shared-rate (awake) accelerometer outputs and find the gyroscope's
-        windows ``(charged from, delivers from, off at)`` [ns] within ``[t0, t1)``."""
+        windows ``(charged from, delivers from, off at)`` [ns] within ``[t0, t1)``. ``events``: the times of
+        the activity events where they are not departures of the accelerometer (``"weak_field"``)."""
         thr = float(config.wake_threshold_ms2)
         high_g = config.wake_mode == "high_g"
         dur = int(round(float(config.sleep_after_s) * 1e9))
@@ -250,7 +308,18 @@ class DeviceEmulator:
         charged = t0 if self._awake else None
         assert self._acc_fast is not None
         while True:
-            if not self._awake:
+            if not self._awake and events is not None:
+                later = events[events >= max(self._armed_ns, cur)]
+                if not len(later):
+                    self._armed_ns = t1
+                    m = low_t >= cur
+                    out_t.append(low_t[m])
+                    out_v.append(low_v[m])
+                    break
+                self._awake, self._quiet_ns = True, int(later[0])
+                charged = max(int(later[0]), t0)
+                self._deliver_ns = charged + self.gyro_turn_on_ns
+            elif not self._awake:
                 # the detector: the sensor's own samples at its rate, each decided when it exists
                 m = blk_t >= self._armed_ns
                 ts, vs = blk_t[m], blk_v[m]
@@ -279,7 +348,15 @@ class DeviceEmulator:
                 m = fast_t >= max(cur, self._deliver_ns)
                 ts, vs = fast_t[m], fast_v[m]
                 hit = -1
-                for i in range(len(ts)):
+                if events is not None and len(ts):
+                    # the latest event at or before each sample keeps the gyroscope awake
+                    k = np.searchsorted(events, ts, side="right") - 1
+                    last = events[np.maximum(k, 0)] if len(events) else np.zeros(len(ts), dtype=np.int64)
+                    quiet = np.maximum(self._quiet_ns, np.where(k >= 0, last, self._quiet_ns))
+                    late = np.flatnonzero(ts - quiet >= dur)
+                    hit = int(late[0]) if len(late) else -1
+                    self._quiet_ns = int(quiet[hit if hit >= 0 else -1])
+                for i in range(len(ts) if events is None else 0):
                     if (self._ref is None and not high_g) or self._departs(vs[i], thr, high_g):
                         self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
                     elif int(ts[i]) - self._quiet_ns >= dur:

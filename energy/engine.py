@@ -862,6 +862,8 @@ class Engine:
         sched.compass_ready = gait.heading_source()
         sched.nav_ready = gait.bootstrapped()
         sched.run_wake_ms2 = gait.run_wake_threshold()
+        sched.weak_wake = (gait.weak_wake(self.config.weak_field_h) if self.mode == "auto" and self.config.weak_field_wake
+                           else None)
         if sched.ready_for_pdr() and gait.ready(label):
             fits = gait.fit(label)
             cal = self._store_calibration(label, fits)

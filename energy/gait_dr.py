@@ -842,6 +842,16 @@ class GaitPipeline:
             return None
         return cal.heading(acc, m)
 
+    def weak_wake(self, frac: float) -> tuple[float, tuple[float, ...], tuple[float, ...]] | None:
+        """What a device needs to wake its gyroscope itself where the field's horizontal part drops below ``frac``
+        of the Earth's (``SensorConfig.wake_mode == "weak_field"``): the threshold [uT] and the trusted compass's
+        calibration, hard-iron offset b [uT] and soft-iron matrix W (row-major; calibrated field = W (m - b));
+        None without a trusted compass or with ``frac`` 0."""
+        cal = self.mag
+        if not (frac > 0 and self.has_mag and cal.ready and cal.trusted):
+            return None
+        return (frac * self._h_ref(), tuple(cal.b.tolist()), tuple(np.asarray(cal.w).reshape(9).tolist()))
+
     def field_weak(self, e: StepEvent, frac: float) -> bool:
         """The horizontal part of the field at a step's stance is below ``frac`` of the Earth's (m_n's, the
         compass's reference): False without a trusted compass anchored in this session's frame."""

@@ -39,6 +39,10 @@ PATTERN_INIT_STRIDES = 6
 # a heel-off. Inactivity: 1 s, longer than any stance of a walk (so a walk never puts the gyroscope down).
 WAKE_THRESHOLD_MS2 = 0.5
 SLEEP_AFTER_S = 1.0
+# Weak-field wake (SensorConfig.wake_mode "weak_field"): the gyroscope the device woke on a weak field powers down
+# again this long after the last weak stance [s] (about two strides: the host has asked for it by then where the
+# field stays weak, see Scheduler.request_heading_assist)
+WEAK_SLEEP_AFTER_S = 2.0
 
 
 class Scheduler:
@@ -89,6 +93,9 @@ class Scheduler:
         self.pattern_left: int | None = None  # ZUPT-KF strides still wanted by a walking-pattern initialisation
         # high-g threshold above this person's walking [m/s^2] (energy.gait_dr.GaitPipeline.run_wake_threshold)
         self.run_wake_ms2: float | None = None
+        # the compass's calibration and weak-field threshold the device needs to wake the gyroscope itself on a
+        # weak field in Gait-DR (energy.gait_dr.GaitPipeline.weak_wake): (threshold [uT], b [uT], W row-major)
+        self.weak_wake: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None
 
     # ------------------------------------------------------------------ inputs
     def on_behaviour(self, label: str, t_s: float, t_ns: int) -> list[Event]:
@@ -447,6 +454,11 @@ class Scheduler:
             return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.pdr_rate_hz,
                                 batch_s=batch, gyro_wake_on_motion=True, wake_threshold_ms2=float(self.run_wake_ms2 or 0.0),
                                 sleep_after_s=SLEEP_AFTER_S, wake_mode="high_g"), False
+        if self.mode == "auto" and self.weak_wake is not None:  # de-sampled Gait-DR; the device wakes it on a weak field
+            thr, b, w = self.weak_wake
+            return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=c.full_rate_hz, mag_rate_hz=c.pdr_rate_hz,
+                                batch_s=batch, gyro_wake_on_motion=True, sleep_after_s=WEAK_SLEEP_AFTER_S,
+                                wake_mode="weak_field", wake_field_ut=thr, mag_offset_ut=b, mag_matrix=w), False
         # 004 Section 4.3: de-sampled Gait-DR
         return SensorConfig(gyro_on=False, acc_rate_hz=c.pdr_rate_hz, gyr_rate_hz=0.0, mag_rate_hz=c.pdr_rate_hz, batch_s=batch), False
 
@@ -510,6 +522,7 @@ class Scheduler:
             "cadences": list(self.cadences),
             "pattern_left": self.pattern_left,
             "run_wake_ms2": self.run_wake_ms2,
+            "weak_wake": None if self.weak_wake is None else [self.weak_wake[0], list(self.weak_wake[1]), list(self.weak_wake[2])],
         }
 
     @classmethod
@@ -533,4 +546,6 @@ class Scheduler:
         obj.pattern_left = None if left is None else int(left)
         wake = d.get("run_wake_ms2")  # older states: none
         obj.run_wake_ms2 = None if wake is None else float(wake)
+        ww = d.get("weak_wake")  # older states: none
+        obj.weak_wake = None if ww is None else (float(ww[0]), tuple(float(x) for x in ww[1]), tuple(float(x) for x in ww[2]))
         return obj

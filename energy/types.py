@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
@@ -9,7 +10,7 @@ __all__ = ["Behaviour", "Mode", "SensorConfig", "Position", "Event", "Update"]
 
 Behaviour = Literal["stand", "walk", "run", "other"]
 Mode = Literal["zupt", "pdr", "idle"]
-WAKE_MODES: tuple[str, ...] = ("motion", "high_g")  # SensorConfig.wake_mode
+WAKE_MODES: tuple[str, ...] = ("motion", "high_g", "weak_field")  # SensorConfig.wake_mode
 
 
 @dataclass(frozen=True)
@@ -43,17 +44,28 @@ class SensorConfig:
         from the still reference (the activity function above: a foot that starts to move). ``"high_g"``: the
         absolute specific force on an axis (an IMU's high-g interrupt, e.g. LSM9DS1 ``INT_GEN_CFG_XL``
         ``XHIE/YHIE/ZHIE`` with ``INT_GEN_THS_*_XL``, BMI270 high-g): a gait more vigorous than the one the
-        host has a model for. In both, the gyroscope powers down after ``sleep_after_s`` without an event.
+        host has a model for. ``"weak_field"``: a still stance whose magnetic field, calibrated by
+        ``mag_offset_ut`` and ``mag_matrix``, has a horizontal part (the accelerometer gives the vertical) below
+        ``wake_field_ut``: a field too weak for the compass to tell the foot's turns, which the gyroscope must see
+        from the first stride (the host would ask for it only after its next upload). In all, the gyroscope powers
+        down after ``sleep_after_s`` without an event.
     mag_follows_gyro : bool
         With ``gyro_wake_on_motion``: the magnetometer is powered down while the gyroscope sleeps and samples at
         ``mag_rate_hz`` while it is awake (the device's controller switches it on the same activity interrupt);
         False: it samples at ``mag_rate_hz`` throughout.
+    wake_field_ut : float
+        With ``wake_mode == "weak_field"``: horizontal field [uT] below which a still stance wakes the gyroscope.
+    mag_offset_ut : tuple of 3 float
+        With ``wake_mode == "weak_field"``: hard-iron offset b [uT] (sensor frame), removed first.
+    mag_matrix : tuple of 9 float
+        With ``wake_mode == "weak_field"``: soft-iron correction W, row-major: calibrated field = W (m - b) [uT].
 
     Raises
     ------
     ValueError
         ``gyro_wake_on_motion`` together with ``gyro_on`` (contradictory), or without a positive
-        ``gyr_rate_hz``, ``wake_threshold_ms2`` and ``sleep_after_s``.
+        ``gyr_rate_hz``, ``sleep_after_s`` and threshold (``wake_threshold_ms2``; ``"weak_field"``:
+        ``wake_field_ut``, 3 offsets and 9 matrix entries, all finite).
     """
 
     gyro_on: bool
@@ -66,17 +78,28 @@ class SensorConfig:
     sleep_after_s: float = 0.0
     mag_follows_gyro: bool = False
     wake_mode: str = "motion"
+    wake_field_ut: float = 0.0
+    mag_offset_ut: tuple[float, ...] = (0.0, 0.0, 0.0)
+    mag_matrix: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
     def __post_init__(self) -> None:
         if self.wake_mode not in WAKE_MODES:
             raise ValueError(f"SensorConfig: wake_mode must be one of {WAKE_MODES}, got {self.wake_mode!r}")
+        # frozen: stored as tuples of floats whatever sequence came in (JSON gives lists)
+        object.__setattr__(self, "mag_offset_ut", tuple(float(x) for x in self.mag_offset_ut))
+        object.__setattr__(self, "mag_matrix", tuple(float(x) for x in self.mag_matrix))
         if self.gyro_wake_on_motion:
             if self.gyro_on:
                 raise ValueError("SensorConfig: gyro_wake_on_motion means the gyroscope is off now; gyro_on must be False")
-            for name in ("gyr_rate_hz", "wake_threshold_ms2", "sleep_after_s"):
+            by_field = self.wake_mode == "weak_field"
+            for name in ("gyr_rate_hz", "wake_field_ut" if by_field else "wake_threshold_ms2", "sleep_after_s"):
                 v = float(getattr(self, name))
                 if not v > 0 or v == float("inf"):
                     raise ValueError(f"SensorConfig: gyro_wake_on_motion needs a positive finite {name}, got {v!r}")
+            if by_field and (len(self.mag_offset_ut) != 3 or len(self.mag_matrix) != 9
+                          or not all(math.isfinite(x) for x in (*self.mag_offset_ut, *self.mag_matrix))):
+                raise ValueError("SensorConfig: wake_mode 'weak_field' needs 3 finite mag_offset_ut and 9 finite "
+                                 f"mag_matrix entries, got {self.mag_offset_ut!r}, {self.mag_matrix!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

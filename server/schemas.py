@@ -141,9 +141,14 @@ class SensorConfigOut(BaseModel):
     sleep_after_s: float = 0.0
     # with gyro_wake_on_motion: the magnetometer sleeps and wakes with the gyroscope (rows stored before: False)
     mag_follows_gyro: bool = False
-    # with gyro_wake_on_motion: "motion" (departure from the still reference) or "high_g" (absolute specific force
+    # with gyro_wake_on_motion: "motion" (departure from the still reference), "high_g" (absolute specific force
     # on an axis beyond the threshold: a run while Gait-DR has only a walking model; rows stored before: "motion")
-    wake_mode: Literal["motion", "high_g"] = "motion"
+    # or "weak_field" (a still stance whose calibrated field, W (m - mag_offset_ut) with W = mag_matrix row-major,
+    # has a horizontal part below wake_field_ut [uT]: the compass cannot tell turns there)
+    wake_mode: Literal["motion", "high_g", "weak_field"] = "motion"
+    wake_field_ut: float = 0.0
+    mag_offset_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_matrix: tuple[float, float, float, float, float, float, float, float, float] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
 class SessionOut(_Out):

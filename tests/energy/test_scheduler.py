@@ -6,7 +6,7 @@ import pytest
 
 from energy.config import EngineConfig
 from energy.profile import BehaviourCalibration, Profile
-from energy.scheduler import Scheduler
+from energy.scheduler import LOW_POWER_BATCH_S, WEAK_SLEEP_AFTER_S, Scheduler
 
 CFG = EngineConfig(l0_m=20.0, t0_s=30.0)
 # a stride's heading-deviation test (energy.engine._heading_test) that fits / misses the stored deviation
@@ -592,6 +592,34 @@ def test_gait_dr_of_a_walk_lets_the_device_wake_the_gyro_on_a_run_it_has_no_mode
     p = walking_in_gait_dr("pdr")  # the fixed scheme never asks for the gyroscope
     p.run_wake_ms2 = 42.0
     assert not p.sensor_config().gyro_wake_on_motion and not p.sensor_config().gyro_on
+
+
+def test_gait_dr_with_a_trusted_compass_lets_the_device_wake_the_gyro_on_a_weak_field() -> None:
+    """The engine hands the scheduler the weak-field threshold and the compass's calibration (``weak_wake``): the
+    Gait-DR configuration then tells the device to wake the gyroscope itself at a weak stance; a run the person has
+    no model for comes first (the high-g wake), the host's own request overrides both, the fixed ``pdr`` scheme
+    never, and the setting survives a state round trip."""
+    s = walking_in_gait_dr()
+    b, w = (1.0, -2.0, 3.0), (1.0, 0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 1.1)
+    s.weak_wake = (6.5, b, w)
+    c = s.sensor_config()
+    assert not c.gyro_on and c.gyro_wake_on_motion and c.wake_mode == "weak_field" and c.wake_field_ut == 6.5
+    assert c.mag_offset_ut == b and c.mag_matrix == w and c.sleep_after_s == WEAK_SLEEP_AFTER_S
+    assert c.acc_rate_hz == CFG.pdr_rate_hz and c.gyr_rate_hz == CFG.full_rate_hz and c.mag_rate_hz == CFG.pdr_rate_hz
+    assert not c.mag_follows_gyro and c.batch_s == LOW_POWER_BATCH_S
+    r = Scheduler.from_state(s.get_state())
+    assert r.get_state() == s.get_state() and r.sensor_config() == c
+    s.run_wake_ms2 = 42.0
+    assert s.sensor_config().wake_mode == "high_g"
+    s.run_wake_ms2 = None
+    s.request_heading_assist(20, weak_field=True)
+    assert s.sensor_config().gyro_on
+    p = walking_in_gait_dr("pdr")
+    p.weak_wake = (6.5, b, w)
+    assert not p.sensor_config().gyro_wake_on_motion
+    old = s.get_state()
+    old.pop("weak_wake")  # a state stored before the field existed: no weak-field wake
+    assert Scheduler.from_state(old).weak_wake is None
 
 
 @pytest.mark.parametrize("weak_field_h, wanted", [(0.3, True), (0.0, False)])

@@ -261,3 +261,73 @@ def test_the_device_wakes_the_gyro_at_a_run_while_gait_dr_walks_without_a_run_mo
     run = [p for p in res.positions if run_t0 < (p.t_ns - t0) / 1e9 < run_t0 + 25.0]  # the run segment
     first_zupt = next(i for i, p in enumerate(run) if p.mode == "zupt")
     assert first_zupt <= 2, [(round((p.t_ns - t0) / 1e9, 2), p.mode) for p in run[:10]]
+
+
+# ---------------------------------------------------------------- weak-field wake (SensorConfig wake_mode "weak_field")
+WEAK = SensorConfig(gyro_on=False, acc_rate_hz=25.0, gyr_rate_hz=200.0, mag_rate_hz=25.0, batch_s=4.0,
+                    gyro_wake_on_motion=True, sleep_after_s=2.0, wake_mode="weak_field", wake_field_ut=6.6)
+
+
+def test_weak_field_wake_configs_are_validated_and_round_trip_through_json() -> None:
+    import json
+
+    for bad, match in (({"wake_field_ut": 0.0}, "positive finite wake_field_ut"),
+                       ({"mag_matrix": (1.0, 0.0, 0.0)}, "9 finite mag_matrix"),
+                       ({"mag_offset_ut": (0.0, float("nan"), 0.0)}, "3 finite mag_offset_ut")):
+        with pytest.raises(ValueError, match=match):
+            SensorConfig(**{**WEAK.to_dict(), **bad})
+    assert SensorConfig(**{**WEAK.to_dict(), "wake_threshold_ms2": 0.0}) == WEAK  # no acceleration threshold needed
+    back = SensorConfig(**json.loads(json.dumps(WEAK.to_dict())))  # the server's JSON form (lists for tuples)
+    assert back == WEAK and isinstance(back.mag_matrix, tuple)
+
+
+@pytest.fixture(scope="module")
+def steel_day():
+    """Mixed day, seed 13: the weak-field configuration the scheduler handed out in the first 300 s (the compass's
+    own calibration), and the truth's stances of the steel walk at 335-375 s with the horizontal field each has
+    under that calibration [uT] (from the native streams, independently of the device's detector)."""
+    rec = synthesize("mixed-day", seed=13)
+    res = replay(Engine(mode="auto"), rec.batch.time_slice(None, rec.batch.t_start_ns + int(300e9)), batch_seconds=None)
+    cfg = [c for _, c in res.configs if c.wake_mode == "weak_field"][-1]
+    t0 = int(rec.batch.t_start_ns or 0)
+    tt = (rec.truth.t_ns - t0) / 1e9
+    st = rec.truth.extra["stance"].astype(int)
+    ta, a = rec.batch.stream("acc")
+    tm, m = rec.batch.stream("mag")
+    ta, tm = (ta - t0) / 1e9, (tm - t0) / 1e9
+    b, w = np.asarray(cfg.mag_offset_ut), np.asarray(cfg.mag_matrix).reshape(3, 3)
+    stances = []
+    ends = np.flatnonzero(np.diff(st) == -1) + 1
+    for i0 in np.flatnonzero(np.diff(st) == 1) + 1:
+        s0 = tt[i0]
+        if 335.0 < s0 < 375.0:
+            s1 = tt[ends[ends > i0][0]]
+            f = a[(ta >= s0) & (ta < s1)].mean(axis=0)
+            h = w @ (m[(tm >= s0) & (tm < s1)].mean(axis=0) - b)
+            down = -float(h @ f) / float(np.linalg.norm(f))
+            stances.append((float(s0), float(np.sqrt(h @ h - down**2))))
+    return rec, cfg, stances
+
+
+def test_the_device_wakes_the_gyro_on_the_first_weak_stance_and_sleeps_after_the_last(steel_day) -> None:
+    """Under one unchanging weak-field configuration the gyroscope runs from the first stance whose field is
+    horizontally weaker than ``wake_field_ut`` (decided within its first few outputs) to ``sleep_after_s`` after
+    the last one, charged from the decision, with the accelerometer at the gyroscope's rate while it delivers."""
+    rec, cfg, stances = steel_day
+    weak = [s for s, h in stances if h < cfg.wake_field_ut]
+    assert len(weak) >= 10 and stances[0][1] > 2 * cfg.wake_field_ut  # a strong field before, a weak one after
+    dev = DeviceEmulator(rec.batch)
+    t0 = int(rec.batch.t_start_ns or 0)
+    spans = []
+    g = []
+    for k in range(320, 390):
+        g.append(dev.emit(t0 + k * 10**9, t0 + (k + 1) * 10**9, cfg).stream("gyr")[0])
+        spans += dev.last_spans
+    on = [((a - t0) / 1e9, (b - t0) / 1e9, acc) for a, b, acc, gyr, _ in spans if gyr > 0]
+    wake, sleep = on[0][0], on[-1][1]
+    assert all(b1 == a2 for (_, b1, _), (a2, _, _) in zip(on[:-1], on[1:]))  # one window
+    assert weak[0] <= wake <= weak[0] + 0.3, (weak[0], wake)
+    assert weak[-1] + cfg.sleep_after_s <= sleep <= weak[-1] + cfg.sleep_after_s + 0.4, (weak[-1], sleep)
+    samples = (np.concatenate(g) - t0) / 1e9
+    assert samples[0] >= wake + GYRO_TURN_ON_S - 1e-6 and samples[-1] < sleep
+    assert {acc for a, _, acc in on if a >= wake + GYRO_TURN_ON_S} == {200.0}

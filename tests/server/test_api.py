@@ -129,6 +129,24 @@ def test_devices_crud_and_isolation(client, make_user) -> None:  # type: ignore[
 
 
 # ---------------------------------------------------------------- sessions
+def test_a_weak_field_wake_configuration_is_served_whole(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """The engine's Gait-DR configuration with the device's weak-field wake (threshold and the compass's
+    calibration) goes out through the session's schema unchanged, as the device must apply it."""
+    from energy.types import SensorConfig
+    from server.models import TrackSession
+
+    _, a = make_user()
+    sid = _start(client, a)
+    cfg = SensorConfig(gyro_on=False, acc_rate_hz=25.0, gyr_rate_hz=200.0, mag_rate_hz=25.0, batch_s=4.0,
+                       gyro_wake_on_motion=True, sleep_after_s=2.0, wake_mode="weak_field", wake_field_ut=6.6,
+                       mag_offset_ut=(1.0, -2.0, 3.0), mag_matrix=(1.0, 0.1, 0.0, 0.0, 0.9, 0.0, 0.0, 0.0, 1.1))
+    with client.app.state.sessionmaker() as db:
+        db.get(TrackSession, sid).sensor_config = cfg.to_dict()
+        db.commit()
+    r = client.get(f"/v1/sessions/{sid}", headers=auth(a))
+    assert r.status_code == 200 and SensorConfig(**r.json()["sensor_config"]) == cfg
+
+
 def test_session_lifecycle(client, make_user) -> None:  # type: ignore[no-untyped-def]
     _, a = make_user()
     sid = _start(client, a, latitude_deg=43.66, longitude_deg=-79.39, altitude_m=80.0)
