@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
@@ -15,11 +16,13 @@ from models.batch import BatchError
 from server.auth import RateLimiter
 from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
-from server.ingest import EngineHost, IngestConflict
+from server.ingest import EngineHost, IngestConflict, StorageBusy
 from server.settings import Settings
 from server.upload import Uploader
 
 __all__ = ["create_app", "BodyLimit"]
+
+_log = logging.getLogger("pednav.server")
 
 
 class BodyLimit:
@@ -118,6 +121,16 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     @app.exception_handler(IngestConflict)
     async def _conflict(_request: Request, exc: IngestConflict) -> JSONResponse:
         return JSONResponse(status_code=409, content={"detail": exc.message, "expected_seq": exc.expected_seq})
+
+    @app.exception_handler(StorageBusy)
+    async def _busy(_request: Request, exc: StorageBusy) -> JSONResponse:
+        # nothing was stored: a refusal the client retries (the SDK does, waiting Retry-After), not a 500
+        cause: BaseException = exc
+        while cause.__cause__ is not None:  # the database's own error
+            cause = cause.__cause__
+        _log.warning("503: %s (last error: %s: %s)", exc.message, type(cause).__name__, cause)
+        return JSONResponse(status_code=503, content={"detail": exc.message},
+                            headers={"Retry-After": str(exc.retry_after_s)})
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

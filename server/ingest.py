@@ -40,11 +40,13 @@ __all__ = [
     "EngineHost",
     "Fed",
     "IngestConflict",
+    "StorageBusy",
     "apply_batch",
     "close_session",
     "engine_profile_in",
     "engine_profile_from_stored",
     "feed_engine",
+    "is_contention",
     "pool_feed",
     "json_safe",
     "validate_calibration",
@@ -64,6 +66,47 @@ class IngestConflict(Exception):
         super().__init__(message)
         self.message = message
         self.expected_seq = expected_seq
+
+
+class StorageBusy(Exception):
+    """HTTP 503 with ``Retry-After``: the database stayed busy through every attempt (other writers held its
+    locks, or kept changing the session) and nothing of the request was committed, so sending it again (a batch:
+    under the same sequence number) is safe. Raised with the last attempt's error as its cause."""
+
+    def __init__(self, message: str, retry_after_s: int = 1) -> None:
+        super().__init__(message)
+        self.message = message
+        self.retry_after_s = retry_after_s
+
+
+def batch_busy_message(session_id: int, seq: int, attempts: int) -> str:
+    """The 503 answer's detail for a batch whose every attempt met a busy database."""
+    return (f"database busy: batch {seq} of session {session_id} was NOT stored (other writes held the database "
+            f"through {attempts} attempts); send it again with the same sequence number {seq}")
+
+
+# PostgreSQL: serialization failure, deadlock, lock not available (lock_timeout), query canceled (statement_timeout)
+_PG_CONTENTION = frozenset({"40001", "40P01", "55P03", "57014"})
+_SQLITE_CONTENTION = frozenset({5, 6})  # SQLITE_BUSY, SQLITE_LOCKED (primary result codes)
+
+
+def is_contention(exc: BaseException) -> bool:
+    """True when the database refused a statement only because other transactions held what it needed (SQLite:
+    busy or locked beyond its timeout; PostgreSQL: the SQLSTATEs above): its transaction is rolled back (or never
+    began), nothing of it is committed. False for any other error, a broken or refused connection included (after a
+    lost connection a commit's fate can be unknown). Takes the driver's error or SQLAlchemy's wrapper of it."""
+    orig = getattr(exc, "orig", None) or exc
+    code = getattr(orig, "sqlite_errorcode", None)
+    if code is not None:
+        return code & 0xFF in _SQLITE_CONTENTION
+    state = getattr(orig, "sqlstate", None)
+    if state is not None:
+        return state in _PG_CONTENTION
+    import sqlite3
+
+    # no result code: an error not raised by sqlite3 itself (built by hand); SQLite's messages for these codes
+    return isinstance(orig, sqlite3.OperationalError) and str(orig).startswith(
+        ("database is locked", "database table is locked"))
 
 
 def _default_factory() -> Any:
@@ -378,19 +421,24 @@ def apply_batch(
     (``replayed=True``) and changes nothing. Raises :class:`IngestConflict` for gaps, old numbers with other
     content and closed sessions, and ``BatchError`` (from the engine's validation) for a bad batch; nothing is
     stored then. Retries when the database is busy (SQLite: another worker wrote since this transaction
-    began); the retry then sees that worker's result and answers as for a retried batch. ``also(db)`` runs
-    inside the same write transaction (e.g. to advance the Sensor Logger watermark atomically).
+    began); the retry then sees that worker's result and answers as for a retried batch. When every attempt met
+    a busy database, raises :class:`StorageBusy` (nothing stored: the same batch may be sent again).
+    ``also(db)`` runs inside the same write transaction (e.g. to advance the Sensor Logger watermark atomically).
     """
     raw = canonical_bytes(batch)
     h = digest(raw)
+    contended = True  # every failed attempt failed through contention (nothing committed)
     for i in range(attempts):
         try:
             return _apply_once(db, host, user_id, session_id, seq, batch, raw, h, also)
-        except (OperationalError, _Raced):
+        except (OperationalError, _Raced) as exc:
             db.rollback()
             host.forget(session_id)
+            contended = contended and (isinstance(exc, _Raced) or is_contention(exc))
             if i == attempts - 1:
-                raise
+                if contended:  # a retryable 503, not a 500: the batch was not stored
+                    raise StorageBusy(batch_busy_message(session_id, seq, attempts)) from exc
+                raise  # e.g. a lost connection: whether a commit went through is not known here
             time.sleep(0.01 * (i + 1))
     return None
 

@@ -30,7 +30,8 @@ from fastapi import HTTPException, status
 from models.batch import BatchError, SensorBatch
 from server.auth import RateLimiter, admit, require_token
 from server.formats import canonical_bytes, decode_batch, digest
-from server.ingest import EngineHost, Fed, IngestConflict, engine_profile_from_stored, feed_engine, pool_feed
+from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_busy_message, engine_profile_from_stored,
+                           feed_engine, is_contention, pool_feed)
 from server.security import hash_token
 from server.statecodec import pack_state
 from server.timing import phase, since
@@ -278,7 +279,8 @@ class Uploader:
     def upload(self, token: str | None, session_id: int, seq: int, body: bytes, content_type: str | None,
                max_samples: int) -> tuple[str, bool]:
         """Apply one upload; returns (answer JSON text, replayed). Raises HTTPException (401/404/429),
-        BatchError (422), PayloadTooLarge (413), IngestConflict (409)."""
+        BatchError (422), PayloadTooLarge (413), IngestConflict (409), StorageBusy (503: every attempt met a busy
+        database, nothing stored)."""
         h_tok = hash_token(require_token(token))  # 401 when missing
         t_lock = time.perf_counter()
         with self.host.lock(session_id):
@@ -298,17 +300,25 @@ class Uploader:
                     raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
                 sess = _Session(row[3], row[4], row[5])
                 busy = self.db_engine.dialect.dbapi.OperationalError  # e.g. SQLite busy beyond its timeout
+                contended = True  # every failed attempt failed through contention (nothing committed)
                 for attempt in range(5):
                     try:
                         return self._apply(cur, session_id, seq, batch, sess)
-                    except (_Raced, busy):  # nothing was committed: read again and start over
+                    except (_Raced, busy) as exc:  # nothing was committed: read again and start over
                         self.host.forget(session_id)
+                        contended = contended and (isinstance(exc, _Raced) or is_contention(exc))
                         if attempt == 4:
-                            raise
+                            if contended:  # a retryable 503, not a 500: the batch was not stored
+                                raise StorageBusy(batch_busy_message(session_id, seq, 5)) from exc
+                            raise  # e.g. a lost connection: whether a commit went through is not known here
                         time.sleep(0.01 * (attempt + 1))
                         cur.execute(self._session_sql, (session_id,))
                         sess = _Session(*cur.fetchone())
                 raise AssertionError("unreachable")
+            except StorageBusy as exc:
+                if not isinstance(exc.__cause__, _Raced):
+                    conn.invalidate()  # as for the driver's error it stands for (below)
+                raise
             except (self.db_engine.dialect.dbapi.OperationalError, self.db_engine.dialect.dbapi.InterfaceError):
                 conn.invalidate()  # possibly broken: the pool opens a new connection instead
                 raise

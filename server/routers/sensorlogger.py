@@ -16,6 +16,10 @@ in part of a message whose median passed), that window is skipped so that the se
 still taken, and its answer says how many samples were skipped and why (``skipped_samples``, ``skipped``);
 they stay stored with their messages.
 
+A push that meets a database busy beyond its retries while it stores its message is refused with 503 and
+``Retry-After`` (nothing stored; the app may send it again); one that meets it while it feeds (the message is
+stored) is answered 200 with ``deferred`` saying so, and a later push or the flush feeds those samples.
+
 Pushes of one session may arrive at once (the app sends a message per interval and retries; several workers):
 each stores its message holding the session's write lock, so it is checked against the watermark and messages
 as they are, and then feeds what is held back read afresh, a piece written only if nothing it was read from
@@ -30,18 +34,20 @@ with a label), so it can be revoked alone.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 from fastapi import APIRouter, HTTPException, status
 from sqlalchemy import func, select, update
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy.exc import IntegrityError, OperationalError
 
 from models.batch import BatchError, SensorBatch
 from server import crud
 from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
 from server.formats import PayloadTooLarge
-from server.ingest import IngestConflict, apply_batch, engine_profile_in, json_safe
+from server.ingest import IngestConflict, StorageBusy, apply_batch, engine_profile_in, is_contention, json_safe
 from server.models import SensorLoggerLink, SensorLoggerMessage, TrackSession, User
 from server.schemas import SensorLoggerPush
 from server.statecodec import pack_state
@@ -262,12 +268,13 @@ def _lock_session(db: SessionDep, session_id: int) -> None:
 
 
 def _feed(db: SessionDep, user: User, link_id: int, host: Any, limit: int,
-          hold_ns: int | None) -> tuple[list[dict[str, Any]], str | None, dict[str, Any]]:
+          hold_ns: int | None) -> tuple[list[dict[str, Any]], str | None, dict[str, Any], Exception | None]:
     """Feed the held-back samples up to the horizon (``hold_ns`` behind the newest sample stored; None: all) as
     sequenced batches of at most ``limit`` samples per stream, each moving the watermark to its end in its own
     write transaction (fed samples are never fed again); a piece the engine would refuse is skipped instead
     (watermark moved, nothing fed). Returns (new positions, the last behaviour or None, ``{"skipped_samples",
-    "skipped"}``).
+    "skipped"}``, None or the error of a busy database that stopped the feed: the pieces before are fed, that
+    piece and those after it are not, the watermark is at its start).
 
     Pushes and flushes of one session may feed at once (also in other workers). Each piece is read afresh
     (watermark, next sequence number, unfed messages) and written only if, in its write transaction, the
@@ -280,6 +287,7 @@ def _feed(db: SessionDep, user: User, link_id: int, host: Any, limit: int,
     skipped: dict[str, Any] = {"skipped_samples": 0, "skipped": None}
     uid = user.id
     moved = 0
+    busy: Exception | None = None
     while moved < _FEED_ATTEMPTS:
         # the sequence number before the watermark: a piece read after another push's write then carries a used
         # number (refused by apply_batch before the engine sees it), never a free one with samples already fed
@@ -340,7 +348,26 @@ def _feed(db: SessionDep, user: User, link_id: int, host: Any, limit: int,
         except (_Moved, IngestConflict):  # another push fed or stored meanwhile (a closed session: raised above)
             db.rollback()
             moved += 1
-    return positions, behaviour, skipped
+        except (StorageBusy, OperationalError) as exc:  # apply_batch's attempts, or the skip's one write
+            db.rollback()
+            if isinstance(exc, OperationalError) and not is_contention(exc):
+                raise
+            busy = exc  # nothing of this piece committed: it is fed later
+            break
+    return positions, behaviour, skipped, busy
+
+
+@contextmanager
+def _not_stored_when_busy(db: SessionDep, message_id: int) -> Iterator[None]:
+    """A busy database while the push stores its message (its only transaction up to the commit) is a 503: nothing
+    is stored, and the same message may be sent again (a message stored already is answered as a duplicate)."""
+    try:
+        yield
+    except OperationalError as exc:
+        if not is_contention(exc):
+            raise
+        db.rollback()
+        raise StorageBusy(f"database busy: message {message_id} was NOT stored; send it again") from exc
 
 
 @router.post("")
@@ -350,6 +377,8 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
     Taken whole or not at all (see the module docstring): a 4xx stores nothing; a 2xx answers a stored message.
     ``skipped_samples`` / ``skipped`` (``{"field", "problem"}`` or null): held-back samples of messages taken
     earlier that could not be fed together and were left out of the trajectory by this push (they stay stored).
+    A database busy beyond its retries: 503 with ``Retry-After`` while the message is stored (nothing stored,
+    send it again); once it is stored, the feed is only put off: 200 with ``deferred`` saying so (else null).
     """
     items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
     for it in items:
@@ -362,64 +391,72 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
                 raise BatchError(f"payload.{it['name']}.values.{k}", "beyond the float64 range")
     _check_size(items, settings.max_samples_per_stream)
     _check_samples(items)
-    link = _link(db, user, body, settings, host)
-    _lock_session(db, link.session_id)  # until the message is committed: concurrent pushes of the session wait
-    db.refresh(link)  # the watermark as it is now
-    t_max = max((int(it["time"]) for it in items), default=0)
-    late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
-    msg = SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items)
-    db.add(msg)
-    try:
-        db.flush()
-    except IntegrityError:
-        db.rollback()
-        return {"session_id": link.session_id, "duplicate": True, "late_samples": link.late_samples, "positions": [],
-                "behaviour": None, "skipped_samples": 0, "skipped": None}
-    sess = crud.get_session(db, user, link.session_id)
-    if sess is not None and sess.status != "open":  # refused: not stored (it would never be fed)
-        db.rollback()
-        raise IngestConflict(f"session {link.session_id} is closed; no more batches accepted", sess.next_seq)
-    newest = db.execute(
-        select(SensorLoggerMessage.t_max_ns).where(SensorLoggerMessage.session_id == link.session_id)
-        .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
-    ).scalar_one()
-    horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
-    pieces = None
-    if horizon > link.watermark_ns:
-        # the window this push feeds, checked before the message is stored: refused when its samples spoil it
-        unfed = _unfed(db, link)
-        acc_name = _acc_name(it for m in unfed for it in m.payload)
-        limit = settings.max_samples_per_stream
-        pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, limit)
-        problem = _window_problem(pieces)
-        if problem is not None and _window_problem(_pieces(
-                _window([m for m in unfed if m.id != msg.id], link.watermark_ns, horizon), link.watermark_ns, horizon,
-                limit)) is None:
+    with _not_stored_when_busy(db, body.messageId):
+        link = _link(db, user, body, settings, host)
+        _lock_session(db, link.session_id)  # until the message is committed: concurrent pushes of the session wait
+        db.refresh(link)  # the watermark as it is now
+        t_max = max((int(it["time"]) for it in items), default=0)
+        late = sum(1 for it in items if int(it["time"]) <= link.watermark_ns)
+        msg = SensorLoggerMessage(session_id=link.session_id, message_id=body.messageId, t_max_ns=t_max, payload=items)
+        db.add(msg)
+        try:
+            db.flush()
+        except IntegrityError:
             db.rollback()
-            raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
-    if late:
-        link.late_samples += late
-    session_id, late_samples = link.session_id, link.late_samples
-    db.commit()  # the message is stored before it is answered
-    positions, behaviour, skipped = [], None, {"skipped_samples": 0, "skipped": None}
+            return {"session_id": link.session_id, "duplicate": True, "late_samples": link.late_samples,
+                    "positions": [], "behaviour": None, "skipped_samples": 0, "skipped": None, "deferred": None}
+        sess = crud.get_session(db, user, link.session_id)
+        if sess is not None and sess.status != "open":  # refused: not stored (it would never be fed)
+            db.rollback()
+            raise IngestConflict(f"session {link.session_id} is closed; no more batches accepted", sess.next_seq)
+        newest = db.execute(
+            select(SensorLoggerMessage.t_max_ns).where(SensorLoggerMessage.session_id == link.session_id)
+            .order_by(SensorLoggerMessage.t_max_ns.desc()).limit(1)
+        ).scalar_one()
+        horizon = int(newest - settings.sensorlogger_hold_s * 1e9)
+        pieces = None
+        if horizon > link.watermark_ns:
+            # the window this push feeds, checked before the message is stored: refused when its samples spoil it
+            unfed = _unfed(db, link)
+            acc_name = _acc_name(it for m in unfed for it in m.payload)
+            limit = settings.max_samples_per_stream
+            pieces = _pieces(_window(unfed, link.watermark_ns, horizon), link.watermark_ns, horizon, limit)
+            problem = _window_problem(pieces)
+            if problem is not None and _window_problem(_pieces(
+                    _window([m for m in unfed if m.id != msg.id], link.watermark_ns, horizon), link.watermark_ns,
+                    horizon, limit)) is None:
+                db.rollback()
+                raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
+        if late:
+            link.late_samples += late
+        session_id, late_samples = link.session_id, link.late_samples
+        db.commit()  # the message is stored before it is answered
+    positions, behaviour, skipped, busy = [], None, {"skipped_samples": 0, "skipped": None}, None
     if pieces is not None:  # this push moved the horizon: feed up to it (read again: other pushes may feed too)
         try:
-            positions, behaviour, skipped = _feed(db, user, link.id, host, settings.max_samples_per_stream,
-                                                  int(settings.sensorlogger_hold_s * 1e9))
+            positions, behaviour, skipped, busy = _feed(db, user, link.id, host, settings.max_samples_per_stream,
+                                                        int(settings.sensorlogger_hold_s * 1e9))
         except IngestConflict:  # closed after the message was stored: it is kept, and answered as stored
             pass
+    # the message is stored: a busy database only defers the feed (a 503 would say it was not stored)
+    deferred = None if busy is None else (
+        "database busy: held-back samples not fed yet; this message is stored, a later push or the flush feeds them")
     return {"session_id": session_id, "duplicate": False, "late_samples": late_samples,
-            "positions": positions, "behaviour": behaviour, **skipped}
+            "positions": positions, "behaviour": behaviour, **skipped, "deferred": deferred}
 
 
 @router.post("/{sl_session_id}/flush")
 def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> dict[str, Any]:
     """Feed every held-back sample of a Sensor Logger session now (call before closing the session).
-    ``skipped_samples`` / ``skipped`` as for the push."""
+    ``skipped_samples`` / ``skipped`` as for the push. A database busy beyond its retries: 503 with
+    ``Retry-After`` (the pieces fed before stay fed; call the flush again)."""
     link = db.execute(
         select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == sl_session_id)
     ).scalar_one_or_none()
     if link is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"Sensor Logger session {sl_session_id!r} not found")
-    positions, _, skipped = _feed(db, user, link.id, host, settings.max_samples_per_stream, None)
+    positions, _, skipped, busy = _feed(db, user, link.id, host, settings.max_samples_per_stream, None)
+    if busy is not None:  # a flush is called to feed everything (before a close): refused, to be called again
+        raise StorageBusy(f"database busy: the held-back samples of Sensor Logger session {sl_session_id!r} were "
+                          "not all fed (those fed are kept); call the flush again") from busy
     return {"session_id": link.session_id, "positions": positions, **skipped}

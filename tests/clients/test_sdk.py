@@ -120,6 +120,58 @@ def test_offline_buffering_delivers_in_order(flaky_api) -> None:  # type: ignore
     assert api.session(sid)["next_seq"] == 5
 
 
+class _Time:
+    """``clients.sdk``'s time module with its sleeps recorded and handed to ``sleep`` instead of slept."""
+
+    def __init__(self, sleep) -> None:  # type: ignore[no-untyped-def]
+        self.slept: list[float] = []
+        self._sleep = sleep
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self._sleep(s)
+
+    def __getattr__(self, name: str):  # type: ignore[no-untyped-def]
+        import time
+
+        return getattr(time, name)
+
+
+def test_a_busy_database_is_waited_out_as_retry_after_says_and_the_batch_applied_once(settings, make_user,  # type: ignore[no-untyped-def]  # noqa: F811
+                                                                                       monkeypatch) -> None:
+    """The server answers 503 with ``Retry-After: 1`` when another worker holds the database through all its
+    retries (nothing stored; it was a 500, which the SDK does not retry): the SDK waits Retry-After and sends the
+    same sequence number again, applied once. Busy for longer than its retries, the batch stays queued in the
+    stream and goes out later under its number."""
+    import clients.sdk as sdk
+    from tests.server.conftest import app_with, database_locked, short_lock_waits
+
+    _, tok = make_user()
+    with app_with(settings) as (a, c):
+        short_lock_waits(a)
+        api = PednavClient(token=tok, http=c, retries=3, backoff_s=0.0)
+        sid = api.start_session("foot")["id"]
+        stream = api.stream(sid)
+        assert [r["seq"] for r in stream.send(still_batch(T0))] == [0]
+        with database_locked(settings, sid) as lock:
+            clock = _Time(lambda s: lock.release() if s >= 1 else None)  # free once Retry-After is over
+            monkeypatch.setattr(sdk, "time", clock)
+            got = stream.send(still_batch(T0 + 10**9, seed=1))
+        assert [r["seq"] for r in got] == [1] and not stream.pending
+        assert clock.slept == [1.0, 0.0]  # Retry-After, then the backoff before the second attempt
+        with database_locked(settings, sid):
+            clock = _Time(lambda s: None)
+            monkeypatch.setattr(sdk, "time", clock)
+            assert stream.send(still_batch(T0 + 2 * 10**9, seed=2)) == []  # 4 attempts, all 503: queued
+        assert clock.slept == [1.0, 0.0] * 3  # Retry-After after each 503 but the last, backoff before each retry
+        assert [seq for seq, _, _ in stream.pending] == [2]
+        assert [b["seq"] for b in api._json("GET", f"/v1/sessions/{sid}/batches")] == [0, 1]
+        got = stream.send(still_batch(T0 + 3 * 10**9, seed=3))
+        assert [r["seq"] for r in got] == [2, 3] and not stream.pending
+        assert [b["seq"] for b in api._json("GET", f"/v1/sessions/{sid}/batches")] == [0, 1, 2, 3]
+        assert api.upload(sid, 2, still_batch(T0 + 2 * 10**9, seed=2)) == got[0]  # applied once: a retry now
+
+
 def test_async_client(app, make_user) -> None:  # type: ignore[no-untyped-def]  # noqa: F811
     _, tok = make_user()
 

@@ -116,3 +116,53 @@ def still_batch(t0_ns: int, seconds: float = 1.0, rate_hz: float = 100.0, seed: 
     gyr = rng.normal(0, 0.002, (n, 3))
     mag = np.array([20.0, 0.0, 40.0]) + rng.normal(0, 0.2, (n, 3))
     return SensorBatch(acc_t_ns=t, acc=acc, gyr_t_ns=t.copy(), gyr=gyr, mag_t_ns=t.copy(), mag=mag)
+
+
+def short_lock_waits(app: Any) -> None:
+    """The app's database connections give up waiting for a lock after 50 ms (SQLite's busy timeout is 30 s,
+    PostgreSQL waits for a row lock for ever): a held lock fails a write at once, as one held past the timeout
+    does. Call before the app's first request (connections opened later only)."""
+    from sqlalchemy import event
+
+    eng = app.state.db_engine
+    eng.dispose()
+
+    @event.listens_for(eng, "do_connect")
+    def _short(_dialect: Any, _rec: Any, _cargs: Any, cparams: dict[str, Any]) -> None:
+        if eng.dialect.name == "sqlite":
+            cparams["timeout"] = 0.05
+        else:
+            cparams["options"] = "-c lock_timeout=50"
+
+
+class DatabaseLock:
+    """Another worker's transaction holding what a batch's write needs: SQLite's write lock (``BEGIN IMMEDIATE``),
+    on PostgreSQL the session's row (``SELECT ... FOR UPDATE``); held from creation until :meth:`release`."""
+
+    def __init__(self, settings: Settings, session_id: int) -> None:
+        url = settings.database_url
+        if url.startswith("sqlite"):
+            import sqlite3
+
+            self.conn: Any = sqlite3.connect(url.removeprefix("sqlite:///"), isolation_level=None, check_same_thread=False)
+            self.conn.execute("BEGIN IMMEDIATE")
+        else:
+            import psycopg
+
+            self.conn = psycopg.connect(url.replace("+psycopg", ""))
+            self.conn.execute(f'SELECT 1 FROM "{settings.db_schema}".sessions WHERE id = %s FOR UPDATE', (session_id,))
+
+    def release(self) -> None:
+        if self.conn is not None:
+            self.conn.rollback()
+            self.conn.close()
+            self.conn = None
+
+
+@contextmanager
+def database_locked(settings: Settings, session_id: int) -> Iterator[DatabaseLock]:
+    lock = DatabaseLock(settings, session_id)
+    try:
+        yield lock
+    finally:
+        lock.release()
