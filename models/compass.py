@@ -358,6 +358,10 @@ class CompassFollower:
           strides, held-out synthetic day, seed 1, 457-461 s; the run used to end there and the rest of the turn,
           22 of 45 deg, came from the next run).
 
+        A change beyond ``min_turn`` after a run of smaller ones the same way also takes what the run had not
+        taken yet: they began the same turn (a 90-deg turn read -22, -20, -24, -23 deg; the -20 began a run the -24
+        discarded, and the heading held the turn 20 deg short).
+
         A run of more than ``_RUN_STRIDES`` strides is the field turning, not the foot: what it had taken is given
         back (negative return). A void run takes nothing more until the compass stops turning that way. Steel
         turned a field by 6-9 deg a stride for 8 strides one way and then back, its dip moving by 3.5 deg (held-out
@@ -369,8 +373,14 @@ class CompassFollower:
     def _rotation(self, dc: float | None, norm: float, dip: float) -> float:
         """:meth:`rotation` from the compass change since the previous stance [rad] (None: not comparable)."""
         if dc is None or abs(dc) < _RUN_STEP or abs(dc) > self.min_turn:
-            self.run = None
-            return 0.0 if dc is None or abs(dc) < _RUN_STEP else dc
+            run, self.run = self.run, None
+            if dc is None or abs(dc) < _RUN_STEP:
+                return 0.0
+            if run is not None and run[4] <= _RUN_STRIDES and run[0] * dc > 0:
+                # a turning stride after a run of smaller ones the same way: they began this turn (held-out random
+                # day, seed 15, 31-33 s: a 90-deg turn read -22, -20, -24, -23 deg, the -20 was left out)
+                return dc + (run[0] - run[1])
+            return dc
         assert self.prev is not None  # turn_since compared with it
         if self.run is None or math.copysign(1.0, dc) != math.copysign(1.0, self.run[0] or dc):
             n0, d0 = self.prev[1], self.prev[2]
