@@ -779,6 +779,7 @@ class Engine:
                 # a self-started segment: the first stride comes from its own samples, not from Gait-DR
                 if gait is not None:
                     gait.reckon(st.t_start_s + PAIR_TOL_S, self._labels.at)  # consumed, not placed
+                    events += self._take_missed_turn(t_ns)  # ... but its stance may tell of a turn missed before
                     gait.take_pair(st.t_start_s)
                 p = self._pos + lead
                 self._yaw = 0.0  # placed from its own samples from a still foot: no turn went unseen
@@ -959,7 +960,42 @@ class Engine:
         if steps:
             self._pos = np.asarray(steps[-1][0].position, dtype=float)
             self._head = gait.heading
+        events += self._take_missed_turn(self._ns(steps[-1][0].t_s) if steps else self._ns(before_s))
         return steps
+
+    def _take_missed_turn(self, t_ns: int) -> list[Event]:
+        """After every Gait-DR reckoning: correct a turn it found missed (:meth:`_correct_turn`)."""
+        gait = self._gait
+        if gait is None or gait.missed_turn is None:
+            return []
+        fix, gait.missed_turn = gait.missed_turn, None
+        return self._correct_turn(*fix, t_ns)
+
+    def _correct_turn(self, t_from: float, turn: float, t_ns: int) -> list[Event]:
+        """Gait-DR found a turn it had missed inside a disturbance (:meth:`energy.gait_dr.GaitPipeline.
+        _missed_turn`: by ``turn`` [rad] from the stride at ``t_from`` [s]): turn the strides placed since by it,
+        moving the position by the sum of their changes (as :meth:`_correct_pattern` does for step lengths)."""
+        gait = self._gait
+        assert gait is not None
+        rows = [r for r in self._dr_log if event_from_row(r[1]).t_s >= t_from]
+        if not rows or self._pos is None or gait.dr is None:
+            return []
+        c, s = math.cos(turn), math.sin(turn)
+        delta = np.zeros(3)
+        for r in rows:  # each stride's direction turned (kept so for a later step-length correction)
+            un, ue = r[3], r[4]
+            r[3], r[4] = c * un - s * ue, s * un + c * ue
+            delta[0] += r[2] * (r[3] - un)
+            delta[1] += r[2] * (r[4] - ue)
+        if not np.all(np.isfinite(delta)):
+            return []
+        self._pos = self._pos + delta
+        gait.dr.position = gait.dr.position + delta
+        log.info("Gait-DR strides from %.1f s turned by %.1f deg: a turn missed inside a disturbance", t_from,
+                 math.degrees(turn))
+        return [Event(t_ns, "strides_corrected", {"behaviour": rows[-1][0], "cause": "missed_turn",
+                                                   "n_strides": len(rows), "from_s": float(t_from),
+                                                   "turn_rad": float(turn), "moved_m": [float(delta[0]), float(delta[1])]})]
 
     def _log_stride(self, step: Any, e: Any, prev: np.ndarray | None) -> None:
         """Keep a placed Gait-DR stride (its event, length and direction) for :meth:`_correct_pattern`."""
@@ -1020,8 +1056,8 @@ class Engine:
         before = [t for t in (event_from_row(r[1]).t_s for r in self._dr_log) if t < first.t_s]
         start = before[-1] if before else first.t_s - first.period_s  # onset of the stride before the first
         self._dr_log = [r for r in self._dr_log if r not in rows]
-        return [Event(t_ns, "strides_corrected", {"behaviour": b, "n_strides": len(rows), "from_s": t_from,
-                                                   "start_s": float(start), "to_s": float(strides[-1].t_s),
+        return [Event(t_ns, "strides_corrected", {"behaviour": b, "cause": "walking_pattern", "n_strides": len(rows),
+                                                   "from_s": t_from, "start_s": float(start), "to_s": float(strides[-1].t_s),
                                                    "placed_m": float(math.fsum(d_new)),
                                                    "moved_m": [float(delta[0]), float(delta[1])]})]
 

@@ -226,6 +226,11 @@ class GaitPipeline:
         self.recent_scale: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # the same / generic model's
         self.compass_steps = 0
         self.held_steps = 0
+        # Gait-DR stances since the absolute compass last led: (onset [s], compass - heading [rad]) (_missed_turn)
+        self._held: list[tuple[float, float]] = []
+        # set by reckon, taken by the engine after every reckon: a turn missed inside a disturbance, (from onset [s],
+        # turn [rad])
+        self.missed_turn: tuple[float, float] | None = None
         self._prev_stance = (-math.inf, math.nan)  # (onset [s], heading [rad]) of the last calibration stance
 
     # ------------------------------------------------------------------ streams
@@ -718,6 +723,7 @@ class GaitPipeline:
         self.dr = GaitDeadReckoner(position, compensate=not self.conventional)
         self.heading = float(heading)
         self.follower.restart(self._h_ref() if self.mag.ready else math.nan)  # turns are counted from here on
+        self._held = []  # a missed turn is looked for within one Gait-DR run
 
     def reckon(self, before_s: float, label_at: Callable[[float], str],
                weak_h: float = 0.0) -> list[tuple[PdrStep, StepEvent, str]]:
@@ -755,11 +761,15 @@ class GaitPipeline:
             if source == "none":
                 self.held_steps += 1  # no calibrated field in this session's frame: hold the last heading
                 self.follower.forget()
+                self._held = []
             else:
                 shape = self.mag.field_shape(acc_st, m)
-                self.heading = self.follower.step(self.heading, self.mag.heading(acc_st, m), source == "compass",
+                compass = self.mag.heading(acc_st, m)
+                led = self.follower.established
+                self.heading = self.follower.step(self.heading, compass, source == "compass",
                                                   *shape, self.mag.trusted, self._compass_sigma(),
                                                   self._settled(shape), self._h_ref(), self._weak(shape, weak_h))
+                self._missed_turn(e.t_s, compass, before, led)
                 self.compass_steps += 1
                 direction = self.heading
                 if self.mag.trusted:
@@ -770,6 +780,35 @@ class GaitPipeline:
                     direction = before + 0.5 * wrap_angle(self.heading - before)
             out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
         return out
+
+    def _missed_turn(self, t_s: float, compass: float, before: float, led: bool) -> None:
+        """Tell a turn missed inside a disturbance when the absolute compass leads again (:attr:`missed_turn`).
+
+        While the compass does not lead (the follower is not ``established``), the heading is held and turns are
+        taken only from compass changes that look like the foot's; a turn whose strides the field's own drift
+        hid is missed, and the compass takes it whole (beyond ``turn``) at the first stance where it leads
+        again, seconds and metres later. Where that jump is what the compass's disagreement with the heading grew
+        by over the held stretch (within a third of it, at least 10 deg), the turn happened inside it: from the
+        first held stance whose disagreement had grown by half the jump (held-out random day, seed 5, 124-128 s:
+        a 45-deg turn in steel whose dip drifted by 2-5 deg a stride; the compass took it at 140 s, and the walk
+        between stayed 46 deg off). A disagreement that was there when the compass stopped leading (steel
+        already deflecting it) is no turn of this stretch."""
+        jump = wrap_angle(self.heading - before)
+        held = self._held
+        if self.follower.established:
+            self._held = []
+        else:
+            self._held = held + [(float(t_s), wrap_angle(compass - self.heading))]
+        if not (self.mag.trusted and not led and self.follower.established and abs(jump) > self.follower.turn
+                and len(held) >= 2):
+            return
+        grown = wrap_angle(wrap_angle(compass - before) - held[0][1])
+        if abs(wrap_angle(grown - jump)) > max(math.radians(10.0), abs(jump) / 3.0):
+            return
+        for t_k, nu_k in held:
+            if wrap_angle(nu_k - held[0][1]) * math.copysign(1.0, jump) >= 0.5 * abs(jump):
+                self.missed_turn = (t_k, jump)
+                return
 
     def _h_ref(self) -> float:
         """Horizontal magnitude [uT] of the field the compass is calibrated to (m_n's)."""
@@ -890,6 +929,7 @@ class GaitPipeline:
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
+            "held": [list(h) for h in self._held],
             "prev_stance": list(self._prev_stance),
             "mag_anchored": self.mag_anchored, "anchor_rows": [list(r) for r in self._anchor_rows],
             "follower": self.follower.get_state(),
@@ -926,6 +966,7 @@ class GaitPipeline:
         scales = d.get("recent_scale", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
         obj.recent_scale = {b: [float(x) for x in v] for b, v in scales.items()}
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
+        obj._held = [(float(t), float(nu)) for t, nu in d.get("held", [])]  # older states: none
         ps = d.get("prev_stance", [-math.inf, math.nan])  # states stored before the turn gate existed
         obj._prev_stance = (float(ps[0]), float(ps[1]))
         obj.mag_anchored = bool(d.get("mag_anchored", True))  # states stored before the re-anchoring existed
