@@ -45,6 +45,7 @@ _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step
 _BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
 _KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more than this do not update KF II
 _ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
+_HELD_MAX = 48  # Gait-DR stances kept while the compass does not lead (GaitPipeline._missed_turn)
 # Run wake (energy.scheduler): the device's high-g interrupt wakes the gyroscope when its accelerometer exceeds
 # this factor times the largest absolute specific force on an axis (25-Hz samples) of this person's latest
 # walking strides. Largest |a| on an axis over 2-s windows of 40-ms means (synthetic, 6 seeds each): walks
@@ -792,23 +793,22 @@ class GaitPipeline:
         first held stance whose disagreement had grown by half the jump (held-out random day, seed 5, 124-128 s:
         a 45-deg turn in steel whose dip drifted by 2-5 deg a stride; the compass took it at 140 s, and the walk
         between stayed 46 deg off). A disagreement that was there when the compass stopped leading (steel
-        already deflecting it) is no turn of this stretch."""
+        already deflecting it) is no turn of this stretch. Kept for a trusted compass only, the first stance and the
+        latest ``_HELD_MAX`` - 1 (the engine keeps the last ``_DR_LOG`` strides to re-place)."""
         jump = wrap_angle(self.heading - before)
         held = self._held
-        if self.follower.established:
+        if self.mag.trusted and not led and self.follower.established and abs(jump) > self.follower.turn and len(held) >= 2:
+            grown = wrap_angle(wrap_angle(compass - before) - held[0][1])
+            if abs(wrap_angle(grown - jump)) <= max(math.radians(10.0), abs(jump) / 3.0):
+                self.missed_turn = next(((t_k, jump) for t_k, nu_k in held
+                                         if wrap_angle(nu_k - held[0][1]) * math.copysign(1.0, jump) >= 0.5 * abs(jump)),
+                                        None)
+        if self.follower.established or not self.mag.trusted:
             self._held = []
-        else:
-            self._held = held + [(float(t_s), wrap_angle(compass - self.heading))]
-        if not (self.mag.trusted and not led and self.follower.established and abs(jump) > self.follower.turn
-                and len(held) >= 2):
             return
-        grown = wrap_angle(wrap_angle(compass - before) - held[0][1])
-        if abs(wrap_angle(grown - jump)) > max(math.radians(10.0), abs(jump) / 3.0):
-            return
-        for t_k, nu_k in held:
-            if wrap_angle(nu_k - held[0][1]) * math.copysign(1.0, jump) >= 0.5 * abs(jump):
-                self.missed_turn = (t_k, jump)
-                return
+        held.append((float(t_s), wrap_angle(compass - self.heading)))
+        if len(held) > _HELD_MAX:  # the first (the reference) and the latest: only those strides can be re-placed
+            del held[1 : len(held) - _HELD_MAX + 1]
 
     def _h_ref(self) -> float:
         """Horizontal magnitude [uT] of the field the compass is calibrated to (m_n's)."""
