@@ -348,7 +348,14 @@ class DeviceEmulator:
                 m = fast_t >= max(cur, self._deliver_ns)
                 ts, vs = fast_t[m], fast_v[m]
                 hit = -1
-                if events is not None and len(ts):
+                if events is None:
+                    for i in range(len(ts)):
+                        if (self._ref is None and not high_g) or self._departs(vs[i], thr, high_g):
+                            self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
+                        elif int(ts[i]) - self._quiet_ns >= dur:
+                            hit = i
+                            break
+                elif len(ts):
                     # the latest event at or before each sample keeps the gyroscope awake
                     k = np.searchsorted(events, ts, side="right") - 1
                     last = events[np.maximum(k, 0)] if len(events) else np.zeros(len(ts), dtype=np.int64)
@@ -356,12 +363,6 @@ class DeviceEmulator:
                     late = np.flatnonzero(ts - quiet >= dur)
                     hit = int(late[0]) if len(late) else -1
                     self._quiet_ns = int(quiet[hit if hit >= 0 else -1])
-                for i in range(len(ts) if events is None else 0):
-                    if (self._ref is None and not high_g) or self._departs(vs[i], thr, high_g):
-                        self._ref, self._quiet_ns = vs[i].copy(), int(ts[i])
-                    elif int(ts[i]) - self._quiet_ns >= dur:
-                        hit = i
-                        break
                 if hit < 0:
                     out_t.append(ts)
                     out_v.append(vs)
