@@ -13,7 +13,7 @@ PREVIOUS_DAY_SEED_OFFSET = 1000  # --user returning: the profile comes from the 
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from clients.synth import synthesize
+    from clients.synth import IMU_ERRORS, synthesize
     from energy.power import load_profile
     from energy.simulate import learn_profile, measure_compute_costs, simulate
 
@@ -25,16 +25,17 @@ def _simulate(args: argparse.Namespace) -> int:
         out.write_text(json.dumps(costs, indent=2) + "\n")
         print(f"wrote {out}", file=sys.stderr)
     profile = load_profile(args.profile)
-    rec = synthesize(args.scenario, seed=args.seed)
+    errors = IMU_ERRORS[args.imu_errors]
+    rec = synthesize(args.scenario, seed=args.seed, errors=errors)
     truth = rec.truth
     assert truth is not None and truth.t_ns is not None and truth.positions is not None
-    doc: dict = {"scenario": args.scenario, "seed": args.seed, "user": args.user}
+    doc: dict = {"scenario": args.scenario, "seed": args.seed, "user": args.user, "imu_errors": args.imu_errors}
     user_profile = None
     if args.user == "returning":
         # An earlier day of the same synthetic person (another seed: other strides, noise and field), not this
         # day's data: the profile the scheduler handed out at the end of that session.
         prev_seed = args.seed + PREVIOUS_DAY_SEED_OFFSET
-        user_profile = learn_profile(synthesize(args.scenario, seed=prev_seed).batch, args.batch_seconds)
+        user_profile = learn_profile(synthesize(args.scenario, seed=prev_seed, errors=errors).batch, args.batch_seconds)
         doc["user_profile_from"] = {"scenario": args.scenario, "seed": prev_seed, "calibrated": sorted(
             b for b, c in user_profile.get("behaviours", {}).items() if c.get("calibrated"))}
     doc["batching"] = (f"fixed {args.batch_seconds} s" if args.batch_seconds else
@@ -63,7 +64,8 @@ def _simulate(args: argparse.Namespace) -> int:
         cells = [doc[run]["step_errors"].get(mode) for run in ("scheduler", "baseline")]
         rows.append((f"{name} step dir err [deg]", *(f"{c['direction_err_deg']:.2f}" if c else "-" for c in cells)))
         rows.append((f"{name} step len err [%]", *(f"{c['length_err_pct']:.2f}" if c else "-" for c in cells)))
-    print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), {args.user} user, profile {profile.name}")
+    print(f"{args.scenario} (seed {args.seed}, {doc['duration_s']:.0f} s, {doc['truth_steps']} strides), {args.user} user, profile {profile.name}, "
+          f"IMU errors {args.imu_errors}")
     for r in rows:
         print(f"{r[0]:<26}{r[1]:>12}{r[2]:>12}")
     print(f"energy ratio {doc['energy_ratio']:.3f}   compute reduction {doc['compute_reduction_pct']:.1f} %   "
@@ -140,6 +142,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--json", action="store_true", help="print one JSON document")
     s.add_argument("--scenario", default="mixed-day", help="synthetic scenario (clients.synth.scenario_names())")
     s.add_argument("--seed", type=int, default=0, help="synthesiser seed")
+    s.add_argument(
+        "--imu-errors",
+        choices=("typical-part", "noise-only", "shoe-iron"),
+        default="typical-part",
+        help="sensor error model of the synthetic device (clients.synth.IMU_ERRORS): typical-part = white noise, "
+        "biases and the scale-factor and cross-axis errors of a typical MEMS part (default); noise-only = white "
+        "noise and biases only (an ideally calibrated part); shoe-iron = noise-only plus the magnetometer's "
+        "hard and soft iron",
+    )
     s.add_argument("--profile", default="foot-004", help="device power profile (energy/profiles/NAME.json) or a path")
     s.add_argument(
         "--batch-seconds",
