@@ -42,6 +42,7 @@ _HANDON_WORSE, _HANDON_SLACK_RAD = 1.5, math.radians(0.5)  # compass_state: a re
 _MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
 _RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step model
+_RECENT_CADENCES = 5  # measured strides of a behaviour whose median cadence a paused stride of it takes
 _BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
 _KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more than this do not update KF II
 _ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
@@ -59,12 +60,13 @@ _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
 def event_row(e: StepEvent) -> list[float]:
     """A step event as plain numbers (engine state)."""
-    return [e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, float(e.after_rest), float(e.index)]
+    rest = 1.0 if e.after_rest else (2.0 if e.paused else 0.0)
+    return [e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, rest, float(e.index)]
 
 
 def event_from_row(q: list[float]) -> StepEvent:
     """Inverse of :func:`event_row`."""
-    return StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), bool(q[9]), int(q[10]))
+    return StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), 0.5 < q[9] < 1.5, int(q[10]), q[9] > 1.5)
 
 
 def model_behaviour(label: str) -> str:
@@ -225,6 +227,7 @@ class GaitPipeline:
         self._mag_fit_n = -1  # magnetometer stances at the last calibration fit
         self.recent_d: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # last ZUPT-KF strides [m]
         self.recent_scale: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # the same / generic model's
+        self.recent_f: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # cadences of measured strides [Hz]
         self.compass_steps = 0
         self.held_steps = 0
         # Gait-DR stances since the absolute compass last led: (onset [s], compass - heading [rad]) (_missed_turn)
@@ -447,12 +450,13 @@ class GaitPipeline:
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return None
-        self.cal.add(behaviour, _features(e), st.step_length)
+        self.cal.add(behaviour, self.features(e, behaviour), st.step_length)
+        self._note_cadence(e, behaviour)
         peak = self.stride_peak.get(e.index)
         if behaviour == "walk" and peak is not None and math.isfinite(peak):
             self.walk_peaks = (self.walk_peaks + [peak])[-_PEAK_STRIDES:]
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
-        generic = self._generic.predict(behaviour, _features(e))[0]
+        generic = self._generic.predict(behaviour, self.features(e, behaviour))[0]
         if generic > 0.0:
             self.recent_scale[behaviour] = (self.recent_scale[behaviour] + [st.step_length / generic])[-_RECENT_STEPS:]
         gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)
@@ -628,6 +632,27 @@ class GaitPipeline:
                 return self.mag.get_state()
         return cal.get_state()
 
+    def _note_cadence(self, e: StepEvent, behaviour: str) -> None:
+        """Keep the cadence of a stride whose period was measured (not after a rest or a pause)."""
+        b = model_behaviour(behaviour)
+        if not (e.after_rest or e.paused) and math.isfinite(e.f_s):
+            self.recent_f[b] = (self.recent_f[b] + [float(e.f_s)])[-_RECENT_CADENCES:]
+
+    def features(self, e: StepEvent, behaviour: str) -> StepFeatures:
+        """Step-model features of ``e`` as a stride of ``behaviour`` (004 eq. 15).
+
+        A stride after a short pause or a rest has no period of its own: the segmentation gives it the running
+        estimate (the pace before the pause) or a nominal one (its swing plus a nominal stance). Where the pause
+        parted two behaviours that pace is the other one's (the first walking stride after a run and a 1.2-s stop
+        took the run's 1.35 Hz, and the walking model placed it 1.98 m for 1.37 m: synthetic mixed day, seed 0,
+        246 s); the nominal period after a rest was 1.21 Hz for a 0.87-Hz walk (the same day, 336 s: 1.63 m for
+        1.35 m). Such a stride takes the median cadence of its own behaviour's latest measured strides instead.
+        """
+        b = model_behaviour(behaviour)
+        if (e.paused or e.after_rest) and self.recent_f[b]:
+            return StepFeatures(float(np.median(self.recent_f[b])), e.acc_mean, e.acc_max, e.acc_min)
+        return _features(e)
+
     def step_length(self, e: StepEvent, behaviour: str) -> tuple[float, float]:
         """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15).
 
@@ -635,15 +660,16 @@ class GaitPipeline:
         (a person's stride is far better known from their own last strides than from a generic prior).
         """
         b = model_behaviour(behaviour)
+        f = self.features(e, b)
         if self.conventional:
-            return self._generic.predict(b, _features(e))  # generic model (never fitted)
+            return self._generic.predict(b, f)  # generic model (never fitted)
         if not self.cal.calibrated(b) and self.recent_scale[b]:
             # the generic model's cadence dependence at this person's scale (median ratio of the latest ZUPT-KF
             # strides to it): a walk that speeds up before its model is fitted gets longer strides
-            return self._generic.predict(b, _features(e))[0] * float(np.median(self.recent_scale[b])), float("nan")
+            return self._generic.predict(b, f)[0] * float(np.median(self.recent_scale[b])), float("nan")
         if not self.cal.calibrated(b) and self.recent_d[b]:
             return float(np.median(self.recent_d[b])), float("nan")
-        return self.cal.predict(b, _features(e))
+        return self.cal.predict(b, f)
 
     def deviation(self, behaviour: str) -> float:
         """Heading deviation [rad] Gait-DR applies to a behaviour's steps (004 eq. 16).
@@ -745,6 +771,7 @@ class GaitPipeline:
         for e in todo:
             b = model_behaviour(label_at(e.t_s))
             d, _ = self.step_length(e, b)
+            self._note_cadence(e, b)
             m = self.mag_at(e)
             acc_st = self.acc_at(e)
             source = "none"
@@ -928,6 +955,7 @@ class GaitPipeline:
             "window_end": self._window_end, "cal_last": self._cal_last,
             "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
+            "recent_f": {b: list(v) for b, v in self.recent_f.items()},
             "compass_steps": self.compass_steps, "held_steps": self.held_steps,
             "held": [list(h) for h in self._held],
             "prev_stance": list(self._prev_stance),
@@ -965,6 +993,8 @@ class GaitPipeline:
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
         scales = d.get("recent_scale", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
         obj.recent_scale = {b: [float(x) for x in v] for b, v in scales.items()}
+        cadences = d.get("recent_f", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
+        obj.recent_f = {b: [float(x) for x in v] for b, v in cadences.items()}
         obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
         obj._held = [(float(t), float(nu)) for t, nu in d.get("held", [])]  # older states: none
         ps = d.get("prev_stance", [-math.inf, math.nan])  # states stored before the turn gate existed

@@ -82,6 +82,9 @@ class StepEvent:
         True when the foot had been still for longer than ``max_period_s`` before this step.
     index : int
         0-based count of the step within the stream.
+    paused : bool
+        True when a short pause preceded the step: its own period is not measurable and ``period_s`` is the
+        running stride-period estimate (the pace before the pause).
     """
 
     t_s: float
@@ -93,6 +96,7 @@ class StepEvent:
     acc_stance: tuple[float, float, float]
     after_rest: bool
     index: int
+    paused: bool = False
 
 
 class StepSegmenter:
@@ -291,7 +295,8 @@ class StepSegmenter:
     def _events(ev: np.ndarray, n_ev: int) -> list[StepEvent]:
         rows = ev[:n_ev].tolist()
         return [StepEvent(t_s=r[0], period_s=r[1], f_s=r[2], acc_mean=r[3], acc_max=r[4], acc_min=r[5],
-                          acc_stance=(r[6], r[7], r[8]), after_rest=r[9] > 0.5, index=int(r[10])) for r in rows]
+                          acc_stance=(r[6], r[7], r[8]), after_rest=0.5 < r[9] < 1.5, index=int(r[10]),
+                          paused=r[9] > 1.5) for r in rows]
 
     def _process(self, t_out: np.ndarray, af: np.ndarray) -> list[StepEvent]:
         """Statistic, candidates and selection (compiled kernel) for filtered samples ``af`` stamped ``t_out``."""
@@ -419,7 +424,8 @@ class StepSegmenter:
 #   ist  [count, b0, n_events, n_await, n_periods]
 # Parameters: pf [thr, swing_min, refr_frac, min_period, max_period, swing_frac, min_swing, rel_thr, k_dur, dur_cap,
 #                 k_quiet, per_min, per_max, default_per, max_lat, rate]; pi [w, n_ctx, n_lvl, n_long]
-# Events rows: [t_s, period_s, f_s, acc_mean, acc_max, acc_min, mx, my, mz, after_rest, index]
+# Events rows: [t_s, period_s, f_s, acc_mean, acc_max, acc_min, mx, my, mz, rest, index]; rest: 1 after a rest,
+#        2 after a short pause (period_s is then the estimate), else 0
 _AW_MAX = 64
 _N_PER = 9
 _REST_STANCE_S = 0.25  # nominal stance added to the swing time of the first step after a rest [s] (_k_confirm)
@@ -489,6 +495,7 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
         return n_ev  # standing, shuffling: a new reference stance but no step
     period = onset - last_on if had_last else np.nan
     after_rest = not (period > 0.0 and period <= pf[4])
+    paused = False
     p_est = _k_period(per, ist, pf)
     stance = last_end - last_on
     if not after_rest and (stance > p_est or (stance > _PAUSE_STANCE_FRAC * p_est and not paused_before)):
@@ -501,6 +508,7 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
         # measured (else a sudden slow-down would never reach the estimate).
         period = p_est
         last[8] = 1.0
+        paused = True
     elif after_rest:
         if had_last and np.isfinite(last_end):
             swing_t = onset - last_end
@@ -540,7 +548,7 @@ def _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     row[6] = pend[7]
     row[7] = pend[8]
     row[8] = pend[9]
-    row[9] = 1.0 if after_rest else 0.0
+    row[9] = 1.0 if after_rest else (2.0 if paused else 0.0)
     row[10] = float(ist[2])
     ist[2] += 1
     return n_ev + 1

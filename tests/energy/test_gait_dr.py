@@ -104,6 +104,36 @@ def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
     assert back.step_length(fast, "walk")[0] == gp.step_length(fast, "walk")[0]
 
 
+def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
+    """A stride after a short pause carries the pace before the pause (models.steps: ``paused``), one after a
+    rest a nominal one. After a run and a stop, that pace is the run's: the walking stride takes the median
+    cadence of the latest measured walking strides instead, as does one after a rest; measured strides, and a
+    paused one of a behaviour without measured strides, keep their own. The cadences survive the state round
+    trip and the event rows keep the marks."""
+    from energy.gait_dr import event_from_row, event_row
+
+    gp = GaitPipeline(25.0)
+    for k in range(6):
+        st, e = _pair(k, 0.0, 0.0, period=1.1 + 0.02 * k)  # walking strides of 1.10-1.20 s
+        gp.learn(st, e, "walk")
+    run_pace = _pair(20, 0.0, 0.0, period=0.74)[1]
+    paused = dataclasses.replace(run_pace, paused=True)
+    want = float(np.median([1.0 / (1.1 + 0.02 * k) for k in range(1, 6)]))  # the latest five
+    assert gp.features(paused, "walk").f_s == pytest.approx(want)
+    assert gp.features(dataclasses.replace(run_pace, after_rest=True), "walk").f_s == pytest.approx(want)
+    assert gp.features(run_pace, "walk").f_s == run_pace.f_s  # measured: its own
+    assert gp.features(paused, "run").f_s == paused.f_s  # no measured running stride to take one from
+    assert gp.step_length(paused, "walk")[0] == gp.step_length(dataclasses.replace(paused, f_s=want, paused=False), "walk")[0]
+    assert gp.step_length(paused, "walk")[0] != gp.step_length(run_pace, "walk")[0]
+    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    assert back.features(paused, "walk") == gp.features(paused, "walk")
+    for ev in (paused, run_pace, dataclasses.replace(run_pace, after_rest=True)):
+        assert event_from_row(event_row(ev)) == ev
+    old = gp.get_state()
+    del old["recent_f"]  # a state stored before the cadences were kept: none
+    assert GaitPipeline.from_state(old).features(paused, "walk").f_s == paused.f_s
+
+
 def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> None:
     """A profile whose walking fit predates K3 on the mean acceleration is refitted from its pairs."""
     src = GaitPipeline(25.0)
