@@ -419,3 +419,25 @@ def test_stairs_up_climb_what_stairs_down_descend(gaitmap_dir) -> None:
     up, down = climbs
     assert up > 3.5 and down < -3.5, climbs
     assert abs(up + down) < 0.1 * abs(down), climbs
+
+
+def test_zaru_holds_the_heading_where_the_vertical_gyro_bias_changed_after_the_initial_rest():
+    """ZARU (001 eq. 24-35, on by default): a vertical gyro bias of 0.1 deg/s that the initial rest could not see
+    (it appears after it) is observed at the stops of the walk, so the heading at the end of 3 minutes of walking
+    with stops stays within a few degrees; without ZARU it drifts by the bias times the time (about 15 deg)."""
+    from clients.synth import Scenario, Segment, SensorErrors, synthesize
+
+    segs = [Segment("stand", 5.0)] + [Segment("walk", 25.0, 0.0), Segment("stand", 8.0)] * 6
+    clean = SensorErrors(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    r = synthesize(Scenario("stops", tuple(segs)), seed=1, errors=clean)
+    t = r.batch.acc_t_ns / 1e9
+    gyr = r.batch.gyr.copy()
+    gyr[t > 5.5, 2] += np.deg2rad(0.1)  # after the initial rest
+    heading_err = {}
+    for zaru in (False, True):
+        out = ZuptNavigator(ZuptConfig(zaru_on=zaru, hdr_on=False, dom_on=False)).run(t, r.batch.acc, gyr)
+        truth = r.truth.extra["heading_rad"][-1]
+        heading_err[zaru] = abs(np.degrees(np.angle(np.exp(1j * (out.stances[-1].heading - truth)))))
+    assert ZuptConfig().zaru_on
+    assert heading_err[False] > 10.0, heading_err
+    assert heading_err[True] < heading_err[False] / 3, heading_err
