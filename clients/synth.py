@@ -24,6 +24,7 @@ University of Toronto recordings. Attitude ``C_b^n = Rz(yaw) Ry(pitch) Rx(roll)`
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -205,33 +206,21 @@ LSM9DS1 = SensorErrors(
 # the Earth's field. We take b = (14, -22, 35) uT (|b| 44 uT, within that range; an assumption for one device).
 # Soft iron: a few per cent of scale difference and cross-coupling (assumption, typical of consumer parts beside
 # a battery and PCB traces): S symmetric, diagonal 1.04/0.97/1.00, off-diagonals 0.02/-0.015/0.01.
-LSM9DS1_SHOE = SensorErrors(
-    acc_noise_density=LSM9DS1.acc_noise_density,
-    gyr_noise_density=LSM9DS1.gyr_noise_density,
-    mag_noise_rms=LSM9DS1.mag_noise_rms,
-    acc_bias_instability=LSM9DS1.acc_bias_instability,
-    gyr_bias_instability=LSM9DS1.gyr_bias_instability,
-    acc_turn_on_bias=LSM9DS1.acc_turn_on_bias,
-    gyr_turn_on_bias=LSM9DS1.gyr_turn_on_bias,
+LSM9DS1_SHOE = dataclasses.replace(
+    LSM9DS1,
     mag_hard_iron_ut=(14.0, -22.0, 35.0),
     mag_soft_iron=(1.04, 0.02, -0.015, 0.02, 0.97, 0.01, -0.015, 0.01, 1.00),
 )
 
 # A typical part of the same kind with the scale-factor and cross-axis errors every MEMS datasheet lists; without
-# them (LSM9DS1 above: white noise and biases only) the always-on ZUPT-KF drifts 0.01 % of the distance on the
-# synthetic mixed day, some 30 times less than on any real recording (gdin `--mode zupt`: loop closure median
-# 0.30 %). The LSM9DS1 datasheet gives no sensitivity or cross-axis tolerance; the MPU-9250's (InvenSense
+# them (LSM9DS1 above: white noise and biases only) the always-on ZUPT-KF measures the synthetic mixed day's
+# distance 0.03 % wrong, where the real walks give 0.07-1.14 % (gdin `--mode zupt`, exp 17-22; the typical part:
+# 0.73 %, tests/clients/test_synth.py). The LSM9DS1 datasheet gives no sensitivity or cross-axis tolerance; the MPU-9250's (InvenSense
 # PS-MPU-9250A-01, Tables 1 and 2) are +-3 % scale factor and +-2 % cross axis for both sensors. We take a part
 # at about a third of those bounds (one device, fixed, not drawn from the seed): accelerometer scale errors
 # +0.8/-0.6/+0.4 % and cross-axis 0.3-0.6 %, gyroscope scale errors +1.0/-0.8/+0.9 % and cross-axis 0.4-0.7 %.
-LSM9DS1_TYPICAL = SensorErrors(
-    acc_noise_density=LSM9DS1.acc_noise_density,
-    gyr_noise_density=LSM9DS1.gyr_noise_density,
-    mag_noise_rms=LSM9DS1.mag_noise_rms,
-    acc_bias_instability=LSM9DS1.acc_bias_instability,
-    gyr_bias_instability=LSM9DS1.gyr_bias_instability,
-    acc_turn_on_bias=LSM9DS1.acc_turn_on_bias,
-    gyr_turn_on_bias=LSM9DS1.gyr_turn_on_bias,
+LSM9DS1_TYPICAL = dataclasses.replace(
+    LSM9DS1,
     acc_scale_misalignment=(1.008, 0.005, -0.004, -0.003, 0.994, 0.006, 0.005, -0.004, 1.004),
     gyr_scale_misalignment=(1.010, 0.006, -0.005, -0.004, 0.992, 0.007, 0.006, -0.005, 1.009),
 )
