@@ -337,8 +337,13 @@ def position_errors(t_ns: np.ndarray, est_ne: np.ndarray, truth_t_ns: np.ndarray
     idx = np.clip(np.searchsorted(truth_t_ns, t_ns), 0, len(truth_t_ns) - 1)
     tru = truth_ne[idx] - truth_ne[idx[0]]
     est = est_ne - est_ne[0]
-    m = np.linalg.norm(tru, axis=1) <= ALIGN_RADIUS_M
-    # Least-squares rotation (2-D Procrustes without scale) of est onto tru over the first metres.
+    # Least-squares rotation (2-D Procrustes without scale) of est onto tru over the first metres: the positions
+    # until the truth first leaves ALIGN_RADIUS_M of the start. A later return near the start carries the
+    # error accumulated meanwhile and must not set the alignment (held-out day seed 3: the baseline's path,
+    # back near its start three times, was turned by 106 deg where its first 10 m asked 89 deg; mean error
+    # 17.1 m for a walk whose heading was within 5 deg of the truth's).
+    far = np.flatnonzero(np.linalg.norm(tru, axis=1) > ALIGN_RADIUS_M)
+    m = np.arange(len(tru)) < (far[0] if far.size else len(tru))
     h = np.sum(est[m, 0] * tru[m, 1] - est[m, 1] * tru[m, 0])
     c = np.sum(est[m, 0] * tru[m, 0] + est[m, 1] * tru[m, 1])
     ang = float(np.arctan2(h, c)) if (abs(h) + abs(c)) > 0 else 0.0

@@ -24,6 +24,23 @@ def test_position_errors_remove_only_a_rotation(ang, seed):
     assert scaled["mean_m"] == pytest.approx(0.1 * np.mean(np.linalg.norm(truth, axis=1)), rel=1e-9)
 
 
+@pytest.mark.parametrize("ang", [-2.0, 0.3, 1.5])
+def test_position_errors_align_on_the_first_metres_only(ang):
+    """The alignment is fitted on the path until it first leaves ALIGN_RADIUS_M of the start: a return near
+    the start later in the day, with the error gathered meanwhile, does not turn the whole estimate."""
+    from energy.simulate import ALIGN_RADIUS_M
+
+    out = np.stack([np.linspace(0.0, 3 * ALIGN_RADIUS_M, 40), np.zeros(40)], axis=1)  # east and back
+    truth = np.concatenate([out, out[::-1][1:] + [0.0, 2.0]])
+    est = truth.copy()
+    est[40:] += [0.0, 3.0]  # an error that appears on the way back (it ends 3 m off, near the start)
+    rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    t = np.arange(len(truth), dtype=np.int64) * 10**9
+    e = position_errors(t, est @ rot.T, t, truth)
+    assert e["align_deg"] == pytest.approx(-np.degrees(ang), abs=1e-9)
+    assert e["final_m"] == pytest.approx(3.0, abs=1e-9)
+
+
 @settings(max_examples=30, deadline=None)
 @given(ang_deg=st.floats(-40.0, 40.0), scale=st.floats(0.8, 1.2), seed=st.integers(0, 1000))
 def test_step_errors_are_each_steps_direction_and_length(ang_deg, scale, seed):
