@@ -640,6 +640,11 @@ def _hdr(x, P, dx, fs, par):
     d = psi - fs[30]
     d = (d + math.pi) % (2 * math.pi) - math.pi
     if fs[31] > 0 and abs(d) < par[_HDRD]:
+        if fs[31] == 1:
+            # the segment's first stride may be the last of a turn (its chord part-way through it): the first stride
+            # that agrees with it sets the reference
+            fs[30] = psi
+            d = 0.0
         fs[31] += 1
         if fs[31] == par[_HDRN] + 1 and par[_DOM] > 0:
             # a segment just became straight: snap its reference to the nearest dominant direction

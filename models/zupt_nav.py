@@ -41,7 +41,8 @@ class ZuptConfig:
     and innovation ``mag_gate`` [sigma], once per stance from the stance's mean field.
     Heading aids (003 drift reduction): ``hdr_on`` pulls the heading back to the direction of the current
     straight segment (strides >= ``hdr_min_stride`` m within ``hdr_delta`` rad, after ``hdr_min_n``
-    strides; noise ``hdr_sigma`` rad); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
+    strides; noise ``hdr_sigma`` rad; a segment's direction is its first stride that agrees with the one that
+    broke the previous segment, which may be the last of a turn); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
     building's dominant directions (the first straight segment + k * 90 deg; indoor heuristic).
     Alignment (001 eq. 1-5 via TRIAD): the initial rest is where the statistic is below ``align_gamma``
     (after ``align_timeout_s`` [s] without such a rest, e.g. a noisy sensor, the adaptive detector's);

@@ -441,3 +441,24 @@ def test_zaru_holds_the_heading_where_the_vertical_gyro_bias_changed_after_the_i
     assert ZuptConfig().zaru_on
     assert heading_err[False] > 10.0, heading_err
     assert heading_err[True] < heading_err[False] / 3, heading_err
+
+
+@pytest.mark.parametrize("turn_deg", [-45.0, 45.0, 90.0])
+def test_drift_reduction_starts_a_segment_after_a_gradual_turn_on_a_straight_stride(turn_deg):
+    """Heuristic drift reduction (003) on a turn spread over four strides: the last turning stride's chord lies
+    part-way through the turn (5.6 deg short of the new direction in a 45-deg turn, inside ``hdr_delta``); it
+    used to set the new segment's reference, and the straight strides after it were pulled 5 deg back (held-out
+    synthetic days: the always-on baseline's mean error 4.9 m, with the first agreeing stride as the
+    reference 1.5 m). The heading after the turn keeps the truth's within 1 deg."""
+    from clients.synth import Scenario, Segment, SensorErrors, synthesize
+
+    segs = (Segment("stand", 5.0), Segment("walk", 30.0, turn_deg), Segment("walk", 20.0, 0.0), Segment("stand", 3.0))
+    r = synthesize(Scenario("turn", segs, 30.0), seed=2, errors=SensorErrors(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    t = r.batch.acc_t_ns / 1e9
+    out = ZuptNavigator(ZuptConfig()).run(t, r.batch.acc, r.batch.gyr)
+    truth = r.truth.extra["heading_rad"]
+
+    def off(st):  # estimated minus true heading at a stance [deg]
+        return np.degrees(np.angle(np.exp(1j * (st.heading - truth[int(round((st.t_end_s - t[0]) * 200.0))]))))
+
+    assert abs(off(out.stances[-1]) - off(out.stances[1])) < 1.0  # the frame's own yaw offset removed
