@@ -59,14 +59,13 @@ _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
 
 def event_row(e: StepEvent) -> list[float]:
-    """A step event as plain numbers (engine state)."""
-    rest = 1.0 if e.after_rest else (2.0 if e.paused else 0.0)
-    return [e.t_s, e.period_s, e.f_s, e.acc_mean, e.acc_max, e.acc_min, *e.acc_stance, rest, float(e.index)]
+    """A step event as plain numbers (engine state): :meth:`models.steps.StepEvent.to_row`."""
+    return e.to_row()
 
 
 def event_from_row(q: list[float]) -> StepEvent:
     """Inverse of :func:`event_row`."""
-    return StepEvent(q[0], q[1], q[2], q[3], q[4], q[5], (q[6], q[7], q[8]), 0.5 < q[9] < 1.5, int(q[10]), q[9] > 1.5)
+    return StepEvent.from_row(q)
 
 
 def model_behaviour(label: str) -> str:
@@ -450,13 +449,14 @@ class GaitPipeline:
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
         if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
             return None
-        self.cal.add(behaviour, self.features(e, behaviour), st.step_length)
+        features = self.features(e, behaviour)
+        self.cal.add(behaviour, features, st.step_length)
         self._note_cadence(e, behaviour)
         peak = self.stride_peak.get(e.index)
         if behaviour == "walk" and peak is not None and math.isfinite(peak):
             self.walk_peaks = (self.walk_peaks + [peak])[-_PEAK_STRIDES:]
         self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
-        generic = self._generic.predict(behaviour, self.features(e, behaviour))[0]
+        generic = self._generic.predict(behaviour, features)[0]
         if generic > 0.0:
             self.recent_scale[behaviour] = (self.recent_scale[behaviour] + [st.step_length / generic])[-_RECENT_STEPS:]
         gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)

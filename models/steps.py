@@ -48,6 +48,7 @@ the time stood and the events stay the same, bit for bit.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,6 +98,20 @@ class StepEvent:
     after_rest: bool
     index: int
     paused: bool = False
+
+    def to_row(self) -> list[float]:
+        """The event as the segmentation kernel's row of plain numbers (also the engine state's form):
+        ``[t_s, period_s, f_s, acc_mean, acc_max, acc_min, mx, my, mz, rest, index]``, ``rest`` 1 after a rest,
+        2 after a short pause, else 0."""
+        rest = 1.0 if self.after_rest else (2.0 if self.paused else 0.0)
+        return [self.t_s, self.period_s, self.f_s, self.acc_mean, self.acc_max, self.acc_min, *self.acc_stance, rest,
+                float(self.index)]
+
+    @classmethod
+    def from_row(cls, r: Sequence[float]) -> StepEvent:
+        """Inverse of :meth:`to_row`."""
+        return cls(float(r[0]), float(r[1]), float(r[2]), float(r[3]), float(r[4]), float(r[5]),
+                   (float(r[6]), float(r[7]), float(r[8])), 0.5 < r[9] < 1.5, int(r[10]), r[9] > 1.5)
 
 
 class StepSegmenter:
@@ -293,10 +308,7 @@ class StepSegmenter:
 
     @staticmethod
     def _events(ev: np.ndarray, n_ev: int) -> list[StepEvent]:
-        rows = ev[:n_ev].tolist()
-        return [StepEvent(t_s=r[0], period_s=r[1], f_s=r[2], acc_mean=r[3], acc_max=r[4], acc_min=r[5],
-                          acc_stance=(r[6], r[7], r[8]), after_rest=0.5 < r[9] < 1.5, index=int(r[10]),
-                          paused=r[9] > 1.5) for r in rows]
+        return [StepEvent.from_row(r) for r in ev[:n_ev].tolist()]
 
     def _process(self, t_out: np.ndarray, af: np.ndarray) -> list[StepEvent]:
         """Statistic, candidates and selection (compiled kernel) for filtered samples ``af`` stamped ``t_out``."""
@@ -424,8 +436,7 @@ class StepSegmenter:
 #   ist  [count, b0, n_events, n_await, n_periods]
 # Parameters: pf [thr, swing_min, refr_frac, min_period, max_period, swing_frac, min_swing, rel_thr, k_dur, dur_cap,
 #                 k_quiet, per_min, per_max, default_per, max_lat, rate]; pi [w, n_ctx, n_lvl, n_long]
-# Events rows: [t_s, period_s, f_s, acc_mean, acc_max, acc_min, mx, my, mz, rest, index]; rest: 1 after a rest,
-#        2 after a short pause (period_s is then the estimate), else 0
+# Events rows: StepEvent.to_row's layout
 _AW_MAX = 64
 _N_PER = 9
 _REST_STANCE_S = 0.25  # nominal stance added to the swing time of the first step after a rest [s] (_k_confirm)
