@@ -42,7 +42,9 @@ class ZuptConfig:
     Heading aids (003 drift reduction): ``hdr_on`` pulls the heading back to the direction of the current
     straight segment (strides >= ``hdr_min_stride`` m within ``hdr_delta`` rad, after ``hdr_min_n``
     strides; noise ``hdr_sigma`` rad; a segment's direction is its first stride that agrees with the one that
-    broke the previous segment, which may be the last of a turn); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
+    broke the previous segment, which may be the last of a turn; the foot turning beyond ``hdr_turn`` rad from
+    the segment on two strides running by the gyroscope is a turn too, and takes back the pull of its first
+    strides, 0 = off); ``dom_on`` snaps straight segments within ``dom_delta`` rad of the
     building's dominant directions (the first straight segment + k * 90 deg; indoor heuristic).
     Alignment (001 eq. 1-5 via TRIAD): the initial rest is where the statistic is below ``align_gamma``
     (after ``align_timeout_s`` [s] without such a rest, e.g. a noisy sensor, the adaptive detector's);
@@ -136,6 +138,7 @@ class ZuptConfig:
     hdr_delta: float = 0.1
     hdr_min_stride: float = 0.3
     hdr_min_n: float = 2.0
+    hdr_turn: float = 10.0 * math.pi / 180.0
     dom_on: bool = True
     dom_delta: float = 15.0 * math.pi / 180.0
     gyr_scale_sigma: float = 0.01
@@ -181,7 +184,7 @@ class ZuptConfig:
         if self.gap_factor != 0.0 and self.gap_factor <= 1.0:
             raise ValueError("ZuptConfig.gap_factor: must be 0 (off) or > 1 (times the nominal sampling interval)")
         for name in ("align_swing_rate", "align_stance_min_s", "p0_bg_walk", "gap_acc_sigma", "gap_gyr_sigma",
-                     "gap_yaw_sigma", "gap_max_s", "swing_min_s", "swing_speed"):
+                     "gap_yaw_sigma", "gap_max_s", "swing_min_s", "swing_speed", "hdr_turn"):
             if getattr(self, name) < 0:
                 raise ValueError(f"ZuptConfig.{name}: must be >= 0")
         if self.gamma_min > self.gamma_max:
@@ -484,6 +487,8 @@ class ZuptNavigator:
         self._fs[fsi["prev_n"] : fsi["prev_d"] + 1] = p
         self._fs[fsi["peak_speed"]] = 0.0
         self._fs[fsi["hdr_n"]] = 0.0  # a new straight segment starts (dominant directions are kept)
+        self._fs[fsi["hdr_free_ok"]] = 0.0  # the heading jumped: not a turn of the foot
+        self._fs[fsi["hdr_corr"]] = 0.0
         self._P[0:9, :] = 0.0
         self._P[:, 0:9] = 0.0
         for k in range(3):
