@@ -166,6 +166,8 @@ def test_config_validation():
         ZuptNavigator(ZuptConfig(hysteresis=0.5))
     with pytest.raises(ValueError, match="mag_reference"):
         ZuptNavigator(mag_reference=np.array([0.2, 0.0, 0.4]))  # gauss
+    with pytest.raises(ValueError, match=r"ZuptConfig\.hdr_turn: must be >= 0"):
+        ZuptNavigator(ZuptConfig(hdr_turn=-0.1))
 
 
 def _vicon(vicon_dir, name):
