@@ -20,7 +20,7 @@ from numba import njit
 
 from energy import codec
 from energy.config import EngineConfig
-from energy.gait_dr import PAIR_TOL_S, GaitPipeline, event_from_row, event_row, model_behaviour
+from energy.gait_dr import PAIR_TOL_S, GaitPipeline, model_behaviour
 from energy.profile import BehaviourCalibration, Profile
 from energy.scheduler import PATTERN_STRIDES, SLEEP_AFTER_S, Scheduler
 from energy.types import Event, Position, SensorConfig, Update
@@ -30,6 +30,7 @@ from models.behaviour import BehaviourRecognizer
 from models.detectors import first_still_run
 from models.heading_deviation import HeadingDeviationKF, wrap_angle
 from models.rotations import dcm_heading, dcm_to_quat, euler_to_dcm
+from models.steps import StepEvent
 from models.strapdown import integrate
 from models.zupt_nav import NavOutput, Stance, ZuptNavigator
 
@@ -977,7 +978,7 @@ class Engine:
         moving the position by the sum of their changes (as :meth:`_correct_pattern` does for step lengths)."""
         gait = self._gait
         assert gait is not None
-        rows = [r for r in self._dr_log if event_from_row(r[1]).t_s >= t_from]
+        rows = [r for r in self._dr_log if StepEvent.from_row(r[1]).t_s >= t_from]
         if not rows or self._pos is None or gait.dr is None:
             return []
         c, s = math.cos(turn), math.sin(turn)
@@ -1005,7 +1006,7 @@ class Engine:
         n = math.hypot(dn, de)
         if not (step.length > 0.0 and n > 0.0):
             return
-        self._dr_log.append([model_behaviour(step.behaviour), event_row(e), float(step.length), dn / n, de / n])
+        self._dr_log.append([model_behaviour(step.behaviour), e.to_row(), float(step.length), dn / n, de / n])
         del self._dr_log[:-_DR_LOG]
 
     def _note_pattern(self, behaviour: str, fitted: Any) -> None:
@@ -1013,7 +1014,7 @@ class Engine:
         strides began, the first of the latest cadence-tested Gait-DR strides (the scheduler's detection window)
         whose cadence lies outside the ``fitted`` ranges."""
         b = model_behaviour(behaviour)
-        events = [event_from_row(r[1]) for r in self._dr_log if r[0] == b]
+        events = [StepEvent.from_row(r[1]) for r in self._dr_log if r[0] == b]
         window = [e for e in events if not e.after_rest][-PATTERN_STRIDES:]
         out = [e.t_s for e in window if fitted and not any(lo <= e.f_s <= hi for lo, hi in fitted)]
         self._pattern = (b, float(out[0]) if out else math.inf)
@@ -1030,10 +1031,10 @@ class Engine:
         if gait is None or self._pos is None:
             return []
         b, t_from = pattern
-        rows = [r for r in self._dr_log if r[0] == b and event_from_row(r[1]).t_s >= t_from]
+        rows = [r for r in self._dr_log if r[0] == b and StepEvent.from_row(r[1]).t_s >= t_from]
         if not rows:
             return []
-        strides = [event_from_row(r[1]) for r in rows]
+        strides = [StepEvent.from_row(r[1]) for r in rows]
         d_new = [max(gait.step_length(e, b)[0], 0.0) for e in strides]
         periods = [e.period_s for e in strides]
         per = float(np.median(periods))
@@ -1053,7 +1054,7 @@ class Engine:
         self._pos = self._pos + delta
         self._offset = self._offset + delta
         first = strides[0]
-        before = [t for t in (event_from_row(r[1]).t_s for r in self._dr_log) if t < first.t_s]
+        before = [t for t in (StepEvent.from_row(r[1]).t_s for r in self._dr_log) if t < first.t_s]
         start = before[-1] if before else first.t_s - first.period_s  # onset of the stride before the first
         self._dr_log = [r for r in self._dr_log if r not in rows]
         return [Event(t_ns, "strides_corrected", {"behaviour": b, "cause": "walking_pattern", "n_strides": len(rows),

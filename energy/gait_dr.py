@@ -29,7 +29,7 @@ from models.step_length import FORM, StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
 from models.zupt_nav import Stance
 
-__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S", "event_from_row", "event_row", "model_behaviour"]
+__all__ = ["GaitPipeline", "PAIR_TOL_S", "SEGMENTER_LATENCY_S", "model_behaviour"]
 
 PAIR_TOL_S = 0.3  # a step event and a ZUPT-KF stance onset closer than this [s] are the same stance
 SEGMENTER_LATENCY_S = 1.5  # bound on (input time when a step event is emitted) - (its onset) [s]; tested
@@ -56,16 +56,6 @@ _HELD_MAX = 48  # Gait-DR stances kept while the compass does not lead (GaitPipe
 RUN_WAKE_MARGIN = 1.4
 _PEAK_STRIDES = 16  # walking strides whose largest peak sets the run-wake threshold
 _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
-
-
-def event_row(e: StepEvent) -> list[float]:
-    """A step event as plain numbers (engine state): :meth:`models.steps.StepEvent.to_row`."""
-    return e.to_row()
-
-
-def event_from_row(q: list[float]) -> StepEvent:
-    """Inverse of :func:`event_row`."""
-    return StepEvent.from_row(q)
 
 
 def model_behaviour(label: str) -> str:
@@ -946,7 +936,7 @@ class GaitPipeline:
             "kf2": {b: k.get_state() for b, k in self.kf2.items()},
             "mag": self.mag.get_state(),
             "dr": None if self.dr is None else self.dr.get_state(),
-            "queue": [event_row(e) for e in self.queue],
+            "queue": [e.to_row() for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
@@ -975,7 +965,7 @@ class GaitPipeline:
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
-        obj.queue = [event_from_row(q) for q in d["queue"]]
+        obj.queue = [StepEvent.from_row(q) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
         # states stored before the tilt was taken from the field's own samples: no specific force kept (NaN rows,

@@ -650,12 +650,6 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def _yaw(x):
-    C = quat_dcm_s(x[0:4])
-    return math.atan2(C[1, 0], C[0, 0])
-
-
-@njit(cache=True)
 def _hdr_new_segment(x, fs, psi, turn):
     """End the straight segment; the stride of chord direction ``psi`` [rad] starts the next. With ``turn``
     [rad] (the foot turned on two strides running) the pull of the turn's first strides is taken back: the
@@ -668,7 +662,7 @@ def _hdr_new_segment(x, fs, psi, turn):
         c = -fs[_F_HCORR]
         x[0:4] = quat_mul_s(np.array([math.cos(c / 2), 0.0, 0.0, math.sin(c / 2)]), x[0:4].copy())
         x[13:16] = fs[_F_HBG : _F_HBG + 3]
-        fs[_F_HLAST] = _yaw(x)
+        fs[_F_HLAST] = _heading_of(x)
     fs[_F_HCORR] = 0.0
 
 
@@ -686,7 +680,7 @@ def _hdr(x, P, dx, fs, par):
     the pull's own corrections (what the gyroscope turned). One stance's foot yaw strays far (gdin, straight
     strides: median 2.6 deg, p95 19 deg from the segment's), two running beyond 10 deg never did there.
     """
-    h = _yaw(x)
+    h = _heading_of(x)
     if fs[_F_HOK] > 0:
         fs[_F_HFREE] = fs[_F_HFREE] + _wrap(h - fs[_F_HLAST])
     else:
@@ -733,7 +727,7 @@ def _hdr(x, P, dx, fs, par):
             hr = _heading_row(C)
             if _update_scalar(P, dx, hr, -d, par[_HDRS] ** 2, 0.0):
                 _apply_correction(x, dx)
-                h2 = _yaw(x)
+                h2 = _heading_of(x)
                 if turn * d > 0 and abs(d) >= 0.25 * abs(turn):
                     # the chord went the way the foot turned, as a turning stride's does (half-way through its
                     # turn): a pull a turn may take back
@@ -1186,7 +1180,7 @@ def run_kernel(t, acc, gyr, mag, i0, final, x, P, fs, ist, par, o_pos, o_vel, o_
                     # disturbance test: magnitude (002 eq. 4-5, 000 eq. 68) and inclination
                     if abs(mag_m - ref_m) < par[_DMAG] and abs(dinc) < par[_DINC] and mh > 1.0:
                         zpsi = math.atan2(fs[24], fs[23]) - math.atan2(mE, mN)
-                        zpsi = (zpsi + math.pi) % (2 * math.pi) - math.pi
+                        zpsi = _wrap(zpsi)
                         Cc = quat_dcm_s(x[0:4])
                         h = _heading_row(Cc)
                         if _update_scalar(P, dx, h, zpsi, par[_RMAG] ** 2, par[_MGATE]):

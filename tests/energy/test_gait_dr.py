@@ -110,7 +110,7 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
     cadence of the latest measured walking strides instead, as does one after a rest; measured strides, and a
     paused one of a behaviour without measured strides, keep their own. The cadences survive the state round
     trip and the event rows keep the marks."""
-    from energy.gait_dr import event_from_row, event_row
+    from models.steps import StepEvent
 
     gp = GaitPipeline(25.0)
     for k in range(6):
@@ -128,7 +128,7 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
     back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
     assert back.features(paused, "walk") == gp.features(paused, "walk")
     for ev in (paused, run_pace, dataclasses.replace(run_pace, after_rest=True)):
-        assert event_from_row(event_row(ev)) == ev
+        assert StepEvent.from_row(ev.to_row()) == ev
     old = gp.get_state()
     del old["recent_f"]  # a state stored before the cadences were kept: none
     assert GaitPipeline.from_state(old).features(paused, "walk").f_s == paused.f_s
