@@ -608,8 +608,12 @@ def _k_parted(end0, q0, i_end0, emax0, t_on, i1, sw, bm, b0, pf):
 
 
 @njit(cache=True)
-def _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
-    """Score a candidate and run the non-maximum suppression (returns the new event count)."""
+def _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev, i_now):
+    """Score a candidate and run the non-maximum suppression (returns the new event count).
+
+    ``i_now`` is the newest sample index processed: the look-ahead reads no sample after it (a candidate decided by
+    the latency bound before its look-ahead completed read the rest of the chunk, so the events depended on where
+    the stream was cut)."""
     b0 = ist[1]
     i1 = int(c[0])
     i2 = int(c[1])
@@ -617,7 +621,7 @@ def _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     t_on = _k_t(bt, b0, i1 - w1)
     t_end = _k_t(bt, b0, i2 - w1)
     pre = _k_emax(bm, b0, i1 - pi[1], i1)  # heel strike before a stance
-    post = _k_emax(bm, b0, i2, i2 + pi[1])  # push-off after it (or the next heel strike after a pause)
+    post = _k_emax(bm, b0, i2, min(i2 + pi[1], i_now))  # push-off after it (or the next heel strike after a pause)
     lvl = _k_emax(bm, b0, i1 - pi[2], i1)  # recent step energy
     q = c[2]
     if q > max(pf[0], pf[7] * lvl):
@@ -704,7 +708,7 @@ def _k_try_confirm(t_cur_on, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, 
 
 
 @njit(cache=True)
-def _k_force(t_now, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
+def _k_force(t_now, i_now, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
     """Latency bound reached for the pending candidate: decide its competitors on what is available."""
     w1 = pi[0] - 1
     b0 = ist[1]
@@ -725,7 +729,7 @@ def _k_force(t_now, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev):
         ne += 1
         run[8] = 1.0
     for j in range(ne):
-        n_ev = _k_select(early[j], bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
+        n_ev = _k_select(early[j], bt, bm, pend, last, per, ist, pf, pi, ev, n_ev, i_now)
     if pend[0] > 0.0 and t_now - pend[1] >= pf[14]:
         n_ev = _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
     return n_ev
@@ -804,13 +808,13 @@ def _k_process(win, t_out, bt, bm, fs, run, aw, pend, last, per, ist, pf, pi, ev
             for j in range(1, ist[3]):
                 aw[j - 1, :] = aw[j, :]
             ist[3] -= 1
-            n_ev = _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
+            n_ev = _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev, i)
         if pend[0] > 0.0:
             t_on_cur = _k_t(bt, ist[1], i - w1)
             if i - w1 >= ist[1] and t_on_cur >= pend[10]:
                 n_ev = _k_try_confirm(t_on_cur, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
             if pend[0] > 0.0 and t_out[k] - pend[1] >= pf[14]:
-                n_ev = _k_force(t_out[k], run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
+                n_ev = _k_force(t_out[k], i, run, aw, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
     fs[0] = q1
     fs[1] = q2
     fs[2] = mux
@@ -828,7 +832,7 @@ def _k_finish(run, aw, bt, bm, pend, last, per, ist, pf, pi, ev):
         _k_end_run(run, aw, pend, last, bt, ist, pi)
     for j in range(ist[3]):
         c = aw[j].copy()
-        n_ev = _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)
+        n_ev = _k_select(c, bt, bm, pend, last, per, ist, pf, pi, ev, n_ev, ist[0] - 1)
     ist[3] = 0
     if pend[0] > 0.0:
         n_ev = _k_confirm(bt, bm, pend, last, per, ist, pf, pi, ev, n_ev)

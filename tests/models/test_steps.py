@@ -176,6 +176,9 @@ _SEGMENTS = st.one_of(
 @example(rate=25.0, kinds=[("stride", 1.0, 1.0)] * 3 + [("stride", 1.5, 1.5)] * 2 + [("still", 25.0, 12.0),
                                                                                   ("still", 6.0, 6.0)],
          cuts=[], restore=False, seed=0)  # found by hypothesis: the buffer dropped the swing test's spike
+@example(rate=25.0, kinds=[("still", 18.5, 0.0), ("stride", 0.625, 0.625), ("still", 1.0, 12.0), ("stride", 0.75, 0.75)],
+         cuts=[], restore=False, seed=0)  # found by hypothesis: a candidate the latency bound decided read its
+# look-ahead from the rest of the chunk (the cut at 21.84 s, 0.2 s after its end, chose the other half of the stance)
 def test_collapsed_quiet_stretches_give_the_same_events(rate: float, kinds: list, cuts: list[float], restore: bool,
                                                         seed: int) -> None:
     """Stands of up to 25 s (collapsed after ~7 s) between strides, shuffles and one-sample spikes (the maximum
