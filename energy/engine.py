@@ -65,6 +65,7 @@ _HEADING_SIGMAS = 3.0  # a stored heading deviation fits a stride within this ma
 # deg walking, 7.9 deg running (synthetic demo and mixed days, seeds 0-5, new and returning: 2410 stance pairs,
 # RMS 1.0 / 1.8 deg), more than 3 sigma of its calibration residual (1-2 deg) allows
 _MISSED_TURN_MIN = math.radians(10.0)
+_FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance (0.25 s at 200 Hz)
 # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern): more than the detection window
 # (PATTERN_STRIDES) plus the strides placed until the ZUPT-KF takes over (2-6 on the synthetic mixed day: one long
 # upload and the hand-over stance)
@@ -554,11 +555,19 @@ class Engine:
                     self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
                     self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
             elif kind == "samples":
+                rest = None
+                if self._seg_first and len(op[1]) > _FIRST_SLICE:
+                    # until the hand-over stance has set the segment's turn (_set_yaw), the ZUPT-KF advances in
+                    # short slices so that it is set before the drift reduction's dominant-direction snap, three
+                    # strides on, whatever the upload length (the ZUPT-KF is chunk-invariant)
+                    k = _FIRST_SLICE
+                    rest = ("samples", op[1][k:], op[2][k:], op[3][k:], None if op[4] is None else op[4][k:])
+                    op = ("samples", op[1][:k], op[2][:k], op[3][:k], None if op[4] is None else op[4][:k])
                 out = nav.process(op[1], op[2], op[3], op[4])
                 self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
                 if len(out.t_s):
                     self._nav_t = float(out.t_s[-1])
-                self._ops[0:1] = self._nav_ops(out)
+                self._ops[0:1] = self._nav_ops(out) + ([rest] if rest is not None else [])
             elif kind == "end":
                 self._ops[0:1] = self._nav_ops(nav.flush()) + [("handover",)]
             elif kind == "trace":
@@ -712,6 +721,13 @@ class Engine:
         self.trace.append(self._ns_many(t), p, self._labels.at_many(t),
                           np.full(len(t), "zupt"), np.ones(len(t), dtype=bool))
 
+    def _set_yaw(self, yaw: float) -> None:
+        """Turn this segment's ZUPT-KF frame to the session frame by ``yaw`` [rad] from now on, and the ZUPT-KF's
+        dominant directions against it, so that they stay the session's (mixed day, seed 17: a segment turned by
+        a missed 13-deg turn was snapped back by 6 deg to a direction 13 deg off, its positions 0.8 m aside)."""
+        self._nav.turn_dominant(self._yaw - yaw)
+        self._yaw = yaw
+
     def _turn(self, p: np.ndarray, yaw: float | None = None) -> np.ndarray:
         """NED vectors [m] (last axis 3) of this segment's ZUPT-KF frame turned by ``_yaw`` (or ``yaw`` [rad])
         about the vertical."""
@@ -783,7 +799,7 @@ class Engine:
                     events += self._take_missed_turn(t_ns)  # ... but its stance may tell of a turn missed before
                     gait.take_pair(st.t_start_s)
                 p = self._pos + lead
-                self._yaw = 0.0  # placed from its own samples from a still foot: no turn went unseen
+                self._set_yaw(0.0)  # placed from its own samples from a still foot: no turn went unseen
                 if st.t_start_s > self._rest_t + PAIR_TOL_S:
                     # the detector found no stance at that still foot (a slow, rolling first step: gdin exp37
                     # 6.0-6.4 s): it is placed by itself, and the ZUPT-KF's way from it to this stance is added
@@ -795,9 +811,9 @@ class Engine:
                 positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
                 events += sched.on_zupt_distance(d, t_ns)
                 return
-            self._yaw = 0.0
+            self._set_yaw(0.0)
             if gait is not None:
-                self._yaw = self._handover_yaw(st)
+                self._set_yaw(self._handover_yaw(st))
                 dr_steps = self._reckon(st.t_start_s + PAIR_TOL_S, positions, events) if gait.active else []
                 gait.take_pair(st.t_start_s)
             if self._pos is not None:
@@ -914,7 +930,7 @@ class Engine:
             return st
         self._compass_offsets = []
         p_seg = self._turn(st.position - self._offset, -self._yaw)
-        self._yaw = wrap_angle(self._yaw + mean)
+        self._set_yaw(wrap_angle(self._yaw + mean))
         self._offset = st.position - self._turn(p_seg)
         self._head = wrap_angle(float(st.heading) + mean)
         gait.follower.gyro_ref = None  # the heading it was tested against jumped

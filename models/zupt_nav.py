@@ -497,6 +497,19 @@ class ZuptNavigator:
         self._P[6, 6] = self._P[7, 7] = self.config.p0_tilt**2
         self._P[8, 8] = self.config.p0_yaw**2
 
+    def turn_dominant(self, delta_rad: float) -> None:
+        """Turn the building's dominant directions (``dom_on``) by ``delta_rad`` [rad] about the vertical.
+
+        For a host that turns this navigator's output into its own frame by an angle that changes (the energy
+        engine's ``_yaw``: a turn the gyroscope missed before a segment began): the snap keeps the host frame's
+        directions when the host's turn changes by ``-delta_rad``. Nothing happens before they are known.
+        """
+        if not math.isfinite(delta_rad):
+            raise ValueError("turn_dominant: delta_rad must be finite")
+        fsi = _k.FS
+        if self._fs[fsi["dom_valid"]] == 1.0:
+            self._fs[fsi["dom_ref"]] = math.remainder(float(self._fs[fsi["dom_ref"]]) + delta_rad, 2.0 * math.pi)
+
     def restart(self, position_ned: np.ndarray, heading_rad: float, acc_rest: np.ndarray | None = None) -> None:
         """Begin a new segment after a gap in the data (the gyroscope was off), at a stance.
 

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import scipy.io as sio
@@ -245,6 +247,40 @@ def test_dominant_directions_remove_turn_errors():
     assert closure[False] > 0.02
     assert closure[True] < 0.5 * closure[False]
     assert closure[True] < 0.01
+
+
+def _loop_turned(turn_deg: float, at_s: float) -> list:
+    """Stances of the square loop (8 strides a side) with the dominant directions turned by ``turn_deg`` at
+    ``at_s`` [s]."""
+    t, acc, gyr, _ = synthetic_loop(per_side=8)
+    k = int(np.searchsorted(t, at_s))
+    nav = ZuptNavigator(ZuptConfig())
+    first = nav.process(t[:k], acc[:k], gyr[:k])
+    nav.turn_dominant(math.radians(turn_deg))
+    return first.stances + nav.process(t[k:], acc[k:], gyr[k:]).stances + nav.flush().stances
+
+
+@pytest.mark.parametrize("turn_deg", [8.0, -8.0])
+def test_turned_dominant_directions_snap_the_later_sides_to_them(turn_deg: float) -> None:
+    """A host turning the navigator's frame (the engine's missed-turn yaw) turns the directions the snap keeps:
+    once the first side has set them, the later sides are snapped to them turned by ``turn_deg``."""
+    straight = _loop_turned(0.0, 9.0)
+    turned = _loop_turned(turn_deg, 9.0)
+    assert abs(math.degrees(straight[-1].heading)) < 2.0
+    assert math.degrees(turned[-1].heading) == pytest.approx(turn_deg, abs=2.0)
+
+
+@pytest.mark.parametrize("turn_deg, at_s", [(90.0, 9.0), (-180.0, 9.0), (8.0, 0.5)])
+def test_dominant_directions_turned_by_right_angles_or_before_they_are_known_change_nothing(turn_deg, at_s) -> None:
+    """They repeat every 90 deg; before the first straight side there are none to turn."""
+    ref, got = _loop_turned(0.0, at_s), _loop_turned(turn_deg, at_s)
+    assert len(got) == len(ref)
+    assert max(np.abs(a.position - b.position).max() for a, b in zip(ref, got)) < 1e-9
+
+
+def test_turn_dominant_refuses_a_non_finite_angle() -> None:
+    with pytest.raises(ValueError, match="delta_rad"):
+        ZuptNavigator().turn_dominant(float("nan"))
 
 
 @pytest.mark.parametrize("erosion_s", [0.011, 0.03])
