@@ -65,6 +65,13 @@ _HEADING_SIGMAS = 3.0  # a stored heading deviation fits a stride within this ma
 # deg walking, 7.9 deg running (synthetic demo and mixed days, seeds 0-5, new and returning: 2410 stance pairs,
 # RMS 1.0 / 1.8 deg), more than 3 sigma of its calibration residual (1-2 deg) allows
 _MISSED_TURN_MIN = math.radians(10.0)
+# ... and not when the gyroscope was on for at least this fraction of the hand-over stride (from Gait-DR's last stance
+# onset; a walk's swing is its last 35-50 %) and turned along the missed turn by less than this fraction of it: the
+# foot's turn is spread over its swing, so a gyroscope that saw most of the swing sees a good part of it (synthetic
+# days: the turns truly missed had 8-32 % of the stride watched, or 40-190 % of the missed turn seen; mixed day seed
+# 18, 3 s into steel: 40 % watched, -0.6 deg seen, +10.5 deg "missed" by the drifting field)
+_MISSED_WATCHED = 0.35
+_MISSED_ALONG = 0.25
 _FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance (0.25 s at 200 Hz)
 # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern): more than the detection window
 # (PATTERN_STRIDES) plus the strides placed until the ZUPT-KF takes over (2-6 on the synthetic mixed day: one long
@@ -769,7 +776,9 @@ class Engine:
         gyroscope since, :meth:`_restart_heading`): beyond 3 sigma of the compass and ``_MISSED_TURN_MIN`` the
         segment is turned by the difference (README demo, second walk: 22 deg of a turn before the gyroscope came on, final error
         9.43 m). Taken at the stance, not at the restart's first still samples, whose tilt (40 ms at heel
-        strike) moved the dip beyond the same-field test or the compass by 15 deg.
+        strike) moved the dip beyond the same-field test or the compass by 15 deg. Not where the gyroscope watched
+        the stride's swing and saw too little of such a turn (``_MISSED_WATCHED``, ``_MISSED_ALONG``): a field
+        drifting into steel turns the compass between two stances as a foot does.
         """
         gait = self._gait
         if gait is None or not gait.active or not math.isfinite(self._head):
@@ -778,7 +787,15 @@ class Engine:
         if seen is None:
             return 0.0
         missed = wrap_angle(self._head + seen[0] - float(st.heading))
-        return missed if abs(missed) > max(_HEADING_SIGMAS * seen[1], _MISSED_TURN_MIN) else 0.0
+        if not abs(missed) > max(_HEADING_SIGMAS * seen[1], _MISSED_TURN_MIN):
+            return 0.0
+        stride = st.t_start_s - self._step_s
+        watched = (st.t_start_s - self._seg_t) / stride if stride > 0.0 else 0.0
+        along = math.copysign(wrap_angle(float(st.heading) - self._head), missed)
+        if watched >= _MISSED_WATCHED and along < _MISSED_ALONG * abs(missed):
+            # the gyroscope watched the swing of the hand-over stride and saw no such turn: the field changed
+            return 0.0
+        return missed
 
     def _stance(self, st: Stance, positions: list[Position], events: list[Event]) -> None:
         """One ZUPT-KF stance, in data-time order."""
