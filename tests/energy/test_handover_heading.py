@@ -130,3 +130,18 @@ def test_a_segment_turned_by_a_missed_turn_keeps_the_building_directions() -> No
     err = _step_direction_errors_deg(rec, res, 168.0, 182.0)
     assert len(err) >= 10
     assert np.abs(err).max() < 3.0, np.round(err, 1)
+
+
+@pytest.mark.parametrize("merge", [4, 12])
+def test_a_turned_segment_snaps_alike_whatever_the_upload_length(merge: int) -> None:
+    """Mixed day, seed 17 (the segment above): the batches its device sent, re-fed merged ``merge`` at a time, give
+    the same positions, although the hand-over stance that sets the segment's turn now arrives in the same upload as
+    the strides whose drift reduction snaps to the turned directions."""
+    from clients.synth import IMU_ERRORS
+
+    sent = replayed_batches(synthesize("mixed-day", seed=17, errors=IMU_ERRORS["typical-part"]), EngineConfig(),
+                            batch_seconds=None)
+    whole = _positions(Engine(mode="auto"), sent)
+    merged = [SensorBatch.concat(sent[i : i + merge]) for i in range(0, len(sent), merge)]
+    other = _positions(Engine(mode="auto"), merged)
+    assert other.shape == whole.shape and np.abs(other[:, 1:] - whole[:, 1:]).max() <= 1e-9
