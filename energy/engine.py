@@ -165,6 +165,13 @@ class Trace:
         return self._cat(self._gyro, np.zeros(0, dtype=bool))
 
 
+def _samples_op(parts: tuple, sl: slice) -> tuple:
+    """A ``("samples", t, acc, gyr, mag)`` queue entry of the rows ``sl`` of ``parts = (t, acc, gyr, mag)``
+    (``mag`` may be None)."""
+    t, acc, gyr, mag = parts
+    return ("samples", t[sl], acc[sl], gyr[sl], None if mag is None else mag[sl])
+
+
 @njit(cache=True)
 def _zoh_pair(ts: np.ndarray, vs: np.ndarray, t_acc: np.ndarray, max_age_ns: int) -> tuple[np.ndarray, int]:
     """Causal zero-order hold of ``(ts, vs)`` at the increasing times ``t_acc`` [ns] in one merge pass: rows
@@ -560,16 +567,15 @@ class Engine:
                     self._lead_d = self._lead_displacement(acc_rest, heading)
                     nav.restart(nav.position, heading, acc_rest)
                     self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
-                    self._ops.insert(0, ("samples", pre[0][i:], pre[1][i:], pre[2][i:], None if pre[3] is None else pre[3][i:]))
+                    self._ops.insert(0, _samples_op(pre, slice(i, None)))
             elif kind == "samples":
                 rest = None
                 if self._seg_first and len(op[1]) > _FIRST_SLICE:
                     # until the hand-over stance has set the segment's turn (_set_yaw), the ZUPT-KF advances in
                     # short slices so that it is set before the drift reduction's dominant-direction snap, three
                     # strides on, whatever the upload length (the ZUPT-KF is chunk-invariant)
-                    k = _FIRST_SLICE
-                    rest = ("samples", op[1][k:], op[2][k:], op[3][k:], None if op[4] is None else op[4][k:])
-                    op = ("samples", op[1][:k], op[2][:k], op[3][:k], None if op[4] is None else op[4][:k])
+                    rest = _samples_op(op[1:], slice(_FIRST_SLICE, None))
+                    op = _samples_op(op[1:], slice(None, _FIRST_SLICE))
                 out = nav.process(op[1], op[2], op[3], op[4])
                 self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
                 if len(out.t_s):
