@@ -164,8 +164,8 @@ def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None
 
     kw: dict[str, Any] = {"pdr_conventional": bool(conventional)}
     if l0_m is not None:
-        kw["l0_m"] = float(l0_m)
-    config = EngineConfig(**kw)
+        kw["scheduler.l0_m"] = float(l0_m)
+    config = EngineConfig().override(kw)
     engine = Engine(mode=mode, config=config, profile=profile, trace=True)
     res = replay(engine, batch, batch_seconds=batch_seconds)
     tr = res.trace

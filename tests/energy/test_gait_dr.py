@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from energy.config import EngineConfig
 from energy.codec import dumps, loads
 from energy.gait_dr import GaitPipeline
 from models.step_length import StepFeatures
@@ -26,7 +27,7 @@ def _pair(k: int, heading: float, walk_dir: float, d: float = 1.3, period: float
 
 
 def test_kf2_skips_turning_strides() -> None:
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     dev = math.radians(5.0)
     k = 0
     for _ in range(12):  # straight north: walking direction = heading + 5 deg
@@ -51,7 +52,7 @@ def test_kf2_observes_the_heading_half_way_through_the_swing() -> None:
     """The foot's heading wobbles by 8 deg from stance to stance while the walk goes straight: each stride's chord
     lies half-way between the stance headings before and after its swing. Against the mid-swing heading every
     observation is the deviation itself; against the heel-strike heading they would alternate by +-4 deg."""
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     dev = math.radians(3.0)
     wobble = math.radians(8.0)
     devs = []
@@ -68,7 +69,7 @@ def test_kf2_observes_the_heading_half_way_through_the_swing() -> None:
 def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None:
     from models.step_length import StepFeatures, StepLengthCalibrator
 
-    gps = {c: GaitPipeline(25.0, conventional=c) for c in (False, True)}
+    gps = {c: GaitPipeline(EngineConfig().override({"pdr_conventional": c})) for c in (False, True)}
     for gp in gps.values():
         for k in range(12):  # a person with 1.6 m strides walking 20 deg off the sensor's x axis
             gp.learn(*_pair(k, 0.0, math.radians(20.0), d=1.6), "walk")
@@ -90,7 +91,7 @@ def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
     from models.step_length import StepLengthCalibrator
 
     generic = StepLengthCalibrator()
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     slow = [_pair(k, 0.0, 0.0, period=1.4) for k in range(6)]
     for st, e in slow:
         d = 1.2 * generic.predict("walk", StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min))[0]
@@ -112,7 +113,7 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
     trip and the event rows keep the marks."""
     from models.steps import StepEvent
 
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     for k in range(6):
         st, e = _pair(k, 0.0, 0.0, period=1.1 + 0.02 * k)  # walking strides of 1.10-1.20 s
         gp.learn(st, e, "walk")
@@ -136,7 +137,7 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
 
 def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> None:
     """A profile whose walking fit predates K3 on the mean acceleration is refitted from its pairs."""
-    src = GaitPipeline(25.0)
+    src = GaitPipeline(EngineConfig())
     for k in range(20):
         src.learn(*_pair(k, 0.0, 0.0, d=1.25 + 0.01 * (k % 3)), "walk")
     src.fit("walk")
@@ -145,7 +146,7 @@ def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> 
     del old["calibrator"]["form"]
     for v in old["calibrator"]["fits"].values():
         v["coef"][3] = -0.014  # a K3 fitted on the ~30 m/s^2 peak
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.load_calibration("walk", old, 0.0, 1e-4)
     e = _pair(30, 0.0, 0.0)[1]
     assert gp.step_length(e, "walk") == src.step_length(e, "walk")
@@ -191,7 +192,7 @@ def test_compass_from_a_profile_is_reanchored_to_this_sessions_frame() -> None:
     compass heading would be off by the difference of the two frames (here 40 deg)."""
     rng = np.random.default_rng(3)
     stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     assert not gp.mag_anchored
     gp.start(np.zeros(3), 0.3)  # this session's heading of the foot, which points at yaw 0.3
@@ -214,7 +215,7 @@ def test_loaded_compass_is_anchored_again_as_this_sessions_tilt_offset_is_learne
 
     rng = np.random.default_rng(31)
     stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     tilt = rotvec_to_dcm(np.radians([1.2, -0.8, 0.0]))  # body axes
@@ -253,7 +254,7 @@ def test_profile_compass_is_refitted_unless_the_latest_stances_pull_it_off(off_d
     from models.compass import MagCalibrator
 
     rng = np.random.default_rng(41)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.mag = _calibrated_compass(rng)
     gp._mag_fit_n = gp.mag.n_added  # the fit in use saw every stance so far
@@ -277,7 +278,7 @@ def test_a_loaded_compass_learns_its_tilt_offset_only_from_the_earths_field() ->
     settled stances, within 1.2 deg everywhere."""
     rng = np.random.default_rng(33)
     stored = _calibrated_compass(rng)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     h, n = math.hypot(M_N[0], M_N[1]), float(np.linalg.norm(M_N))
@@ -318,7 +319,7 @@ def test_compass_from_another_place_is_replaced_by_the_sessions_own_fit() -> Non
     rng = np.random.default_rng(21)
     stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
     assert stored.disturbed(*_field_stance(rng, 0.0, place=ELSEWHERE))  # the gate as loaded rejects this place
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     assert gp.own_mag is not None and not gp.mag_placed and not gp.mag_anchored
@@ -346,7 +347,7 @@ def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() 
     Gait-DR follows a turn with it; this session's stances wait in its own fit."""
     rng = np.random.default_rng(22)
     stored = _calibrated_compass(rng, frame_offset=math.radians(-60.0))
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     for k in range(3):
@@ -372,7 +373,7 @@ def test_trusted_loaded_compass_is_replaced_only_by_an_own_fit_that_agrees_bette
     good: here the loaded one stays."""
     rng = np.random.default_rng(seed)
     stored = _calibrated_compass(rng)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     yaws = rng.uniform(-math.pi, math.pi, 20)
@@ -390,7 +391,7 @@ def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round
     the loaded compass, the session's own fit and the place check."""
     rng = np.random.default_rng(23)
     stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
     _learn_one(gp, 0, 0.3, *_field_stance(rng, 0.3, place=ELSEWHERE))  # one ZUPT-KF stance: own fit, place check
@@ -412,7 +413,7 @@ def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round
 
 def test_disturbed_stances_stay_out_of_a_trusted_compass_calibration() -> None:
     rng = np.random.default_rng(5)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.mag = _calibrated_compass(rng)
     n = gp.mag.n_stances
@@ -502,7 +503,7 @@ def test_turning_stride_goes_half_way_with_a_trusted_compass() -> None:
     rng = np.random.default_rng(8)
     out = {}
     for trusted in (True, False):
-        gp = GaitPipeline(25.0)
+        gp = GaitPipeline(EngineConfig())
         gp.mag = _calibrated_compass(rng)
         if not trusted:
             gp.mag.max_heading_rms = 0.0  # same compass, declared untrusted
@@ -529,7 +530,7 @@ def test_stance_tilt_and_field_come_from_the_same_still_samples() -> None:
 
     rec = synthesize("walk", seed=2)
     b = rec.batch
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
     events, pitch_new, pitch_old, field_err, swings = [], [], [], [], []
     for lo in range(0, len(t), 400):  # 2-s batches at 200 Hz
