@@ -41,6 +41,7 @@ _SWING_SAMPLES = 8  # field samples kept per swing for the magnetometer calibrat
 _G0 = 9.80665  # standard gravity [m/s^2] (the step segmentation's quietness statistic)
 _BEHAVIOURS = ("walk", "run")
 _RECENT_CADENCES = 5  # measured strides of a behaviour whose median cadence a paused stride of it takes
+_SCALE_TIE = 1.25  # an own compass fit is as good as a profile's within this factor of its robust scale
 _REF_STANCES = 30  # this session's stance fields whose median is a loaded compass's reference field
 _PEAK_STRIDES = 16  # walking strides whose largest peak sets the run-wake threshold
 _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
@@ -374,11 +375,12 @@ class GaitPipeline:
     # ------------------------------------------------------------------ compass
     def compass(self) -> MagCalibrator | None:
         """The compass calibration in use: this session's own fit once it is ready and, against a profile's,
-        trusted and at least as consistent with the ZUPT-KF; else the profile's; None before either."""
+        trusted and as consistent with the ZUPT-KF (its robust scale within ``_SCALE_TIE`` of the profile's:
+        either scale, from a few tens of stances, is known to ~15 %); else the profile's; None before either."""
         own, loaded = self.mag, self.loaded
         if loaded is None or not loaded.ready:
             return own if own.ready else None
-        if own.ready and (not loaded.trusted or (own.trusted and own.heading_scale <= loaded.heading_scale)):
+        if own.ready and (not loaded.trusted or (own.trusted and own.heading_scale <= _SCALE_TIE * loaded.heading_scale)):
             return own
         return loaded
 
