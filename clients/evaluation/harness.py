@@ -11,8 +11,10 @@ DESIGN.md prescribes (the ground-control frame is mirrored).
 
 Definitions of this module (beyond DESIGN.md):
 
-- ``strides_detected`` = number of stance-to-stance intervals the engine reported =
-  ``len(positions) - 1`` (the first stance is the origin of the session, not a completed stride);
+- ``strides_detected`` = number of strides that moved among the stance-to-stance intervals the engine reported
+  (:func:`energy.strides.count_moved`: horizontal displacement between consecutive positions of at least
+  ``STRIDE_MIN_M``; a re-stance on the spot while standing is no stride; the first stance is the origin of the
+  session, not a completed stride); ``stances`` = the positions reported, re-stances included;
 - the estimate "at a sample" is the trace position of the last processed accelerometer sample at or before
   that time (sample-and-hold; before the first processed sample: the first one);
 - behaviour fractions are time-weighted over the processed samples (each sample stands for the interval to
@@ -48,6 +50,7 @@ from clients.importers._common import is_hidden
 from clients.importers.gdin import GdinEntry, find_gdin, load_gdin
 from clients.importers.vicon import load_vicon
 from clients.recording import Recording
+from energy.strides import count_moved
 from models.batch import SensorBatch
 
 __all__ = [
@@ -272,7 +275,8 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
                      "figures without truth only, left out of the summary")
         est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
         row0: dict[str, Any] = {
-            "name": rec.name, "distance_err_pct": None, "strides_detected": max(int(st.shape[0]) - 1, 0),
+            "name": rec.name, "distance_err_pct": None, "strides_detected": count_moved(st[:, 1:3]),
+            "stances": int(st.shape[0]),
             "strides_truth": None, "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
             "gt_usable": False, "format": rec.meta.source_format, "est_path_m": est_len, "truth_path_m": None,
             "notes": notes,
@@ -313,7 +317,8 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         plot.update(aligned_strides_xy=se.aligned_xy, angle_rad=se.angle_rad, gcp_xy=gcp[: n + 1])
     est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
     row["distance_err_pct"] = metrics.distance_error_pct(est_len, truth_len)
-    row["strides_detected"] = max(int(st.shape[0]) - 1, 0)
+    row["strides_detected"] = count_moved(st[:, 1:3])
+    row["stances"] = int(st.shape[0])
     row["strides_truth"] = int(n_truth) if n_truth is not None else int(len(x["gcp_m"]) - 1)
     row["gyro_on_fraction"] = run.gyro_on_fraction
     row["mean_rate_hz"] = run.mean_rate_hz
@@ -335,12 +340,14 @@ def evaluate_gaitmap_recording(rec: Recording, runner: Runner, mode: str = "zupt
     stride_length_errors`: strides of at least 0.3 m, distance over all of them); the engine's own stance times
     are not used (it reports a stance at its end, when the heel has already lifted by centimetres).
     ``climb_m``: height of the last reported stance above the first [m] (stairs: what the flight rose or,
-    negative, fell; there is no truth for it). ``strides_detected``: stance-to-stance intervals reported.
+    negative, fell; there is no truth for it). ``strides_detected``: strides that moved among the
+    stance-to-stance intervals reported (module docstring); ``stances``: positions reported.
     """
     run = runner(rec.batch, mode, None)
     st = run.stances
     has_truth = rec.truth is not None and "stance_t_ns" in rec.truth.extra
-    row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": max(int(st.shape[0]) - 1, 0),
+    row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": count_moved(st[:, 1:3]),
+                           "stances": int(st.shape[0]),
                            "climb_m": float(st[0, 3] - st[-1, 3]) if st.shape[0] >= 2 else 0.0,
                            "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
                            "truth": has_truth}
