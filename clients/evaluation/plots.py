@@ -123,7 +123,8 @@ def _short(name: str) -> str:
     return "-".join(parts[-3:]) if len(parts) == 6 else name
 
 
-_LOG_TICKS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.3, 1.5, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0)
+_FINE_TICKS = (0.1, 0.2, 0.3, 0.5, 0.7, 1.0, 1.3, 1.5, 2.0, 3.0, 5.0, 10.0)
+_DECADE_TICKS = tuple(m * 10.0**e for e in range(-3, 5) for m in (1.0, 2.0, 5.0))
 
 
 def _log_axis(ax: Any, which: str, lo: float, hi: float) -> None:
@@ -134,7 +135,8 @@ def _log_axis(ax: Any, which: str, lo: float, hi: float) -> None:
     getattr(ax, f"set_{which}scale")("log")
     getattr(ax, f"set_{which}lim")(lo, hi)
     axis = getattr(ax, f"{which}axis")
-    ticks = [t for t in _LOG_TICKS if lo <= t <= hi]
+    wide = hi / lo > 30.0  # more than a decade and a half: 1-2-5 ticks, else finer ones around 1
+    ticks = [t for t in (_DECADE_TICKS if wide else _FINE_TICKS) if lo <= t <= hi]
     axis.set_major_locator(FixedLocator(ticks))
     axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_locator(NullLocator())
@@ -156,7 +158,8 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
     xs: list[float] = [1.0]
     ys: list[float] = [1.0]
     for i, doc in enumerate(docs):
-        rows = doc.get("trials", doc.get("recordings")) or []
+        # the rows the document's summary is made of (gdin: usable ground truth only)
+        rows = [r for r in doc.get("trials", doc.get("recordings")) or [] if r.get("gt_usable", True)]
         pts = [(float(r["energy_ratio"]), float(r["accuracy_ratio"]), str(r["name"])) for r in rows
                if r.get("energy_ratio") is not None and r.get("accuracy_ratio") is not None]
         missing = sum(1 for r in rows if r.get("energy_ratio") is not None and r.get("accuracy_ratio") is None)
@@ -171,11 +174,18 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
                  f"{' [' + metric + ']' if metric else ''}{f'; {missing} without accuracy truth' if missing else ''}")
         ax.scatter(x, y, s=28, marker=mk, color=c, alpha=0.8, label=label, zorder=3)
         ax.scatter([np.median(x)], [np.median(y)], s=220, marker=mk, facecolors="none", edgecolors=c, lw=2.0, zorder=4)
-        # every point named in a small series; in a large one the five least accurate
+        # every point named in a small series, in a large one the five least accurate, but not those at the
+        # baseline's star (within 5 % of it on both axes); points that coincide (within 2 %) share one label
         named = range(len(pts)) if len(pts) <= 30 else np.argsort(-y)[:5]
+        spots: dict[tuple[int, int], list[int]] = {}
         for k in named:
-            ax.annotate(_short(pts[k][2]), (x[k], y[k]), xytext=(4, 3), textcoords="offset points", fontsize=7,
-                        color=c)
+            if abs(np.log(x[k])) < 0.05 and abs(np.log(y[k])) < 0.05:
+                continue
+            spots.setdefault((round(50 * np.log(x[k])), round(50 * np.log(y[k]))), []).append(int(k))
+        for ks in spots.values():
+            names = [_short(pts[k][2]) for k in ks]
+            text = ", ".join(names) if len(names) <= 3 else f"{', '.join(names[:2])} +{len(names) - 2} more"
+            ax.annotate(text, (x[ks[0]], y[ks[0]]), xytext=(4, 3), textcoords="offset points", fontsize=7, color=c)
         xs += list(x)
         ys += list(y)
         n += len(pts)
@@ -191,7 +201,7 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
     for which, v in (("x", xs), ("y", ys)):
         _log_axis(ax, which, min(min(v), 0.7) / 1.3, max(max(v), 1.4) * 1.3)
     ax.set_xlabel("energy_ratio: device energy / always-on ZUPT-KF on the same recording (log)")
-    ax.set_ylabel("accuracy_ratio: dataset metric / ZUPT-KF's on the same recording (log; lower is better)")
+    ax.set_ylabel("accuracy_ratio: metric / ZUPT-KF's, same recording (log; lower is better)")
     ax.set_title("Energy against accuracy per recording and mode (hollow marker: median)", fontsize=10)
     ax.grid(True, which="both", alpha=0.25)
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), fontsize=8, frameon=False)
