@@ -84,16 +84,13 @@ class EnergyAccounting:
                              "or a path to a profile JSON)") from None
 
     def costs(self, mode: str) -> tuple[ComputeCosts, str]:
-        """Computation costs charged to an engine in ``mode`` and which table of the cost file they are."""
-        from energy.power import ComputeCosts
-
+        """Computation costs charged to an engine in ``mode`` (:meth:`energy.power.ComputeCosts.for_engine`; ``pdr``
+        without a table of its own: the ``auto`` engine's) and which table of the cost file they are."""
         cc = self.profile.compute
-        for table in (mode, "auto") if mode == "pdr" else (mode,):
-            own = cc.engines.get(table)
-            if own is not None:
-                return ComputeCosts(own.us_per_sample, own.us_per_step or cc.us_per_step, cc.measured,
-                                    own.us_per_batch), f"engines.{table}"
-        return cc, "top level (no engine table)"
+        table = "auto" if mode == "pdr" and mode not in cc.engines else mode
+        if table not in cc.engines:
+            return cc, "top level (no engine table)"
+        return cc.for_engine(table), f"engines.{table}"
 
     def report(self, timeline: Timeline, mode: str) -> EnergyReport:
         """Energy [mJ] of a replay of an engine in ``mode`` (:func:`energy.power.account`)."""
