@@ -102,11 +102,12 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if args.rate_hz is not None:
         rec = desampled(rec, args.rate_hz)
-    if len(rec.batch.gyr_t_ns) == 0:
-        # every engine mode starts on the ZUPT-KF, which integrates the gyroscope: without one the replay
-        # would end with no position at all and look like a success
-        print(f"error: {args.file}: the recording has no gyroscope samples; the engine needs a gyroscope to start "
-              "(record or export the gyroscope too)", file=sys.stderr)
+    from clients.recording import require_gyroscope
+
+    try:
+        require_gyroscope(rec, args.file)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     if args.server:
         token = args.token or os.environ.get("PEDNAV_TOKEN")
