@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "clients.commands.admin",
     "clients.commands.replay",
     "clients.commands.export",
+    "clients.commands.config",
 )
 
 

@@ -10,20 +10,23 @@ with :meth:`EngineConfig.override`, by dotted path: ``cfg.override({"scheduler.l
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from models.heading import HeadingConfig
 from models.zupt_nav import ZuptConfig
 
-__all__ = ["EngineConfig", "RatesConfig", "SchedulerConfig", "CompassConfig", "StepLengthConfig",
-           "DeviationConfig", "config_table"]
+__all__ = ["EngineConfig", "RatesConfig", "SegmentsConfig", "SchedulerConfig", "CompassConfig", "StepsConfig", "StepLengthConfig",
+           "DeviationConfig", "config_table", "config_markdown"]
 
 
-def _f(default: Any, unit: str, why: str, lo: float | None = 0.0, hi: float | None = None) -> Any:
-    """A configuration field: default, unit, rationale and its allowed closed range."""
-    return field(default=default, metadata={"unit": unit, "why": why, "lo": lo, "hi": hi})
+def _f(default: Any, unit: str, why: str, lo: float | None = 0.0, hi: float | None = None,
+       choices: tuple[Any, ...] | None = None) -> Any:
+    """A configuration field: default, unit, rationale and its allowed closed range (or choices)."""
+    return field(default=default, metadata={"unit": unit, "why": why, "lo": lo, "hi": hi, "choices": choices})
 
 
 def _validate(obj: Any) -> None:
@@ -31,6 +34,9 @@ def _validate(obj: Any) -> None:
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
+        choices = f.metadata.get("choices")
+        if choices is not None and v not in choices:
+            raise ValueError(f"{type(obj).__name__}.{f.name}: must be one of {choices}, got {v!r}")
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue
         name = f"{type(obj).__name__}.{f.name}"
@@ -62,6 +68,24 @@ class RatesConfig:
                                  "accelerometer sample (zero-order hold)", lo=0.001)
     stream_wait_s: float = _f(0.5, "s", "accelerometer samples wait this long for a lagging gyroscope or "
                               "magnetometer stream before they are paired for good", lo=0.0)
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+
+@dataclass(frozen=True)
+class SegmentsConfig:
+    """How runs of gyroscope samples become ZUPT-KF segments and where they restart."""
+
+    gyro_gap_s: float = _f(0.25, "s", "a longer gap in gyroscope samples ends a segment (the gyroscope was off)")
+    gyro_off_s: float = _f(0.075, "s", "... so does a shorter one with accelerometer rows inside it (below the "
+                           "80-ms turn-on time: a wake-on-motion device powered it down)")
+    rest_gyr_rad_s: float = _f(1.0, "rad/s", "a restarting segment waits for a still foot: |w| below this")
+    rest_acc_ms2: float = _f(1.5, "m/s^2", "... and ||a| - g| below this")
+    rest_s: float = _f(0.08, "s", "... for this long (40 ms let a quiet moment of a swing pass at 100 Hz: "
+                       "gdin exp37 resampled, 17.7 m stride error)", lo=0.005)
+    lead_max_s: float = _f(2.0, "s", "a segment the device started from a still foot integrates back to it "
+                           "over at most this")
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -127,6 +151,44 @@ class CompassConfig:
                                 "edges that pass the gate pull the field and the hard iron towards the steel",
                                 lo=0.0)
     settled_dip_tol_rad: float = _f(math.radians(3.0), "rad", "... and whose dip is within this", lo=0.0)
+    soft_iron_std: float = _f(0.1, "-", "ridge prior of the soft-iron elements")
+    hard_iron_std_ut: float = _f(100.0, "uT", "prior of the horizontal hard iron (parts carry tens of uT)")
+    vertical_hard_iron_std_ut: float = _f(10.0, "uT", "prior of the vertical hard iron, which level stances "
+                                          "cannot tell from the field's vertical part")
+    min_swing: int = _f(40, "samples", "swing field samples before they join the fit", lo=1)
+    alignment_std_rad: float = _f(math.radians(5.0), "rad", "prior of the magnetometer-accelerometer axis "
+                                  "misalignment")
+
+    def __post_init__(self) -> None:
+        _validate(self)
+
+
+@dataclass(frozen=True)
+class StepsConfig:
+    """Accelerometer-only step segmentation (:class:`models.steps.StepSegmenter`), run at ``pdr_rate_hz``."""
+
+    window_s: float = _f(0.12, "s", "trailing window of the quietness statistic (a stance lasts 0.1-0.4 s)")
+    stance_threshold: float = _f(1.5, "m/s^2", "a stretch is quiet below this statistic (sensor noise scale)")
+    swing_min: float = _f(5.0, "m/s^2", "a stance is a step only after |a| - g exceeded this since the last one")
+    refractory_frac: float = _f(0.6, "-", "candidates closer than this fraction of the stride period compete")
+    min_period_s: float = _f(0.35, "s", "shortest step period (a sprint's stride is ~0.5 s)")
+    max_period_s: float = _f(2.5, "s", "a longer gap means a rest preceded the step")
+    fir_cutoff_hz: float = _f(8.0, "Hz", "Hamming-window FIR low-pass of the features (004 Sec. 2.2)")
+    fir_length_s: float = _f(0.16, "s", "... and its length")
+    swing_frac: float = _f(0.45, "-", "a new stride needs this fraction of the period between stances")
+    min_swing_s: float = _f(0.25, "s", "... and at least this")
+    context_s: float = _f(0.3, "s", "look-back/look-ahead for the impacts around a candidate")
+    level_s: float = _f(1.5, "s", "look-back of the recent step energy")
+    rel_threshold: float = _f(0.35, "-", "candidates are quieter than this fraction of the step energy")
+    k_duration: float = _f(50.0, "m/s^2 per s", "score weight of a quiet stretch's duration")
+    duration_cap_s: float = _f(0.3, "s", "... which saturates here")
+    k_quiet: float = _f(2.0, "-", "score weight of the candidate's quietness")
+    period_min_s: float = _f(0.5, "s", "lower bound of the running stride-period estimate")
+    period_max_s: float = _f(1.5, "s", "upper bound of the running stride-period estimate")
+    default_period_s: float = _f(1.0, "s", "stride period assumed until three have been measured")
+    long_stance_s: float = _f(0.6, "s", "a quiet stretch longer than this (standing) is a candidate at once")
+    max_latency_s: float = _f(1.0, "s", "hard bound on a step event's delay behind its onset (chunk invariance "
+                              "is tested against it)", lo=0.1)
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -136,10 +198,17 @@ class CompassConfig:
 class StepLengthConfig:
     """Step-length models and their calibration (004 eq. 15, Table 3)."""
 
-    model: str = _f("eq15", "-", "004 eq. (15) for walking (K0..K3) and running (K4)", lo=None)
+    model: str = _f("eq15", "-", "004 eq. (15) for walking (K0..K3); others for comparison", lo=None,
+                    choices=("eq15", "eq15_run", "weinberg", "height_freq"))
+    run_model: str = _f("eq15", "-", "running strides: the walking form fitted on them (eq15) or 004's "
+                        "K4 cbrt(a) (eq15_run, which over-predicted gdin's slower runs by 23 %)", lo=None,
+                        choices=("eq15", "eq15_run"))
     min_pairs: int = _f(8, "strides", "ZUPT-KF strides before a model is fitted", lo=3)
-    band_hz: float = _f(0.2, "Hz", "cadence band width of the per-pace models", lo=0.01)
+    band_hz: float = _f(0.2, "Hz", "half-width of a walking-pattern cadence band (004: 0.2)", lo=0.01)
     sigma_floor_m: float = _f(0.03, "m", "smallest sigma_d of 004 Table 3 (ZUPT-KF stride noise)", lo=0.0)
+    band_prior_scale: float = _f(0.5, "-", "a band's model shrinks towards the pooled one with this times the "
+                                 "generic prior's spread", lo=0.0)
+    height_m: float = _f(1.75, "m", "user height for the height/frequency model", lo=0.5)
     min_stride_m: float = _f(0.3, "m", "shorter ZUPT-KF displacements are shuffles, not calibration strides")
     recent_strides: int = _f(8, "strides", "latest ZUPT-KF strides whose median places steps before a model "
                              "is fitted", lo=1)
@@ -153,6 +222,10 @@ class DeviationConfig:
     """KF II, the gait heading deviation (004 eq. 17-21)."""
 
     r_obs_rad: float = _f(math.radians(4.0), "rad", "per-stride spread of gamma - psi (R^II)", lo=1e-6)
+    q_rate: float = _f(1e-10, "rad^2/s^3", "process noise of the deviation rate (004 eq. 17, w1)")
+    q_dev: float = _f(1e-6, "rad^2/s", "process noise of the deviation (004 eq. 18, w2)")
+    p0_rate_rad_s: float = _f(math.radians(0.05), "rad/s", "initial std of the deviation rate")
+    gate_sigma: float = _f(4.0, "sigma", "observations beyond this are rejected (turn strides); 0 = no gate")
     turn_gate_rad: float = _f(math.radians(10.0), "rad", "strides turning more than this observe nothing "
                               "(eq. 20's chord mixes two directions)", lo=0.0)
     boot_updates: int = _f(3, "strides", "KF II updates before Gait-DR may place steps", lo=1)
@@ -167,7 +240,7 @@ class EngineConfig:
 
     Attributes
     ----------
-    rates, scheduler, compass, step_length, deviation
+    rates, segments, scheduler, compass, steps, step_length, deviation
         Sections above.
     zupt : ZuptConfig
         The ZUPT-aided Kalman filter and its stance detector.
@@ -178,8 +251,10 @@ class EngineConfig:
     """
 
     rates: RatesConfig = field(default_factory=RatesConfig)
+    segments: SegmentsConfig = field(default_factory=SegmentsConfig)
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
     compass: CompassConfig = field(default_factory=CompassConfig)
+    steps: StepsConfig = field(default_factory=StepsConfig)
     step_length: StepLengthConfig = field(default_factory=StepLengthConfig)
     deviation: DeviationConfig = field(default_factory=DeviationConfig)
     zupt: ZuptConfig = field(default_factory=ZuptConfig)
@@ -224,19 +299,50 @@ def _flatten(d: dict[str, Any], prefix: str, out: dict[str, Any]) -> None:
             out[f"{prefix}{k}"] = v
 
 
+def _docstring_fields(cls: type) -> dict[str, tuple[str, str]]:
+    """``{name: (unit, text)}`` from a NumPy-style "Attributes" section (units in square brackets)."""
+    out: dict[str, tuple[str, str]] = {}
+    doc = inspect.getdoc(cls) or ""
+    name = None
+    for line in doc.splitlines():
+        m = re.match(r"^(\w+) : ", line)
+        if m:
+            name = m.group(1)
+            out[name] = ("", "")
+        elif name and line.startswith("    "):
+            unit, text = out[name]
+            out[name] = (unit, (text + " " + line.strip()).strip())
+        elif not line.strip():
+            name = None
+    for k, (_, text) in out.items():
+        m = re.search(r"\[([^\]]+)\]", text)
+        out[k] = (m.group(1) if m else "-", text)
+    return out
+
+
 def config_table(config: EngineConfig | None = None) -> list[tuple[str, str, str, str]]:
-    """Rows ``(path, value, unit, rationale)`` of every field of the tree (for ``docs/engine.md``)."""
+    """Rows ``(path, value, unit, rationale)`` of every field of the tree (for ``docs/engine.md``): the
+    engine's sections from their fields' metadata, the models' configurations from their docstrings."""
     rows: list[tuple[str, str, str, str]] = []
 
     def walk(obj: Any, prefix: str) -> None:
+        doc = _docstring_fields(type(obj))
         for f in dataclasses.fields(obj):
             v = getattr(obj, f.name)
             if dataclasses.is_dataclass(v):
                 walk(v, f"{prefix}{f.name}.")
                 continue
-            unit = f.metadata.get("unit", "")
-            why = f.metadata.get("why", "")
-            rows.append((f"{prefix}{f.name}", repr(v), unit, why))
+            unit, why = f.metadata.get("unit"), f.metadata.get("why")
+            if unit is None:
+                unit, why = doc.get(f.name, ("", f"see {type(obj).__name__}"))
+            rows.append((f"{prefix}{f.name}", f"{v:.6g}" if isinstance(v, float) else repr(v), unit, why))
 
     walk(config or EngineConfig(), "")
     return rows
+
+
+def config_markdown(config: EngineConfig | None = None) -> str:
+    """The configuration table as Markdown."""
+    lines = ["| setting | value | unit | why |", "| --- | --- | --- | --- |"]
+    lines += [f"| `{p}` | {v} | {u} | {w} |" for p, v, u, w in config_table(config)]
+    return "\n".join(lines) + "\n"

@@ -43,14 +43,7 @@ __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-e
 EngineMode = Literal["zupt", "pdr", "auto"]
 _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
 _STATE_VERSION = 3
-_GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
-_GYRO_OFF_S = 0.075  # ... so does a shorter one with accelerometer rows inside it (below the 80-ms turn-on time)
-_GYRO_OFF_NS = int(_GYRO_OFF_S * 1e9)
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
-# A segment restarts the ZUPT-KF on a still foot: |w| below _REST_GYR [rad/s] and ||a| - g| below _REST_ACC
-# [m/s^2] for _REST_S [s] (40 ms let a quiet moment of a swing pass at 100 Hz; a stance is 0.1-0.4 s)
-_REST_GYR, _REST_ACC, _REST_S = 1.0, 1.5, 0.08
-_LEAD_MAX_S = 2.0  # a segment that starts on its own from a still foot integrates back to it over at most this [s]
 _FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance sets its turn
 _DR_LOG = 24  # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern)
 _PAUSE_PERIOD = 1.25  # ... a stride of it this much longer than its median holds a pause
@@ -385,7 +378,7 @@ class Engine:
         g_t = batch.gyr_t_ns
         self._sched.device_gyro_awake = bool(
             self._sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
-            and int(g_t[-1]) >= int(t_acc[-1]) - _GYRO_OFF_NS)
+            and int(g_t[-1]) >= int(t_acc[-1]) - int(self.config.segments.gyro_off_s * 1e9))
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")
         self._gyr.push(*batch.stream("gyr"))
@@ -448,7 +441,7 @@ class Engine:
             ts = t_s[idx]
             # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
             # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
-            # loses the accelerometer too and splits only beyond _GYRO_GAP_S. (np.diff with prepend, written
+            # loses the accelerometer too and splits only beyond gyro_gap_s. (np.diff with prepend, written
             # out: the same differences without its generic machinery)
             off = np.empty(len(idx), dtype=bool)
             off[0] = self._gyro_missing or idx[0] > 0
@@ -456,7 +449,8 @@ class Engine:
             dt = np.empty(len(ts))
             dt[0] = ts[0] - self._last_gyr_s
             np.subtract(ts[1:], ts[:-1], out=dt[1:])
-            gaps = np.flatnonzero((dt > _GYRO_GAP_S) | (off & (dt > _GYRO_OFF_S))).tolist()
+            sc = self.config.segments
+            gaps = np.flatnonzero((dt > sc.gyro_gap_s) | (off & (dt > sc.gyro_off_s))).tolist()
             for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
                     continue
@@ -472,7 +466,7 @@ class Engine:
             self._gyro_missing = bool(idx[-1] < len(t_s) - 1)
         elif len(t_s):
             self._gyro_missing = True
-        if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > _GYRO_GAP_S)):
+        if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > self.config.segments.gyro_gap_s)):
             self._ops.append(("end",))
             self._seg_open = False
         if self.trace is not None and np.any(~has):
@@ -608,7 +602,8 @@ class Engine:
             mm = m if m is not None else np.full((len(t), 3), np.nan)
             t, a, g = np.concatenate([p[0], t]), np.concatenate([p[1], a]), np.concatenate([p[2], g])
             m = np.concatenate([pm, mm]) if (p[3] is not None or op[4] is not None) else None
-        start, end = first_still_run(t, a, g, _REST_S, _REST_GYR, _REST_ACC)
+        sc = self.config.segments
+        start, end = first_still_run(t, a, g, sc.rest_s, sc.rest_gyr_rad_s, sc.rest_acc_ms2)
         if end >= 0:
             self._pre = (t, a, g, m)
             return start, end
@@ -618,11 +613,11 @@ class Engine:
         return None
 
     def _collect_lead(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray) -> None:
-        """Keep the samples of a self-started segment before its first still foot (up to ``_LEAD_MAX_S``)."""
+        """Keep the samples of a self-started segment before its first still foot (up to ``SegmentsConfig.lead_max_s``)."""
         if self._lead is None or not len(t):
             return
         lt, la, lg = self._lead
-        if len(lt) and float(t[-1]) - float(lt[0]) > _LEAD_MAX_S:
+        if len(lt) and float(t[-1]) - float(lt[0]) > self.config.segments.lead_max_s:
             self._lead = None  # no still foot soon after the wake: not a first stride, Gait-DR places the steps
             return
         self._lead = (np.concatenate([lt, t]), np.concatenate([la, acc]), np.concatenate([lg, gyr]))
@@ -638,7 +633,7 @@ class Engine:
         (the detector's period plus the turn-on time, about 0.1 s of heel-off) is not seen. A foot still from
         the first sample on (a gentle start, a turn on the spot that begins slowly) has none: zero (gaitmap-mag,
         6.7 s: taken for a host-started segment, Gait-DR had placed the first step 1.7 m off the ZUPT-KF's).
-        None where the segment did not start on its own or found no still foot within ``_LEAD_MAX_S``.
+        None where the segment did not start on its own or found no still foot within ``lead_max_s``.
         """
         lead, self._lead = self._lead, None
         if lead is None or not len(lead[0]):
@@ -646,7 +641,7 @@ class Engine:
         if len(lead[0]) == 1:
             return np.zeros(3)  # the still foot is the segment's first sample: the whole first stride is its own
         t, a, g = lead
-        if float(t[-1]) - float(t[0]) > _LEAD_MAX_S:
+        if float(t[-1]) - float(t[0]) > self.config.segments.lead_max_s:
             return None
         c = align_at_rest(acc_rest)
         rz = euler_to_dcm(0.0, 0.0, heading - float(dcm_heading(c)))  # levelled attitude turned to ``heading``

@@ -172,14 +172,12 @@ class GaitPipeline:
         self.config = config
         self.rate_hz = float(config.rates.pdr_rate_hz)
         self.conventional = bool(config.pdr_conventional)
-        sl, cc = config.step_length, config.compass
         self._low = _LowRate(self.rate_hz)
-        self._seg = StepSegmenter(self.rate_hz)
-        self.cal = StepLengthCalibrator(sl.model, band_hz=sl.band_hz, min_pairs=sl.min_pairs, sigma_floor=sl.sigma_floor_m)
-        self._generic = StepLengthCalibrator(self.cal.model)  # the generic prior model, never fitted
+        self._seg = self._new_segmenter()
+        self.cal = self._new_calibrator()
+        self._generic = self._new_calibrator()  # the generic prior model, never fitted
         self.kf2 = {b: self._new_kf2() for b in _BEHAVIOURS}
-        self.mag = MagCalibrator(cc.soft_iron, cc.min_stances, cc.min_heading_spread_rad, cc.mag_tol, cc.dip_tol_rad,
-                                 max_heading_rms=cc.max_heading_rms_rad)  # this session's own compass fit
+        self.mag = self._new_compass()  # this session's own compass fit
         self.loaded: MagCalibrator | None = None  # a profile's compass, used until the own fit is as good
         self.in_use = ""  # which compass the estimator's offset refers to: "", "own" or "loaded"
         self.est = HeadingEstimator(config.heading)
@@ -210,7 +208,28 @@ class GaitPipeline:
         self.dominant: float | None = None  # the building's dominant direction in the session frame [rad]
 
     def _new_kf2(self) -> HeadingDeviationKF:
-        return HeadingDeviationKF(r_obs=self.config.deviation.r_obs_rad)
+        d = self.config.deviation
+        return HeadingDeviationKF(q_rate=d.q_rate, q_dev=d.q_dev, r_obs=d.r_obs_rad, p0_rate=d.p0_rate_rad_s,
+                                  gate_sigma=d.gate_sigma)
+
+    def _new_segmenter(self) -> StepSegmenter:
+        s = self.config.steps
+        return StepSegmenter(self.rate_hz, s.window_s, s.stance_threshold, s.swing_min, s.refractory_frac,
+                             s.min_period_s, s.max_period_s, s.fir_cutoff_hz, s.fir_length_s, s.swing_frac,
+                             s.min_swing_s, s.context_s, s.level_s, s.rel_threshold, s.k_duration, s.duration_cap_s,
+                             s.k_quiet, s.period_min_s, s.period_max_s, s.default_period_s, s.long_stance_s,
+                             s.max_latency_s)
+
+    def _new_calibrator(self) -> StepLengthCalibrator:
+        s = self.config.step_length
+        return StepLengthCalibrator(s.model, s.band_hz, s.min_pairs, s.height_m, s.sigma_floor_m, s.band_prior_scale,
+                                    s.run_model)
+
+    def _new_compass(self) -> MagCalibrator:
+        c = self.config.compass
+        return MagCalibrator(c.soft_iron, c.min_stances, c.min_heading_spread_rad, c.mag_tol, c.dip_tol_rad,
+                             c.soft_iron_std, c.hard_iron_std_ut, c.vertical_hard_iron_std_ut, c.max_heading_rms_rad,
+                             c.min_swing, c.alignment_std_rad)
 
     # ------------------------------------------------------------------ streams
     def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
@@ -715,7 +734,7 @@ class GaitPipeline:
         obj._low = _LowRate.from_state(d["low"])
         obj._seg = StepSegmenter.from_state(d["seg"])
         obj.cal = StepLengthCalibrator.from_state(d["cal"])
-        obj._generic = StepLengthCalibrator(obj.cal.model)
+        obj._generic = obj._new_calibrator()
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
         obj.loaded = None if d["loaded"] is None else MagCalibrator.from_state(d["loaded"])

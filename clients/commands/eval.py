@@ -135,12 +135,33 @@ def _print_energy(doc: dict[str, Any], rows: list[dict[str, Any]], width: int) -
         print(f"  {k:<18} median {_fmt(s[k]['median'], '7.3f')}  worst {_fmt(s[k]['worst'], '7.3f')}  n={s[k]['n']}")
 
 
-def _runner(batch_seconds: float, conventional: bool = False) -> Any:
+def _settings(items: list[str] | None) -> dict[str, Any]:
+    """``--set section.field=value`` options as an :meth:`energy.config.EngineConfig.override` mapping (values
+    parsed as JSON where they are, e.g. numbers and booleans; strings otherwise)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"pednav eval: --set {item!r}: expected SECTION.FIELD=VALUE, e.g. scheduler.cross_track_pct=10")
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def _runner(batch_seconds: float | None, conventional: bool = False, settings: dict[str, Any] | None = None) -> Any:
     from clients.evaluation.harness import run_engine
+    from energy.config import EngineConfig
+
+    try:
+        EngineConfig().override(settings or {})  # a bad setting is refused here, by name, before any replay
+    except (ValueError, TypeError) as exc:
+        raise SystemExit(f"pednav eval: --set: {exc}") from None
 
     def run(batch: Any, mode: str, l0_m: float | None, profile: dict[str, Any] | None = None) -> Any:
         return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds, conventional=conventional,
-                          profile=profile)
+                          profile=profile, settings=settings)
 
     return run
 
@@ -203,7 +224,7 @@ def _run_vicon(args: argparse.Namespace) -> int:
     files = harness.select(harness.vicon_files(directory), lambda f: f.stem, args.match, args.limit)
     if not files:
         _nothing_found("vicon", directory, args.match)
-    runner = _runner(args.batch_seconds)
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_vicon
 
     def evaluate(f: Path) -> Any:
@@ -253,7 +274,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
     if not entries:
         _nothing_found("gdin", directory, args.match)
-    runner = _runner(args.batch_seconds, args.conventional)
+    runner = _runner(_batch(args), args.conventional, _settings(getattr(args, "set", None)))
     rows: list[dict[str, Any]] = []
     failed = 0
     recs: dict[str, Any] = {}  # returning-user protocol: the recordings, kept for the profile sessions
@@ -424,7 +445,7 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
                            args.limit)
     if not items:
         _nothing_found("gaitmap", directory, args.match)
-    runner = _runner(args.batch_seconds)
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_gaitmap
 
     def evaluate(it: tuple[Path, str]) -> Any:
@@ -463,7 +484,7 @@ def _run_recordings(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(exc, file=sys.stderr)
         return 2
-    runner = _runner(args.batch_seconds)
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     rows: list[dict[str, Any]] = []
     for f in _progress(candidates(directory), f"recordings {args.mode}"):
         name = str(f.relative_to(directory))
@@ -536,6 +557,16 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
     p.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
     p.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    p.add_argument("--device-batching", action="store_true",
+                   help="upload as long as the engine asks (SensorConfig.batch_s, as a device would) instead of "
+                        "--batch-seconds")
+    p.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
+                   help="change one engine setting (repeatable), e.g. scheduler.cross_track_pct=10; "
+                        "`pednav config` lists them")
+
+
+def _batch(args: argparse.Namespace) -> float | None:
+    return None if getattr(args, "device_batching", False) else args.batch_seconds
 
 
 def _energy_options(p: argparse.ArgumentParser, modes: tuple[str, ...] = ("zupt", "pdr", "auto"),
@@ -579,6 +610,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--plot", metavar="OUT_DIR", default=None,
                     help="write a mode/gyroscope/behaviour timeline PNG per recording")
     pr.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pr.add_argument("--device-batching", action="store_true", help="upload as long as the engine asks")
+    pr.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
+                    help="change one engine setting (repeatable)")
     _energy_options(pr, ("auto", "pdr"), "auto")
     pr.set_defaults(func=_run_recordings)
     pp = esub.add_parser("plot", help="energy against accuracy per recording and mode, from saved --json documents "

@@ -171,16 +171,18 @@ class Runner(Protocol):
     def __call__(self, batch: SensorBatch, mode: str, l0_m: float | None) -> EngineRun: ...
 
 
-def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float = 1.0,
-               conventional: bool = False, profile: dict[str, Any] | None = None) -> EngineRun:
+def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float | None = 1.0,
+               conventional: bool = False, profile: dict[str, Any] | None = None,
+               settings: dict[str, Any] | None = None) -> EngineRun:
     """Replay ``batch`` through a fresh engine (``trace=True``) in ``mode``; ``l0_m`` sets ``EngineConfig.l0_m``,
     ``conventional`` the conventional-PDR baseline (``EngineConfig.pdr_conventional``), ``profile`` the per-user
-    calibration profile it starts with (None: a new user)."""
+    calibration profile it starts with (None: a new user), ``settings`` further engine settings by dotted path
+    (:meth:`energy.config.EngineConfig.override`); ``batch_seconds`` None uploads as the engine asks."""
     from energy.device import replay  # lazy: keeps `pednav --help` fast
     from energy.engine import Engine, EngineConfig
     from energy.power import Timeline
 
-    kw: dict[str, Any] = {"pdr_conventional": bool(conventional)}
+    kw: dict[str, Any] = {"pdr_conventional": bool(conventional), **(settings or {})}
     if l0_m is not None:
         kw["scheduler.l0_m"] = float(l0_m)
     config = EngineConfig().override(kw)
