@@ -20,9 +20,45 @@ from server.ingest import EngineHost, IngestConflict, StorageBusy
 from server.settings import Settings
 from server.upload import Uploader
 
-__all__ = ["create_app", "BodyLimit"]
+__all__ = ["create_app", "BodyLimit", "AccessLog"]
 
 _log = logging.getLogger("pednav.server")
+_access = logging.getLogger("pednav.access")
+
+
+class AccessLog:
+    """Pure ASGI middleware: one structured line (JSON) per request on the ``pednav.access`` logger at INFO:
+    method, path, status, duration [ms], response bytes, client. The query string is left out (the Sensor Logger
+    push carries its token there); uvicorn's own access log is off for the same reason (``pednav serve``)."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or not _access.isEnabledFor(logging.INFO):
+            await self.app(scope, receive, send)
+            return
+        import json
+        import time
+
+        t0 = time.perf_counter()
+        state = {"status": 500, "bytes": 0}
+
+        async def sent(msg: Any) -> None:
+            if msg["type"] == "http.response.start":
+                state["status"] = msg["status"]
+            elif msg["type"] == "http.response.body":
+                state["bytes"] += len(msg.get("body", b""))
+            await send(msg)
+
+        try:
+            await self.app(scope, receive, sent)
+        finally:
+            client = scope.get("client")
+            _access.info(json.dumps({
+                "method": scope.get("method"), "path": scope.get("path"), "status": state["status"],
+                "ms": round((time.perf_counter() - t0) * 1000, 2), "bytes": state["bytes"],
+                "client": f"{client[0]}:{client[1]}" if client else None}, separators=(",", ":")))
 
 
 class BodyLimit:
@@ -109,6 +145,15 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
 
     app.add_middleware(batches.UploadFastPath, fastapi_app=app)  # inside BodyLimit (declared sizes first)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    origins = settings.cors_origin_list()
+    if origins:  # off by default: the viewer at /app is served by this app (same origin)
+        from fastapi.middleware.cors import CORSMiddleware
+
+        app.add_middleware(CORSMiddleware, allow_origins=origins, allow_methods=["*"],
+                           allow_headers=["Authorization", "Content-Type"], expose_headers=["Retry-After"],
+                           allow_credentials=False, max_age=600)
+    if settings.log_requests:
+        app.add_middleware(AccessLog)
 
     @app.exception_handler(BatchError)
     async def _batch_error(_request: Request, exc: BatchError) -> JSONResponse:
