@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from clients.commands.energy import check_scenario
+
 __all__ = ["register", "run_demo", "LocalServer"]
 
 
@@ -263,6 +265,7 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_scenario(args.scenario)
     plot = Path(args.plot).resolve()
     with tempfile.TemporaryDirectory(prefix="pednav-demo-") as tmp:
         workdir = Path(args.dir).resolve() if args.dir else Path(tmp)
