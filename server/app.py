@@ -20,10 +20,24 @@ from server.ingest import EngineHost, IngestConflict, StorageBusy
 from server.settings import Settings
 from server.upload import Uploader
 
-__all__ = ["create_app", "BodyLimit", "AccessLog"]
+__all__ = ["create_app", "BodyLimit", "AccessLog", "configure_logging"]
 
 _log = logging.getLogger("pednav.server")
 _access = logging.getLogger("pednav.access")
+
+
+def configure_logging(level: str) -> None:
+    """Send the ``pednav`` loggers (``pednav.access``: one JSON line per request) to stderr at ``level``."""
+    import sys
+
+    lg = logging.getLogger("pednav")
+    lg.setLevel(level.upper())
+    if not any(getattr(h, "_pednav", False) for h in lg.handlers):
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        h._pednav = True  # type: ignore[attr-defined]
+        lg.addHandler(h)
+        lg.propagate = False
 
 
 class AccessLog:
@@ -114,7 +128,12 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        import asyncio
+
+        closer = asyncio.create_task(_close_idle_loop(app)) if settings.sensorlogger_idle_close_s > 0 else None
         yield
+        if closer is not None:
+            closer.cancel()
         # stop the engine helper processes with the server (they are spawned again if the app is reused)
         if app.state.host.pool is not None:
             app.state.host.pool.shutdown()
@@ -207,13 +226,36 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     return app
 
 
+async def _close_idle_loop(app: FastAPI) -> None:
+    """Close idle Sensor Logger sessions every quarter of the idle time (at most every 30 s), in a worker thread."""
+    import asyncio
+
+    from starlette.concurrency import run_in_threadpool
+
+    from server.routers.sensorlogger import close_idle_sessions
+
+    s = app.state.settings
+    period = min(max(s.sensorlogger_idle_close_s / 4, 1.0), 30.0)
+    while True:
+        await asyncio.sleep(period)
+        try:
+            closed = await run_in_threadpool(close_idle_sessions, app.state.sessionmaker, app.state.host, s)
+            if closed:
+                _log.info("closed idle Sensor Logger sessions %s", closed)
+        except Exception:  # noqa: BLE001 - a failed round is logged; the next one tries again
+            _log.exception("closing idle Sensor Logger sessions failed")
+
+
 def app_from_env() -> FastAPI:
     """Factory for ``uvicorn --factory server.app:app_from_env`` (settings from ``PEDNAV_*``).
 
     The objects alive after start-up (modules, the app, the ORM) are moved out of the garbage collector's
     reach: a full collection over them took about 100 ms with the GIL held, a stall of every request."""
     import gc
+    import os
 
+    if os.environ.get("PEDNAV_LOG_LEVEL"):  # set by `pednav serve --log-level` for every worker
+        configure_logging(os.environ["PEDNAV_LOG_LEVEL"])
     app = create_app(Settings())
     gc.collect()
     gc.freeze()
