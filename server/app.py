@@ -122,7 +122,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     engine_cls : type, optional
         Navigation engine class (default :class:`energy.engine.Engine`); lets an operator run a newer engine.
     """
-    from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, trajectories, users
+    from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, timelines, trajectories, users
 
     settings = settings or Settings()
 
@@ -216,14 +216,44 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         return JSONResponse(status_code=422, content={"detail": msg, "field": fields[0] if fields else None, "errors": [
             {"field": f, "problem": p} for f, p in zip(fields, problems)]})
 
-    for r in (auth, users, devices, sessions, batches, profiles, trajectories, sensorlogger):
+    for r in (auth, users, devices, sessions, batches, profiles, trajectories, timelines, sensorlogger):
         app.include_router(r.router, prefix="/v1")
+
+    _mount_viewer(app, settings)
 
     @app.get("/healthz", tags=["meta"])
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
     return app
+
+
+def _mount_viewer(app: FastAPI, settings: Settings) -> None:
+    """The web viewer at ``/app/`` (plain HTML/JS/CSS from ``server/static``, Leaflet vendored; no build step)."""
+    from pathlib import Path
+    from urllib.parse import urlsplit
+
+    from fastapi.responses import FileResponse, RedirectResponse
+    from fastapi.staticfiles import StaticFiles
+
+    static = Path(__file__).resolve().parent / "static"
+    tiles = urlsplit(settings.map_tile_url)
+    tile_origin = f" {tiles.scheme}://{tiles.netloc}" if tiles.scheme in ("http", "https") else ""
+    csp = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+           f"img-src 'self' data:{tile_origin}; connect-src 'self'; frame-ancestors 'none'")
+    app.mount("/app/static", StaticFiles(directory=static), name="viewer-static")
+
+    @app.get("/app", include_in_schema=False)
+    def viewer_redirect() -> RedirectResponse:
+        return RedirectResponse("/app/")
+
+    @app.get("/app/", include_in_schema=False)
+    def viewer() -> FileResponse:
+        return FileResponse(static / "index.html", headers={"Content-Security-Policy": csp, "Cache-Control": "no-cache"})
+
+    @app.get("/app/config.json", include_in_schema=False)
+    def viewer_config() -> dict[str, str]:
+        return {"tile_url": settings.map_tile_url, "tile_attribution": settings.map_tile_attribution}
 
 
 async def _close_idle_loop(app: FastAPI) -> None:

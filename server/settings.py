@@ -74,6 +74,12 @@ class Settings(BaseSettings):
     anchor_max_accuracy_m : float
         A phone's location fix anchors a session when its horizontal accuracy is at most this [m] (the first such
         fix; ``models.geo.anchor_from_fixes``).
+    map_tile_url : str
+        Map tiles of the web viewer for anchored sessions (a Leaflet URL template); default OpenStreetMap's
+        (mind its tile usage policy for heavy use); empty = never tiles (a metric grid). The viewer also falls
+        back to the grid when the browser is offline or a tile fails to load.
+    map_tile_attribution : str
+        The attribution the tiles' licence asks for, shown on the map.
     log_requests : bool
         Log one structured line per request (method, path, status, duration; logger ``pednav.access``).
     pg_one_statement_writes : bool
@@ -106,6 +112,8 @@ class Settings(BaseSettings):
     sensorlogger_idle_close_s: float = Field(default=300.0, ge=0.0, allow_inf_nan=False)
     anchor_max_accuracy_m: float = Field(default=25.0, gt=0.0, allow_inf_nan=False)
     log_requests: bool = True
+    map_tile_url: str = "https://tile.openstreetmap.org/{z}/{x}/{y}.png"
+    map_tile_attribution: str = "&copy; OpenStreetMap contributors"
 
     def cors_origin_list(self) -> list[str]:
         """``cors_origins`` as a list (empty: CORS off)."""
