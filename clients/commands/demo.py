@@ -158,7 +158,12 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
     from clients.synth import synthesize
     from server import crud
 
+    from clients.warmup import warm_up
+
     rec = synthesize(scenario, seed=seed)
+    rec2 = synthesize(scenario, seed=seed + 1)  # the same person another day
+    # compile (first run) or load the kernels now, announced, so the streaming bar below measures streaming
+    warm_up([rec.batch, rec2.batch], show=not quiet)
     t0_ns = int(rec.batch.t_start_ns)
     with LocalServer(f"sqlite:///{workdir / 'pednav.db'}") as srv:
         with srv.app.state.sessionmaker() as db:
@@ -186,7 +191,6 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
             geo = api.trajectory(res.session_id, "geojson")
             # the same person another day: closing the first session stored their calibration profile on the
             # server, which the new session uses (Gait-DR after one examination instead of an initialisation)
-            rec2 = synthesize(scenario, seed=seed + 1)
             if not quiet:
                 print("second walk, same user (the server now has their calibration profile) ...", file=sys.stderr)
             res2 = FootSensorSimulator(rec2, batch_seconds=None).run(api, start=start)
@@ -266,6 +270,9 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     check_scenario(args.scenario)
+    if not args.json:
+        print(f"pednav demo: a simulated person (scenario {args.scenario!r}) streamed through a local server "
+              "and back", file=sys.stderr, flush=True)
     plot = Path(args.plot).resolve()
     with tempfile.TemporaryDirectory(prefix="pednav-demo-") as tmp:
         workdir = Path(args.dir).resolve() if args.dir else Path(tmp)
