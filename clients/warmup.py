@@ -18,14 +18,23 @@ from typing import Any, TextIO
 __all__ = ["CompileWatch", "WarmUp", "warm_up"]
 
 
+_OWN = ("models.", "energy.", "clients.", "server.")
+
+
 @dataclass
 class CompileWatch:
-    """Counts numba compilations (cache misses) while registered; ``current`` is the function being compiled."""
+    """Counts numba compilations (cache misses) while registered: ``compiled`` every function (numba's own
+    overloads included), ``own`` pednav's kernels; ``current`` the outermost pednav kernel being compiled."""
 
     compiled: int = 0
+    own: int = 0
     current: str = ""
     names: list[str] = field(default_factory=list)
-    _depth: int = 0
+    _stack: list[str] = field(default_factory=list)
+
+    @property
+    def busy(self) -> bool:
+        return bool(self._stack)
 
     def __enter__(self) -> CompileWatch:
         from numba.core import event
@@ -36,13 +45,17 @@ class CompileWatch:
             def on_start(self, ev: Any) -> None:
                 disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
                 py = getattr(disp, "py_func", None)
-                watch.current = f"{getattr(py, '__module__', '?')}.{getattr(py, '__qualname__', '?')}"
-                watch._depth += 1
+                name = f"{getattr(py, '__module__', '?')}.{getattr(py, '__qualname__', '?')}"
+                watch._stack.append(name)
+                own = [n for n in watch._stack if n.startswith(_OWN)]
+                if own:
+                    watch.current = own[0]
 
             def on_end(self, ev: Any) -> None:
-                watch._depth -= 1
+                name = watch._stack.pop() if watch._stack else "?"
                 watch.compiled += 1
-                watch.names.append(watch.current)
+                watch.own += name.startswith(_OWN)
+                watch.names.append(name)
 
         self._listener = _Listener()
         event.register("numba:compile", self._listener)
@@ -93,21 +106,21 @@ def warm_up(batches: list[Any], show: bool = True, out: TextIO | None = None, re
         announced = False
         while th.is_alive():
             th.join(refresh_s)
-            if show and watch.compiled + watch._depth > 0:
+            if show and (watch.compiled > 0 or watch.busy):
                 if not announced:
                     print("first run: compiling the navigation kernels (numba; cached for the next runs, "
                           "typically 1-2 minutes) ...", file=out, flush=True)
                     announced = True
-                line = (f"  compiled {watch.compiled} kernels in {time.monotonic() - t0:5.0f} s, now "
-                        f"{watch.current[-60:]}")
+                line = (f"  {watch.own} pednav kernels compiled ({watch.compiled} functions with numba's own) in "
+                        f"{time.monotonic() - t0:3.0f} s, now {watch.current[-45:]}")
                 print("\r" + line.ljust(100)[:100], end="", file=out, flush=True)
         if err:
             raise err[0]
     res = WarmUp(watch.compiled, time.monotonic() - t0)
     if show:
         if announced:
-            print(f"\r  compiled {res.compiled} kernels in {res.seconds:.0f} s (cached now: the next run starts at "
-                  "once)".ljust(100), file=out, flush=True)
+            print(f"\r  compiled {watch.own} pednav kernels ({res.compiled} functions) in {res.seconds:.0f} s; cached "
+                  "now, the next run loads them in seconds".ljust(100), file=out, flush=True)
         else:
             print(f"navigation kernels loaded from the cache in {res.seconds:.1f} s", file=out, flush=True)
     return res

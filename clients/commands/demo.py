@@ -172,10 +172,18 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
         if not quiet:
             print(f"server: {srv.url} (OpenAPI at {srv.url}/docs), database {workdir / 'pednav.db'}")
         with PednavClient(srv.url, token, float_dtype="<f4") as api:
-            bar = tqdm(total=100, unit="%", desc="streaming", disable=quiet, file=sys.stderr,
-                       bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}] {postfix}")
+            # the bar starts with the first answer: the server's engine process starts (and loads the kernels)
+            # on the first batch, a one-off wait that would make the estimate of the rest wrong
+            if not quiet:
+                print("streaming the walk through the API (the server's engine process starts on the first batch) ...",
+                      file=sys.stderr, flush=True)
+            bars: list[Any] = []
 
             def progress(frac: float, new: list[dict[str, Any]]) -> None:
+                if not bars:
+                    bars.append(tqdm(total=100, initial=round(frac * 100, 1), unit="%", desc="streaming", disable=quiet,
+                                     file=sys.stderr, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}] {postfix}"))
+                bar = bars[0]
                 bar.n = round(frac * 100, 1)
                 if new:
                     p = new[-1]
@@ -186,7 +194,8 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
             start = {"latitude_deg": 43.6629, "longitude_deg": -79.3957, "altitude_m": 100.0}
             sim = FootSensorSimulator(rec, batch_seconds=None)
             res = sim.run(api, start=start, progress=progress)
-            bar.close()
+            for bar in bars:
+                bar.close()
             res.stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")  # type: ignore[attr-defined]
             geo = api.trajectory(res.session_id, "geojson")
             # the same person another day: closing the first session stored their calibration profile on the
