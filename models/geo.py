@@ -30,6 +30,8 @@ from typing import Literal
 import numpy as np
 
 __all__ = [
+    "ANCHOR_SOURCES",
+    "GOOD_FIX_ACCURACY_M",
     "Anchor",
     "Fix",
     "GeoTrack",
@@ -53,6 +55,10 @@ field's horizontal direction), ``initial-heading`` (no magnetometer: the sensor'
 _EPOCH_2000_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z: earlier sample times are not UTC (a boot clock)
 
 ANCHOR_SOURCES = ("user", "location", "gnss", "replay")
+
+GOOD_FIX_ACCURACY_M = 25.0
+"""Default largest horizontal accuracy [m] of a fix that anchors (a phone outdoors reaches 3-10 m; a first fix
+from cell towers or Wi-Fi is often 30-100 m and would move the whole track)."""
 
 
 def _check_range(name: str, v: float, lo: float, hi: float) -> None:
@@ -148,7 +154,8 @@ def date_of(t_ns: int) -> _dt.date | None:
     return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.timezone.utc).date()
 
 
-def anchor_from_fixes(fixes: Iterable[Fix], max_accuracy_m: float, source: str = "location") -> Anchor | None:
+def anchor_from_fixes(fixes: Iterable[Fix], max_accuracy_m: float = GOOD_FIX_ACCURACY_M,
+                      source: str = "location") -> Anchor | None:
     """The first good fix as an anchor: the first whose accuracy is known and at most ``max_accuracy_m`` [m] and
     whose coordinates are in range; None when there is none. Its date is the fix's UTC date (today's when its
     time is not a UTC time). Importers (GetSensorData GNSS lines, Sensor Logger ``Location``) give their fixes

@@ -110,7 +110,7 @@ class Settings(BaseSettings):
     pg_one_statement_writes: bool = True
     cors_origins: str = ""
     sensorlogger_idle_close_s: float = Field(default=300.0, ge=0.0, allow_inf_nan=False)
-    anchor_max_accuracy_m: float = Field(default=25.0, gt=0.0, allow_inf_nan=False)
+    anchor_max_accuracy_m: float = Field(default=25.0, gt=0.0, allow_inf_nan=False)  # models.geo.GOOD_FIX_ACCURACY_M
     log_requests: bool = True
     map_tile_url: str = "https://tile.openstreetmap.org/{z}/{x}/{y}.png"
     map_tile_attribution: str = "&copy; OpenStreetMap contributors"

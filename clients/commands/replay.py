@@ -177,12 +177,14 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--export {args.export}: unknown suffix (use {', '.join(EXPORT_SUFFIXES)})")
         if args.export and args.server:
             raise ValueError("--export writes a local replay; with --server use 'pednav export SESSION --format F'")
-        if args.export and Path(args.export).suffix.lower() != ".csv" and not args.anchor:
-            raise ValueError(f"--export {args.export}: a geographic format needs --anchor LAT,LON[,ALT]")
         if args.anchor_date and not args.anchor:
             raise ValueError("--anchor-date needs --anchor LAT,LON[,ALT]")
         rec = load_recording(args.file, args.mag_scale_ut)
-        anchor = parse_anchor(args.anchor, _anchor_date(args, rec), source="replay") if args.anchor else None
+        # --anchor, else where the recording says it started (a phone's first good location fix)
+        anchor = parse_anchor(args.anchor, _anchor_date(args, rec), source="replay") if args.anchor else rec.meta.anchor
+        if args.export and Path(args.export).suffix.lower() != ".csv" and anchor is None:
+            raise ValueError(f"--export {args.export}: a geographic format needs --anchor LAT,LON[,ALT] (the "
+                             "recording has no location fix to anchor it)")
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
