@@ -7,6 +7,7 @@ import dataclasses
 from typing import Any
 
 from fastapi import APIRouter, HTTPException, status
+from sqlalchemy.orm import Session
 
 from server import crud
 from server.deps import CurrentUser, PathId, SessionDep
@@ -24,7 +25,7 @@ def _rate(n: int, t0: int, t1: int) -> float:
     return (n - 1) / ((t1 - t0) / 1e9) if n > 1 and t1 > t0 else 0.0
 
 
-def session_timeline(db: SessionDep, sess: Any) -> dict[str, Any]:
+def session_timeline(db: Session, sess: Any) -> dict[str, Any]:
     """Per stored batch: time span [ns], samples and observed rate [Hz] of each stream, the gyroscope on (it sent
     samples), the engine's mode and behaviour after it; and the energy (:func:`energy.power.account`) of what
     the device did, or None for a session without batches."""

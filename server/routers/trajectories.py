@@ -14,6 +14,7 @@ import json
 from typing import Any, Literal
 
 from fastapi import APIRouter, HTTPException, Response, status
+from sqlalchemy.orm import Session
 
 from models.geo import GeoTrack, engine_north, georeference
 from models.track_export import MEDIA_TYPES, TrackLabels, to_csv, to_geojson, to_gpx, to_kml
@@ -30,7 +31,7 @@ router = APIRouter(prefix="/sessions/{session_id}", tags=["trajectories"])
 _FIELDS = ("t_ns", "north", "east", "down", "heading_rad", "behaviour", "mode", "step_length_m", "gyro_on")
 
 
-def track_of(db: SessionDep, sess: TrackSession, host: EngineHost) -> tuple[GeoTrack, TrackLabels, list[dict[str, Any]]]:
+def track_of(db: Session, sess: TrackSession, host: EngineHost) -> tuple[GeoTrack, TrackLabels, list[dict[str, Any]]]:
     """The session's stored positions geo-referenced (``georeference`` with the session's anchor and the north of
     its engine's frame), their labels, and the stored rows."""
     import numpy as np
