@@ -108,7 +108,10 @@ async function refresh() {
   ]);
   if (id !== state.selected) return;
   const i = state.sessions.findIndex((x) => x.id === id);
-  if (i >= 0) state.sessions[i] = sess;
+  if (i >= 0 && JSON.stringify(state.sessions[i]) !== JSON.stringify(sess)) {
+    state.sessions[i] = sess;
+    await loadSessions();  // its line in the list (positions, status) follows the live session
+  }
   if (sess.status !== "open") clearInterval(state.liveTimer);
   $("live").hidden = sess.status !== "open";
   $("session-title").textContent = "Session " + id + " (" + sess.device_kind + ", " + traj.positions.length + " positions)";
