@@ -29,6 +29,9 @@ class RecordingMeta:
         Where the sensor sat (``"foot"``, ``"phone"``, ``"watch"``) and anything known about its axes.
     notes : tuple of str
         Anything the importer repaired or flagged (logged as well).
+    anchor : models.geo.Anchor or None
+        Where the recording started, when it says (a phone's first good location fix,
+        ``models.geo.anchor_from_fixes``); ``pednav replay`` uses it unless ``--anchor`` is given.
     """
 
     source_format: str
@@ -36,6 +39,7 @@ class RecordingMeta:
     units_converted: dict[str, str] = field(default_factory=dict)
     mount: str = "foot"
     notes: tuple[str, ...] = ()
+    anchor: Any = None
 
 
 @dataclass(frozen=True)

@@ -76,8 +76,17 @@ def _nothing_found(dataset: str, directory: Path, match: Any) -> None:
 
 
 def _progress(items: list[Any], desc: str) -> Any:
+    """A progress bar over the recordings (on a terminal). The kernels are compiled or loaded first, announced
+    (:func:`clients.warmup.warm_up` on a short synthetic walk), so the bar's estimate is not the first run's
+    compilation spread over the recordings."""
     from tqdm import tqdm
 
+    if sys.stderr.isatty():
+        from clients.synth import synthesize
+        from clients.warmup import warm_up
+
+        b = synthesize("walk", seed=0).batch
+        warm_up([b.time_slice(None, int(b.t_start_ns) + 30 * 10**9)])
     return tqdm(items, desc=desc, unit="rec", file=sys.stderr, disable=None, leave=False)
 
 
