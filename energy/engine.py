@@ -47,6 +47,7 @@ _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> an
 _FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance sets its turn
 _DR_LOG = 24  # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern)
 _PAUSE_PERIOD = 1.25  # ... a stride of it this much longer than its median holds a pause
+_NORTH_STEP = math.radians(1.0)  # a change of magnetic north's azimuth in the session frame announced again
 
 
 def _heading_test(z: float, kf: HeadingDeviationKF, sigmas: float) -> dict[str, Any]:
@@ -318,6 +319,7 @@ class Engine:
         self._head = math.nan  # sensor heading at the last output [rad]
         self._zupt_head = math.nan  # session-frame heading of the last ZUPT-KF stance [rad]
         self._out_mode = ""  # mode of the last output position ("" before the first)
+        self._north = math.nan  # magnetic north's azimuth in the session frame as last announced [rad]
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
         self._await_rest = False  # a restarting segment waits for a still foot
         self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
@@ -480,87 +482,105 @@ class Engine:
 
     def _drain(self, final: bool, positions: list[Position], events: list[Event]) -> None:
         """Work through the queue as far as the step segmentation's look-ahead allows."""
-        gait, nav = self._gait, self._nav
+        gait = self._gait
         horizon = self._horizon(final)
         while self._ops:
             op = self._ops[0]
             kind = op[0]
-            if kind == "start":
-                t_b = op[1]
-                if gait is not None and gait.active:
-                    if horizon < t_b:
-                        break
-                    self._reckon(t_b, positions, events)
-                    self._head = gait.est.heading
-                self._apply_labels(t_b, events)
-                self._seg_t = t_b
-                self._await_rest = nav.initialised  # a restart waits for the foot to be still
-                # a segment that starts while the person is (still) known to stand, with no step since the last
-                # segment or none for longer than the device's inactivity time: the device woke the gyroscope on
-                # the first motion (wake-on-motion); the host turns it on only for a behaviour it has recognised,
-                # i.e. mid-walk, where Gait-DR places the first step
-                own = (nav.initialised and self._labels.at(t_b) == "stand"
-                       and (not self._moved or t_b - self._step_s > self.config.scheduler.sleep_after_s))
-                empty = np.zeros((0, 3))
-                self._lead = (np.zeros(0), empty, empty) if own else None
-                self._lead_d = None
-                self._pre = None
-                self._pre_rot, self._pre_t = np.zeros(3), math.nan
-                self._in_seg, self._seg_first = True, True
-                self._ops.pop(0)
-            elif kind == "samples" and self._await_rest:
-                rest = self._rest_start(op)
-                self._ops.pop(0)
-                if rest is not None:
-                    i, j = rest
-                    pre = self._pre
-                    assert pre is not None
-                    self._pre = None
-                    self._await_rest = False
-                    acc_rest = pre[1][i : j + 1].mean(axis=0)
-                    self._sum_rotation(pre[0][:i], pre[2][:i])
-                    heading = self._restart_heading(acc_rest)
-                    self._collect_lead(pre[0][: i + 1], pre[1][: i + 1], pre[2][: i + 1])
-                    self._lead_d = self._lead_displacement(acc_rest, heading)
-                    nav.restart(nav.position, heading, acc_rest)
-                    self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
-                    self._ops.insert(0, _samples_op(pre, slice(i, None)))
+            if kind == "start" and not self._op_start(op[1], horizon, positions, events):
+                break
+            if kind == "samples" and self._await_rest:
+                self._op_restart(op)
             elif kind == "samples":
-                rest = None
-                if self._seg_first and len(op[1]) > _FIRST_SLICE:
-                    # until the hand-over stance has set the segment's turn (_set_yaw), the ZUPT-KF advances in
-                    # short slices so that it is set before the drift reduction's dominant-direction snap, three
-                    # strides on, whatever the upload length (the ZUPT-KF is chunk-invariant)
-                    rest = _samples_op(op[1:], slice(_FIRST_SLICE, None))
-                    op = _samples_op(op[1:], slice(None, _FIRST_SLICE))
-                out = nav.process(op[1], op[2], op[3], op[4])
-                self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
-                if len(out.t_s):
-                    self._nav_t = float(out.t_s[-1])
-                self._ops[0:1] = self._nav_ops(out) + ([rest] if rest is not None else [])
+                self._op_samples(op)
             elif kind == "end":
-                self._ops[0:1] = self._nav_ops(nav.flush()) + [("handover",)]
+                self._ops[0:1] = self._nav_ops(self._nav.flush()) + [("handover",)]
             elif kind == "trace":
                 self._trace_nav(op[1], op[2])
                 self._ops.pop(0)
             elif kind == "stance":
-                st: Stance = op[1]
-                if horizon < st.t_start_s + PAIR_TOL_S:
+                if horizon < op[1].t_start_s + PAIR_TOL_S:
                     break
-                self._stance(st, positions, events)
+                self._stance(op[1], positions, events)
                 self._ops.pop(0)
             elif kind == "handover":
-                if gait is not None and not self._seg_first and self._pos is not None:
-                    gait.start(self._pos)  # Gait-DR continues from the segment's last stance
-                self._moved = self._seg_first  # a segment without a stance placed no foot to start from
-                self._in_seg = False
-                self._ops.pop(0)
+                self._op_handover()
         if gait is not None and not self._in_seg:
             limit = horizon
             if self._ops and self._ops[0][0] == "start":
                 limit = min(limit, self._ops[0][1])
             self._reckon(limit, positions, events)
         self._apply_labels(self._processed_through(horizon), events)
+
+    def _op_start(self, t_b: float, horizon: float, positions: list[Position], events: list[Event]) -> bool:
+        """A segment starts at ``t_b`` [s]: Gait-DR's steps before it first (False: not yet final)."""
+        gait, nav = self._gait, self._nav
+        if gait is not None and gait.active:
+            if horizon < t_b:
+                return False
+            self._reckon(t_b, positions, events)
+            self._head = gait.est.heading
+        self._apply_labels(t_b, events)
+        self._seg_t = t_b
+        self._await_rest = nav.initialised  # a restart waits for the foot to be still
+        # a segment that starts while the person is (still) known to stand, with no step since the last segment or
+        # none for longer than the device's inactivity time: the device woke the gyroscope on the first motion
+        # (wake-on-motion); the host turns it on only for a behaviour it has recognised, i.e. mid-walk, where
+        # Gait-DR places the first step
+        own = (nav.initialised and self._labels.at(t_b) == "stand"
+               and (not self._moved or t_b - self._step_s > self.config.scheduler.sleep_after_s))
+        empty = np.zeros((0, 3))
+        self._lead = (np.zeros(0), empty, empty) if own else None
+        self._lead_d = None
+        self._pre = None
+        self._pre_rot, self._pre_t = np.zeros(3), math.nan
+        self._in_seg, self._seg_first = True, True
+        self._ops.pop(0)
+        return True
+
+    def _op_restart(self, op: tuple) -> None:
+        """Samples of a restarting segment: look for the still foot the ZUPT-KF restarts on."""
+        nav = self._nav
+        rest = self._rest_start(op)
+        self._ops.pop(0)
+        if rest is None:
+            return
+        i, j = rest
+        pre = self._pre
+        assert pre is not None
+        self._pre = None
+        self._await_rest = False
+        acc_rest = pre[1][i : j + 1].mean(axis=0)
+        self._sum_rotation(pre[0][:i], pre[2][:i])
+        heading = self._restart_heading(acc_rest)
+        self._collect_lead(pre[0][: i + 1], pre[1][: i + 1], pre[2][: i + 1])
+        self._lead_d = self._lead_displacement(acc_rest, heading)
+        nav.restart(nav.position, heading, acc_rest)
+        self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
+        self._ops.insert(0, _samples_op(pre, slice(i, None)))
+
+    def _op_samples(self, op: tuple) -> None:
+        """Samples through the ZUPT-KF; its stances join the queue in their place. Until the hand-over stance
+        has set the segment's turn (:meth:`_set_yaw`), the ZUPT-KF advances in short slices so that it is set
+        before the drift reduction's dominant-direction snap, three strides on, whatever the upload length."""
+        nav = self._nav
+        rest = None
+        if self._seg_first and len(op[1]) > _FIRST_SLICE:
+            rest = _samples_op(op[1:], slice(_FIRST_SLICE, None))
+            op = _samples_op(op[1:], slice(None, _FIRST_SLICE))
+        out = nav.process(op[1], op[2], op[3], op[4])
+        self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
+        if len(out.t_s):
+            self._nav_t = float(out.t_s[-1])
+        self._ops[0:1] = self._nav_ops(out) + ([rest] if rest is not None else [])
+
+    def _op_handover(self) -> None:
+        """The segment ended: Gait-DR continues from its last stance."""
+        if self._gait is not None and not self._seg_first and self._pos is not None:
+            self._gait.start(self._pos)
+        self._moved = self._seg_first  # a segment without a stance placed no foot to start from
+        self._in_seg = False
+        self._ops.pop(0)
 
     def _processed_through(self, horizon: float) -> float:
         """Data time before which every stance and step has been worked through [s]."""
@@ -759,6 +779,7 @@ class Engine:
         gait.track(e, wrap_angle(float(st.heading) - self._zupt_head), 0.0)
         self._zupt_head = float(st.heading)
         events += sched.on_compass(gait.compass() is not None, t_ns)
+        events += self._north_event(t_ns)
         ref = self._nav.dominant_ref
         gait.dominant = None if ref is None else wrap_angle(ref + self._yaw)
         if e is not None:
@@ -817,6 +838,17 @@ class Engine:
             self._pos = p
             self._emit(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), self._head, label, "zupt", 0.0, True),
                        positions, events)
+
+    def _north_event(self, t_ns: int) -> list[Event]:
+        """``north_reference`` when magnetic north's azimuth in the session frame is first known or has moved by
+        more than ``_NORTH_STEP`` since announced: the session frame's heading 0 is where the sensor pointed at the
+        first stance; geo-referencing (:func:`models.geo.georeference`) turns the track by it to magnetic north."""
+        gait = self._gait
+        north = gait.magnetic_north() if gait is not None else None
+        if north is None or (math.isfinite(self._north) and abs(wrap_angle(north[0] - self._north)) <= _NORTH_STEP):
+            return []
+        self._north = north[0]
+        return [Event(t_ns, "north_reference", {"magnetic_north_rad": north[0], "std_rad": north[1]})]
 
     def _learn_stride(self, st: Stance, e: StepEvent, label: str, t_ns: int, events: list[Event]) -> None:
         """A ZUPT-KF stride with its step event: calibration pairs, KF II, examinations (004 Table 3 and the
@@ -1021,7 +1053,7 @@ class Engine:
         return ops
 
     _SCALARS = ("t0_ns", "last_acc_t", "last_gyr_s", "gyro_missing", "seg_open", "in_seg", "seg_t", "seg_first",
-                "yaw", "head", "zupt_head", "out_mode", "nav_t", "await_rest", "pre_t", "moved", "step_s",
+                "yaw", "head", "zupt_head", "out_mode", "north", "nav_t", "await_rest", "pre_t", "moved", "step_s",
                 "rest_t", "rest_head")
 
     def get_state(self) -> dict[str, Any]:

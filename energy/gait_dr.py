@@ -485,6 +485,17 @@ class GaitPipeline:
             self.step_s = e.t_s
         return est.heading
 
+    def magnetic_north(self) -> tuple[float, float] | None:
+        """Azimuth [rad] of magnetic north in the session frame and its standard deviation [rad]: the horizontal
+        direction of the compass's fitted field, less the compass's frame offset the heading estimator holds;
+        None before a compass has read."""
+        cal = self.compass()
+        if cal is None or not self.est.offset_known:
+            return None
+        x, p = self.est.combined()
+        az = math.atan2(float(cal.m_n[1]), float(cal.m_n[0]))
+        return wrap_angle(az - float(x[1])), math.sqrt(max(float(p[1, 1]), 0.0))
+
     def forecast_drift_pct(self, behaviour: str) -> float:
         """Cross-track drift [% of distance] over the next 100 m if the gyroscope went off now.
 

@@ -43,6 +43,7 @@ __all__ = [
     "georeference",
     "geodetic_to_ned",
     "magnetic_elements",
+    "magnetic_north_of",
     "ned_to_geodetic",
     "parse_anchor",
     "to_true_north",
@@ -287,15 +288,28 @@ def engine_north(declared: str | None, has_magnetometer: bool) -> NorthReference
     return "magnetic" if (declared == "magnetic" and has_magnetometer) else "initial-heading"
 
 
+def magnetic_north_of(events: Iterable[tuple[str, dict]]) -> float | None:
+    """The latest ``north_reference`` event's azimuth of magnetic north in the engine's session frame [rad]
+    (``(kind, detail)`` pairs in time order); None without one (no calibrated compass yet)."""
+    found = None
+    for kind, detail in events:
+        if kind == "north_reference":
+            found = float(detail["magnetic_north_rad"])
+    return found
+
+
 def georeference(north: np.ndarray, east: np.ndarray, down: np.ndarray, heading_rad: np.ndarray,
-                 anchor: Anchor | None, frame_north: NorthReference) -> GeoTrack:
+                 anchor: Anchor | None, frame_north: NorthReference,
+                 magnetic_north_rad: float | None = None) -> GeoTrack:
     """The engine's output (NED about the first stance, north ``frame_north``) as served and exported.
 
     The one place where the declination is applied (server and ``pednav replay --anchor`` alike): with an anchor
     and a magnetic-north frame, positions and headings are turned by the WMM declination about the origin
     (:func:`to_true_north`) and placed on the WGS-84 ellipsoid (:func:`ned_to_geodetic`); with an anchor and a
     frame whose north is the initial heading, nothing can be corrected (the track's orientation is as unknown as
-    that heading) and positions are placed as they are; without an anchor nothing changes.
+    that heading) and positions are placed as they are; without an anchor nothing changes. An engine whose frame's
+    north is the initial heading but which has found magnetic north's azimuth in it (``magnetic_north_rad``, its
+    ``north_reference`` events, :func:`magnetic_north_of`) gets its track turned onto magnetic north first.
     """
     if frame_north not in ("magnetic", "initial-heading"):
         raise ValueError(f"frame_north: 'magnetic' or 'initial-heading', got {frame_north!r}")
@@ -303,6 +317,9 @@ def georeference(north: np.ndarray, east: np.ndarray, down: np.ndarray, heading_
     e = np.asarray(east, dtype=np.float64).reshape(-1)
     d = np.asarray(down, dtype=np.float64).reshape(-1)
     h = np.asarray(heading_rad, dtype=np.float64).reshape(-1)
+    if frame_north == "initial-heading" and magnetic_north_rad is not None:
+        n, e, h = to_true_north(n, e, h, -float(magnetic_north_rad))  # the same turn, by minus that azimuth
+        frame_north = "magnetic"
     if anchor is None:
         return GeoTrack(n, e, d, h, frame_north, 0.0, None, None, None, None, None)
     mag = magnetic_elements(anchor)

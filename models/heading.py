@@ -242,6 +242,10 @@ class HeadingEstimator:
             cov += w[i] * (p[i] + np.outer(e, e))
         return np.vectorize(wrap)(ref + m), cov
 
+    def combined(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``[theta, c0, d]`` [rad] and covariance [rad^2] of the estimate (the models' mixture)."""
+        return self._combine()
+
     def _combine(self) -> tuple[np.ndarray, np.ndarray]:
         """Moment-matched mean and covariance of the mixture of the models."""
         return self._moments(self.mu, self.x, self.p, self.x[_STRAIGHT])

@@ -67,13 +67,14 @@ def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=Non
 
     from energy.device import replay
     from energy.engine import Engine
-    from models.geo import engine_north, georeference
+    from models.geo import engine_north, georeference, magnetic_north_of
     from models.track_export import TrackLabels
 
     res = replay(Engine(mode=mode), rec.batch, batch_seconds)  # type: ignore[arg-type]
     north_in = engine_north(getattr(Engine, "NORTH_REFERENCE", None), res.samples_sent.get("mag", 0) > 0)
     col = {f: np.array([getattr(p, f) for p in res.positions], dtype=float) for f in ("north", "east", "down", "heading_rad")}
-    track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], anchor, north_in)
+    az = magnetic_north_of((e.kind, e.detail) for u in res.updates for e in u.events)
+    track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], anchor, north_in, az)
     rows = [(p.t_ns, float(track.north[i]), float(track.east[i]), p.down, p.behaviour, p.mode, p.gyro_on)
             for i, p in enumerate(res.positions)]
     doc = {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, **track.frame_dict()}
@@ -87,7 +88,7 @@ def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=Non
 
 def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot", anchor=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
     """The same device emulation, streamed through the HTTP API (lossless msgpack bodies); with ``anchor`` the
-    session is started anchored and its trajectory, geo-referenced by the server, read back."""
+    session is started anchored; the trajectory, geo-referenced by the server, is read back."""
     from clients.sdk import PednavClient
     from clients.simulators import simulator_for
 
@@ -97,7 +98,7 @@ def replay_server(rec, server: str, token: str, batch_seconds: float, device: st
     with PednavClient(server, token, encoding="msgpack", float_dtype="<f8") as api:
         res = simulator_for(device, rec, batch_seconds).run(api, start=start)
         traj = api.trajectory(res.session_id)
-    pos = traj["positions"] if anchor is not None else res.positions
+    pos = traj["positions"]  # as the server serves them: turned to magnetic north once the engine has found it
     rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in pos]
     doc = {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction,
            "session_id": res.session_id, **{k: traj[k] for k in ("north", "declination_deg", "dip_deg", "magnetic_model", "anchor") if k in traj}}

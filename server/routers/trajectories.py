@@ -16,7 +16,7 @@ from typing import Any, Literal
 from fastapi import APIRouter, HTTPException, Response, status
 from sqlalchemy.orm import Session
 
-from models.geo import GeoTrack, engine_north, georeference
+from models.geo import GeoTrack, engine_north, georeference, magnetic_north_of
 from models.track_export import MEDIA_TYPES, TrackLabels, to_csv, to_geojson, to_gpx, to_kml
 from server import crud
 from server.deps import CurrentUser, HostDep, PathId, SessionDep
@@ -39,7 +39,8 @@ def track_of(db: Session, sess: TrackSession, host: EngineHost) -> tuple[GeoTrac
     rows = [{f: getattr(p, f) for f in _FIELDS} for p in crud.positions_of(db, sess.id)]
     col = {f: np.array([r[f] for r in rows], dtype=float) for f in ("north", "east", "down", "heading_rad")}
     north_in = engine_north(getattr(host.engine_cls, "NORTH_REFERENCE", None), crud.has_magnetometer(db, sess.id))
-    track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], session_anchor(sess), north_in)
+    az = magnetic_north_of((e.kind, e.detail) for e in crud.events_of(db, sess.id))
+    track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], session_anchor(sess), north_in, az)
     labels = TrackLabels([r["t_ns"] for r in rows], [r["behaviour"] for r in rows], [r["mode"] for r in rows],
                          [r["step_length_m"] for r in rows], [r["gyro_on"] for r in rows])
     return track, labels, rows

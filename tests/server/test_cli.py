@@ -61,21 +61,19 @@ def test_replay_over_http_equals_local_and_export(capsys, live_server, tmp_path:
     capsys.readouterr()
 
 
-@pytest.mark.parametrize("north", [None, "magnetic"])
-def test_anchored_replay_over_http_equals_local(capsys, live_server, tmp_path: Path, monkeypatch, north) -> None:  # type: ignore[no-untyped-def]
+def test_anchored_replay_over_http_equals_local(capsys, live_server, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """--anchor: the server geo-references the session it stores, the local replay its engine's output, with the
-    same function; positions and latitude/longitude agree to 1e-9. With an engine whose north is magnetic both
-    are turned by the declination (the synthetic walk has a magnetometer)."""
+    same function; positions and latitude/longitude agree to 1e-9. The synthetic walk has a magnetometer: once
+    its compass is calibrated the engine announces magnetic north's azimuth in its frame (``north_reference``),
+    so both turn the track onto magnetic north and then by the declination."""
+    north = "magnetic"
     import math
 
     import xmlschema
 
-    from energy.engine import Engine
     from models.geo import to_true_north
     from models.track_export import read_gpx
 
-    if north is not None:
-        monkeypatch.setattr(Engine, "NORTH_REFERENCE", north, raising=False)
     srv, url = live_server
     _, out = _run(capsys, ["admin", "create-user", f"geo-{north}", "--json", "--database-url", url])
     token = json.loads(out)["token"]
