@@ -275,6 +275,15 @@ class EngineConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    def changes(self) -> dict[str, Any]:
+        """``{"section.field": value}`` of the settings that differ from the defaults (what an engine state
+        stores: the whole tree is 3 kB, the usual difference none); ``EngineConfig().override`` restores it."""
+        out: dict[str, Any] = {}
+        _flatten(self.to_dict(), "", out)
+        ref: dict[str, Any] = {}
+        _flatten(EngineConfig().to_dict(), "", ref)
+        return {k: v for k, v in out.items() if ref.get(k) != v}
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> EngineConfig:
         flat: dict[str, Any] = {}

@@ -1061,7 +1061,7 @@ class Engine:
         d.update({
             "version": _STATE_VERSION,
             "mode": self.mode,
-            "config": self.config.to_dict(),
+            "config": self.config.changes(),
             "acc_t": self._acc_t,
             "acc_v": self._acc_v,
             "gyr": self._gyr.get_state(),
@@ -1089,7 +1089,7 @@ class Engine:
     def from_state(cls, d: dict[str, Any], trace: bool = False) -> Engine:
         if d.get("version") != _STATE_VERSION:
             raise ValueError(f"engine state version {d.get('version')!r} is not {_STATE_VERSION}")
-        config = EngineConfig.from_dict(d["config"])
+        config = EngineConfig().override(d["config"])
         obj = cls(mode=d["mode"], config=config, trace=trace)
         for k in cls._SCALARS:
             setattr(obj, "_" + k, d[k])

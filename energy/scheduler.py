@@ -287,6 +287,8 @@ class Scheduler:
             return self._walk_needs_gyro() or awake
         if self.working == "zupt" or not self.nav_ready:
             return True
+        if self.mode == "auto" and self.behaviour == "other":
+            return True  # backward, sideways, shuffling: no step model, no known walking direction; never Gait-DR
         if self.mode == "pdr":
             return not self.compass_ready
         return self.exam_active or self.heading_gyro

@@ -159,6 +159,15 @@ def test_a_walking_pattern_outside_the_fitted_cadences_re_initialises_it() -> No
     assert s.working == "zupt" and s.pattern_left == CFG.scheduler.pattern_init_strides
 
 
+def test_other_gaits_never_run_in_gait_dr() -> None:
+    """Backward or sideways walking, shuffling, foot lifts: no step model and no known walking direction."""
+    s = in_gait_dr()
+    ev = s.on_behaviour("other", 50.0, 50)
+    assert "gyroscope_requested" in kinds(ev) and s.sensor_config().gyro_on
+    ev = s.on_behaviour("walk", 60.0, 60)
+    assert "examination_started" not in kinds(ev) or s.exam_active  # walk resumed: examined if calibrated
+
+
 # ---------------------------------------------------------------- standing, pdr mode
 def test_standing_leaves_the_gyroscope_to_the_device_while_the_walk_may_need_it() -> None:
     s = in_gait_dr(heading_ok=False)  # the heading needs the gyroscope
