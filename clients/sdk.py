@@ -131,6 +131,11 @@ def _raise_for(r: httpx2.Response) -> None:
     raise ApiError(r.status_code, detail, body)
 
 
+def _is_empty(batch: SensorBatch) -> bool:
+    """No sample in any stream (the server refuses such an upload)."""
+    return not any(len(batch.stream(name)[0]) for name in STREAMS)
+
+
 def _retry_after(r: httpx2.Response, cap_s: float = 30.0) -> float:
     """Extra wait [s] a 429/503 asks for (``Retry-After`` in seconds; 0 when absent or unreadable)."""
     try:
@@ -566,8 +571,11 @@ class BatchStream:
         """Queue ``batch`` as the next sequence number and deliver what can be delivered.
 
         Returns the answers received now (oldest first, including those of batches queued earlier); an
-        empty list means the server is unreachable and the batch is buffered.
+        empty list means the server is unreachable and the batch is buffered. A batch without samples is not
+        sent (the server refuses it; the sequence number stays free) and only delivers what is buffered.
         """
+        if _is_empty(batch):
+            return self.drain()
         if len(self.pending) >= self.max_buffer:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)
@@ -711,6 +719,8 @@ class AsyncBatchStream:
         return None if self.last_response is None else self.last_response["sensor_config"]
 
     async def send(self, batch: SensorBatch) -> list[dict[str, Any]]:
+        if _is_empty(batch):
+            return await self.drain()
         if len(self.pending) >= self.max_buffer:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)

@@ -14,14 +14,18 @@ from server.ingest import EngineHost
 from server.models import User
 from server.settings import Settings
 
-__all__ = ["INT64_MAX", "OffsetQuery", "PathId", "SessionDep", "CurrentUser", "SensorLoggerUser", "SettingsDep", "HostDep", "get_db", "current_user", "sensorlogger_user"]
+__all__ = ["ID_MAX", "ID_MIN", "INT64_MAX", "OffsetQuery", "PathId", "SessionDep", "CurrentUser", "SensorLoggerUser", "SettingsDep", "HostDep", "get_db", "current_user", "sensorlogger_user"]
 
 INT64_MAX = 2**63 - 1
-"""Largest id, sequence number or offset the database can bind (SQLite INTEGER, PostgreSQL bigint); a larger
-one made the driver raise OverflowError (HTTP 500) before the query could answer "not found"."""
+"""Largest offset the database can bind (SQLite INTEGER, PostgreSQL bigint); a larger one made the driver raise
+OverflowError (HTTP 500) before the query could answer "not found"."""
 
-# an id or sequence number in the path: 422 naming the parameter beyond int64, never a driver error
-PathId = Annotated[int, Path(ge=-INT64_MAX - 1, le=INT64_MAX)]
+ID_MIN, ID_MAX = -(2**31), 2**31 - 1
+"""Range of the id and sequence-number columns (``Integer``: 32-bit on PostgreSQL). A path id between 2^31 and
+2^63 - 1 reached PostgreSQL and failed there ("integer out of range": HTTP 500); SQLite took it."""
+
+# an id or sequence number in the path: 422 naming the parameter beyond the column's range, never a driver error
+PathId = Annotated[int, Path(ge=ID_MIN, le=ID_MAX)]
 OffsetQuery = Annotated[int, Query(le=INT64_MAX)]
 
 _bearer = HTTPBearer(auto_error=False)

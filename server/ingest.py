@@ -585,10 +585,22 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
 
     Closing an already closed session changes nothing. ``keep_versions``: profile versions kept per behaviour
     (the newest; ``Settings.max_profile_versions``).
+
+    The session's write lock is the transaction's first statement (a no-op update of its row: PostgreSQL's row
+    lock, SQLite's write lock), so concurrent closes of one session (other threads, other workers) take turns
+    and each later one finds it closed; its profile versions then take the user's lock
+    (:func:`server.crud.add_profile_version`). Reading first let six simultaneous closes on PostgreSQL all add
+    the same next profile version: five answered HTTP 500 and left their sessions open.
     """
-    with host.lock(session_id):
-        sess = crud.get_session(db, user, session_id, for_update=True)
+    with host.lock(session_id), host.write_lock:  # SQLite: this process's writers queue here, not in busy waits
+        locked = db.execute(update(_TS).where(_TS.c.id == session_id, _TS.c.user_id == user.id)
+                            .values(status=_TS.c.status))
+        if locked.rowcount != 1:
+            db.rollback()
+            return None
+        sess = crud.get_session(db, user, session_id)
         if sess is None or sess.status != "open":
+            db.rollback()
             return sess
         engine = host.restore(sess)
         host.forget(session_id)
@@ -601,8 +613,7 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
         sess.engine_state = pack_state(engine.to_bytes())
         sess.status = "closed"
         sess.closed_at = utcnow()
-        with host.write_lock:
-            db.commit()
+        db.commit()
         return sess
 
 

@@ -13,7 +13,7 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from models.batch import BatchError
 from server import crud
 from server.auth import authenticate, query_token_refused
-from server.deps import INT64_MAX, CurrentUser, PathId, SessionDep
+from server.deps import ID_MAX, ID_MIN, CurrentUser, PathId, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
 from server.ingest import apply_batch
 from server.timing import Phases, phase
@@ -90,8 +90,8 @@ class UploadFastPath:
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         m = _UPLOAD_PATH.match(scope["path"]) if scope["type"] == "http" and scope["method"] == "PUT" else None
-        if m is None or not all(-INT64_MAX - 1 <= int(g) <= INT64_MAX for g in m.groups()):
-            # not an upload, or an id beyond int64: the route answers (its validation names the parameter)
+        if m is None or not all(ID_MIN <= int(g) <= ID_MAX for g in m.groups()):
+            # not an upload, or an id beyond the id columns' range: the route answers (its validation names it)
             await self.app(scope, receive, send)
             return
         app = self.fastapi_app
