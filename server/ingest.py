@@ -35,6 +35,7 @@ from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state, unpack_state
 from server.timing import phase, since
+from server.watermarks import advanced, check_after
 
 __all__ = [
     "EngineHost",
@@ -496,7 +497,8 @@ def _apply_once(
         since("lock", t_lock)
         with phase("read"):
             row = db.execute(
-                select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in).where(
+                select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in,
+                       _TS.c.gyr_newest_ns, _TS.c.mag_newest_ns).where(
                     _TS.c.id == session_id, _TS.c.user_id == user_id
                 )
             ).first()
@@ -511,6 +513,14 @@ def _apply_once(
         if seq > row.next_seq:
             db.rollback()
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {row.next_seq}", row.next_seq)
+        newest0 = {"gyr": row.gyr_newest_ns, "mag": row.mag_newest_ns}
+        try:
+            check_after(batch, newest0)  # 422: late gyroscope/magnetometer samples (nothing stored)
+        except BatchError:
+            db.rollback()
+            raise
+        newest = advanced(batch, newest0)
+
         def load_state() -> bytes | None:
             # version and state in ONE statement: separate SELECTs need not see the same commit (SQLite's
             # driver runs SELECTs outside a transaction; PostgreSQL reads committed per statement)
@@ -555,7 +565,8 @@ def _apply_once(
                     update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
                         version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=behaviour,
                         mode=mode, sensor_config=resp["sensor_config"],
-                        n_positions=_TS.c.n_positions + len(resp["positions"]),
+                        n_positions=_TS.c.n_positions + len(resp["positions"]), gyr_newest_ns=newest["gyr"],
+                        mag_newest_ns=newest["mag"],
                     )
                 )
                 if res.rowcount != 1:
