@@ -38,14 +38,19 @@ import numpy as np
 
 from models.batch import STREAMS
 
-__all__ = ["EngineHelperError", "EnginePool"]
+__all__ = ["EngineHelperDied", "EngineHelperError", "EnginePool"]
 
 _CACHE: OrderedDict[int, tuple[int, Any]] = OrderedDict()
 _CACHE_SIZE = 512
 
 
 class EngineHelperError(RuntimeError):
-    """The helper process died or failed outside the engine's own validation."""
+    """The helper process failed outside the engine's own validation (an error inside it, or it died)."""
+
+
+class EngineHelperDied(EngineHelperError):
+    """The helper process died (killed, out of memory) while or before it answered: the request was not fed
+    for good (the worker commits nothing without an answer), and a fresh helper takes the next one."""
 
 
 def _watch_parent() -> None:
@@ -159,6 +164,7 @@ class _Helper:
         for _, b in pairs:
             b.close()
         self.free: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.broken = False  # a pipe failed: the helper is replaced on the next request
         self.conns = [a for a, _ in pairs]
         for a in self.conns:
             self.free.put(a)
@@ -203,7 +209,7 @@ class EnginePool:
             if self._helpers is None:  # all helpers start together (each imports the engine at start)
                 self._helpers = [_Helper(ctx, self.channels, self.cache_size) for _ in range(self.processes)]
             h = self._helpers[i]
-            if h is None or not h.proc.is_alive():
+            if h is None or h.broken or not h.proc.is_alive():
                 if h is not None:
                     h.stop()
                 h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
@@ -237,19 +243,32 @@ class EnginePool:
         ``state`` None: the helper's cached engine at ``version`` (only after :meth:`take`); else the engine
         restored from ``state`` (the helper's cached one is then never used)."""
         h = self._helper(session_id)
-        try:
-            conn = h.free.get(timeout=120.0)
-        except queue.Empty:
-            raise EngineHelperError("no engine helper channel free for 120 s") from None
+        waited = 0.0
+        while True:  # a free channel; give up at once when the helper died meanwhile (its channels never free)
+            try:
+                conn = h.free.get(timeout=0.5)
+                break
+            except queue.Empty:
+                waited += 0.5
+                if h.broken or not h.proc.is_alive():
+                    raise EngineHelperDied("engine helper process died") from None
+                if waited >= 120.0:
+                    raise EngineHelperError("no engine helper channel free for 120 s") from None
         try:
             conn.send((session_id, version, state, seq, *_pack_streams(streams)))
             out: tuple[Any, ...] = conn.recv()
         except (EOFError, OSError) as exc:  # the helper died: this pipe is out of step, do not reuse it
-            raise EngineHelperError(f"engine helper process failed: {type(exc).__name__}") from None
+            h.broken = True
+            raise EngineHelperDied(f"engine helper process died ({type(exc).__name__})") from None
         h.free.put(conn)
         if out[0] == "error":
             raise EngineHelperError(f"engine helper: {out[1]}")
         return out
+
+    def pids(self) -> list[int]:
+        """Process ids of the running helpers (none before the first request)."""
+        with self._lock:
+            return [h.proc.pid for h in self._helpers or [] if h is not None and h.proc.pid is not None]
 
     def shutdown(self) -> None:
         with self._lock:

@@ -30,7 +30,7 @@ from sqlalchemy.orm.exc import StaleDataError
 
 from models.batch import STREAMS, BatchError, SensorBatch
 from server import crud
-from server.engine_pool import EnginePool
+from server.engine_pool import EngineHelperDied, EnginePool
 from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state, unpack_state
@@ -39,6 +39,7 @@ from server.watermarks import advanced, check_after
 
 __all__ = [
     "EngineHost",
+    "EngineUnavailable",
     "Fed",
     "IngestConflict",
     "StorageBusy",
@@ -78,6 +79,12 @@ class StorageBusy(Exception):
         super().__init__(message)
         self.message = message
         self.retry_after_s = retry_after_s
+
+
+class EngineUnavailable(StorageBusy):
+    """HTTP 503 with ``Retry-After``: the engine cannot take the batch now (its helper process died twice in a row
+    under this request, or the engines are still being compiled after a fresh install); nothing was stored, the
+    same batch may be sent again under the same sequence number."""
 
 
 def batch_busy_message(session_id: int, seq: int, attempts: int) -> str:
@@ -371,13 +378,25 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
     out: tuple[Any, ...] = ("miss",)
     if pool.take(session_id, version):
-        with phase("engine"):
-            out = pool.feed(session_id, version, None, seq, streams)
+        try:
+            with phase("engine"):
+                out = pool.feed(session_id, version, None, seq, streams)
+        except EngineHelperDied:  # its cached engine died with it: a fresh helper restores the stored state
+            out = ("miss",)
     if out[0] == "miss":
         with phase("load_state"):
             blob = load_blob()
-        with phase("engine"):
-            out = pool.feed(session_id, version, blob, seq, streams)
+        for attempt in (1, 2):  # a helper that dies under the request costs one retry on a fresh one
+            try:
+                with phase("engine"):
+                    out = pool.feed(session_id, version, blob, seq, streams)
+                break
+            except EngineHelperDied as exc:
+                if attempt == 2:
+                    raise EngineUnavailable(
+                        f"the navigation engine's helper process died twice under batch {seq} of session "
+                        f"{session_id}; the batch was NOT stored: send it again with the same sequence number",
+                        retry_after_s=2) from exc
     if out[0] == "batch_error":
         raise BatchError(out[1], out[2])
     return out[1]

@@ -219,3 +219,52 @@ def test_watermarks_advance_by_the_last_sample_of_each_stream() -> None:
     assert w == {"gyr": int(b.gyr_t_ns[-1]), "mag": int(b.mag_t_ns[-1])}
     assert advanced(b.without("gyr"), w) == w  # a stream not sent keeps its watermark
     check_after(still_batch(T0 + 10**9), w)  # the next second is after them
+
+
+def test_engine_helper_killed_mid_stream_costs_a_retry_not_a_500(settings, make_user) -> None:  # type: ignore[no-untyped-def]
+    """SIGKILL of the engine helper twice during a stream (its pipes break under the next upload): every upload is answered 200
+    (retried on a fresh helper from the stored state) and the trajectory equals the uninterrupted run's."""
+    import os
+    import signal
+
+    _, a = make_user()
+    h = {**auth(a), "content-type": MSGPACK_TYPE}
+    bodies = [encode_msgpack(still_batch(T0 + k * 10**9, seed=k)) for k in range(8)]
+    answers = {}
+    for killed in (False, True):
+        with app_with(settings, engine_processes=1) as (app, c):
+            sid = c.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(a)).json()["id"]
+            out = []
+            for k, body in enumerate(bodies):
+                if killed and k in (2, 5):
+                    for pid in app.state.host.pool.pids():
+                        os.kill(pid, signal.SIGKILL)
+                r = c.put(f"/v1/sessions/{sid}/batches/{k}", content=body, headers=h)
+                assert r.status_code == 200, r.text
+                out.append({key: v for key, v in r.json().items() if key != "session_id"})
+            if killed:
+                assert app.state.host.pool.pids()  # a fresh helper took over
+            answers[killed] = out
+    assert answers[True] == answers[False]
+
+
+def test_engine_helper_dying_on_every_attempt_is_503_retry_after_nothing_stored(settings, make_user, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from server.engine_pool import EngineHelperDied, EnginePool
+
+    _, a = make_user()
+    with app_with(settings, engine_processes=1) as (_, c):
+        sid = c.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(a)).json()["id"]
+
+        def dies(*_a: Any, **_k: Any) -> Any:
+            raise EngineHelperDied("engine helper process died (EOFError)")
+
+        monkeypatch.setattr(EnginePool, "feed", dies)
+        r = c.put(f"/v1/sessions/{sid}/batches/0", content=encode_msgpack(still_batch(T0)),
+                  headers={**auth(a), "content-type": MSGPACK_TYPE})
+        assert r.status_code == 503 and int(r.headers["retry-after"]) >= 1, r.text
+        assert "NOT stored" in r.json()["detail"]
+        monkeypatch.undo()
+        assert c.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == 0
+        r = c.put(f"/v1/sessions/{sid}/batches/0", content=encode_msgpack(still_batch(T0)),
+                  headers={**auth(a), "content-type": MSGPACK_TYPE})
+        assert r.status_code == 200, r.text
