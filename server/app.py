@@ -11,12 +11,15 @@ from typing import Any
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import TimeoutError as SQLAlchemyTimeoutError
 
 from models.batch import BatchError
-from server.auth import RateLimiter
+from server.auth import FailedAuthGuard, RateLimiter
 from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
-from server.ingest import EngineHost, IngestConflict, StorageBusy
+from server.redact import install as install_log_redaction
+from server.ingest import EngineHost, IngestConflict, StorageBusy, is_contention
 from server.settings import Settings
 from server.upload import Uploader
 
@@ -75,6 +78,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, trajectories, users
 
     settings = settings or Settings()
+    install_log_redaction()  # the access log writes URLs: the Sensor Logger push carries its token in one
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -98,6 +102,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
     app.state.limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
+    app.state.auth_guard = FailedAuthGuard(settings.auth_failures_per_s, settings.auth_failures_burst)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
@@ -131,6 +136,21 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         _log.warning("503: %s (last error: %s: %s)", exc.message, type(cause).__name__, cause)
         return JSONResponse(status_code=503, content={"detail": exc.message},
                             headers={"Retry-After": str(exc.retry_after_s)})
+
+    @app.exception_handler(OperationalError)
+    async def _operational(request: Request, exc: OperationalError) -> JSONResponse:
+        # a route's write refused only because other writers held the database (SQLite busy past its timeout,
+        # PostgreSQL lock/statement timeout, deadlock, serialization failure): its transaction is rolled back,
+        # nothing stored, so a retryable 503 as StorageBusy, never a 500; any other database error stays a 500
+        if not is_contention(exc):
+            raise exc
+        return await _busy(request, StorageBusy("database busy: nothing of this request was stored; send it again"))
+
+    @app.exception_handler(SQLAlchemyTimeoutError)
+    async def _pool_timeout(request: Request, exc: SQLAlchemyTimeoutError) -> JSONResponse:
+        # every pooled connection stayed in use for pool_timeout: nothing was done for this request
+        return await _busy(request, StorageBusy("database connections all busy: nothing of this request was "
+                                                "stored; send it again"))
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

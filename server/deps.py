@@ -51,10 +51,23 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 HostDep = Annotated[EngineHost, Depends(get_host)]
 
 
+def client_address(request: Request) -> str | None:
+    """The peer address the failed-authentication guard counts by (:class:`server.auth.FailedAuthGuard`)."""
+    return request.client.host if request.client is not None else None
+
+
 def _user_of(db: Session, request: Request, token: str | None) -> User:
     request.state.token = token  # the token this request was authenticated with (DELETE /v1/tokens/current)
+    guard = request.app.state.auth_guard
+    client = client_address(request)
+    guard.check(client)  # 429 before the lookup for a client that keeps failing
     try:
-        user_id = authenticate(db, token, request.app.state.limiter)
+        try:
+            user_id = authenticate(db, token, request.app.state.limiter)
+        except HTTPException as exc:
+            if exc.status_code == status.HTTP_401_UNAUTHORIZED:
+                guard.failed(client)
+            raise
         user = db.get(User, user_id)
         if user is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid token", headers={"WWW-Authenticate": "Bearer"})
@@ -77,6 +90,7 @@ def current_user(
     (only the Sensor Logger push takes one, :func:`sensorlogger_user`); 429 when the token exceeds its rate limit.
     """
     if "token" in request.query_params:
+        request.app.state.auth_guard.failed(client_address(request))  # the token may be guessed through logs
         raise query_token_refused()
     return _user_of(db, request, cred.credentials if cred is not None else None)
 

@@ -56,6 +56,11 @@ class Settings(BaseSettings):
         tokens are kept per user (listed by ``GET /v1/tokens``); older ones are deleted when a token is minted,
         so the tokens table holds at most about twice this per user. The admin CLI (``pednav admin token``)
         is not held to it.
+    auth_failures_per_s : float
+        Failed authentications (401) allowed per client address and second on average, per server process; past
+        them every request with a token gets 429 before its token is looked up. 0 = no limit.
+    auth_failures_burst : int
+        Failed authentications a client may make at once.
     max_profile_bytes : int
         Largest calibration profile a client may store (``PUT /v1/profiles/{behaviour}``), as compact JSON
         [bytes]; larger gets HTTP 413. At least 256 kB: a profile the engine hands out reaches about 180 kB at its
@@ -87,6 +92,8 @@ class Settings(BaseSettings):
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
     rate_limit_burst: int = Field(default=200, ge=1)
     max_tokens_per_user: int = Field(default=20, ge=1, le=10_000)
+    auth_failures_per_s: float = Field(default=2.0, ge=0.0, allow_inf_nan=False)
+    auth_failures_burst: int = Field(default=50, ge=1)
     max_profile_bytes: int = Field(default=512 * 1024, ge=MIN_PROFILE_BYTES)
     max_profile_versions: int = Field(default=50, ge=1, le=100_000)
     pg_one_statement_writes: bool = True

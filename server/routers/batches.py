@@ -30,9 +30,22 @@ async def _body(request: Request) -> bytes:
 
 
 def _upload_sync(app: Any, token: str | None, ctype: str | None, session_id: int, seq: int, body: bytes,
-                 queued_at: float) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+                 queued_at: float, client: str | None = None) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     """The whole upload in ONE worker thread: auth, decode, validate, apply, encode (no connection is held
-    while a request waits for a thread). Returns the JSON answer and the extra response headers."""
+    while a request waits for a thread). Returns the JSON answer and the extra response headers. ``client``: the
+    peer address counted by the failed-authentication guard."""
+    guard = app.state.auth_guard
+    guard.check(client)  # 429 before the token lookup for a client that keeps failing
+    try:
+        return _upload_guarded(app, token, ctype, session_id, seq, body, queued_at)
+    except HTTPException as exc:
+        if exc.status_code == status.HTTP_401_UNAUTHORIZED:
+            guard.failed(client)
+        raise
+
+
+def _upload_guarded(app: Any, token: str | None, ctype: str | None, session_id: int, seq: int, body: bytes,
+                    queued_at: float) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     with Phases() as ph:
         ph.add("queue", time.perf_counter() - queued_at)  # waiting for an ingest thread
         settings = app.state.settings
@@ -113,7 +126,8 @@ class UploadFastPath:
             loop = asyncio.get_running_loop()
             content, extra = await loop.run_in_executor(
                 app.state.ingest_pool, _upload_sync, app, _token_of(auth, scope.get("query_string", b"")), ctype,
-                int(m.group(1)), int(m.group(2)), b"".join(chunks), time.perf_counter())
+                int(m.group(1)), int(m.group(2)), b"".join(chunks), time.perf_counter(),
+                (scope.get("client") or (None,))[0])
         except Exception as exc:
             handler = next((app.exception_handlers[t] for t in type(exc).__mro__ if t in app.exception_handlers), None)
             if handler is None:
@@ -143,7 +157,7 @@ async def put_batch(session_id: PathId, seq: PathId, body: Annotated[bytes, Depe
     token = _token_of(request.headers.get("authorization", ""), request.scope.get("query_string", b""))
     content, extra = await loop.run_in_executor(
         request.app.state.ingest_pool, _upload_sync, request.app, token, request.headers.get("content-type"),
-        session_id, seq, body, time.perf_counter())
+        session_id, seq, body, time.perf_counter(), request.client.host if request.client is not None else None)
     return Response(content=content, media_type="application/json", headers={k.decode(): v.decode() for k, v in extra})
 
 

@@ -268,3 +268,43 @@ def test_engine_helper_dying_on_every_attempt_is_503_retry_after_nothing_stored(
         r = c.put(f"/v1/sessions/{sid}/batches/0", content=encode_msgpack(still_batch(T0)),
                   headers={**auth(a), "content-type": MSGPACK_TYPE})
         assert r.status_code == 200, r.text
+
+
+def test_failed_authentications_are_rate_limited_per_client_before_the_lookup(settings, make_user, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Invalid tokens were never limited (1,000 x 401 at ~300 requests/s, each a database lookup): past the burst a
+    client gets 429 with Retry-After and its token is not looked up; a valid token of another client still works,
+    and the upload route is guarded the same way."""
+    import server.deps as deps
+
+    _, good = make_user()
+    with app_with(settings, auth_failures_per_s=0.5, auth_failures_burst=5) as (app, c):
+        lookups = []
+        real = deps.authenticate
+        monkeypatch.setattr(deps, "authenticate", lambda *a, **k: lookups.append(1) or real(*a, **k))
+        codes = [c.get("/v1/users/me", headers=auth(f"pn_guess{i}")).status_code for i in range(20)]
+        assert codes[:5] == [401] * 5 and set(codes[5:]) == {429}, codes
+        assert len(lookups) == 5  # the refused ones never reached the database
+        r = c.get("/v1/users/me", headers=auth(good))
+        assert r.status_code == 429 and int(r.headers["retry-after"]) >= 1  # the same client: held off too
+        r = c.put("/v1/sessions/1/batches/0", content=encode_msgpack(still_batch(T0)),
+                  headers={**auth("pn_guess"), "content-type": MSGPACK_TYPE})
+        assert r.status_code == 429, r.text
+        other = TestClient(app, client=("203.0.113.9", 50000))
+        assert other.get("/v1/users/me", headers=auth(good)).status_code == 200  # another client is not held
+
+
+def test_tokens_never_reach_the_access_log(caplog) -> None:  # type: ignore[no-untyped-def]
+    import logging
+
+    from server.redact import REDACTED, install
+
+    install()
+    tok = "pn_" + "A" * 43
+    with caplog.at_level(logging.INFO, logger="uvicorn.access"):
+        logging.getLogger("uvicorn.access").info('%s - "%s %s HTTP/%s" %d', "127.0.0.1:5", "POST",
+                                                   f"/v1/sensorlogger?token={tok}&x=1", "1.1", 200)
+        logging.getLogger("uvicorn.access").info('%s - "%s %s HTTP/%s" %d', "127.0.0.1:5", "GET",
+                                                   "/v1/users/me?token=wrong-guess", "1.1", 401)
+    text = "\n".join(r.getMessage() for r in caplog.records)
+    assert tok not in text and "wrong-guess" not in text and text.count(REDACTED) == 2
+    assert "&x=1" in text  # the rest of the URL stays readable
