@@ -20,6 +20,8 @@ from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
 from server.redact import install as install_log_redaction
 from server.ingest import EngineHost, IngestConflict, StorageBusy, is_contention
+from server.openapi import install as install_openapi
+from server.openapi import operation_id
 from server.settings import Settings
 from server.upload import Uploader
 
@@ -94,6 +96,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         title="pednav",
         version="1",
         description="Energy-aware pedestrian navigation service: sessions, sensor batches, calibration profiles, trajectories.",
+        generate_unique_id_function=operation_id,
     )
     db_engine = make_engine(settings)
     if settings.migrate_on_startup:
@@ -179,6 +182,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     def healthz() -> dict[str, str]:
         return {"status": "ok"}
 
+    install_openapi(app)
     return app
 
 
