@@ -84,6 +84,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        app.state.host.start()  # the engines warm up now, not under the first upload
         yield
         # stop the engine helper processes with the server (they are spawned again if the app is reused)
         if app.state.host.pool is not None:
@@ -109,7 +110,8 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
-                                engine_processes=settings.engine_processes, channels=settings.ingest_threads)
+                                engine_processes=settings.engine_processes, channels=settings.ingest_threads,
+                                warm=settings.engine_warmup)
     # batch uploads on driver connections (SQLite: group commit; PostgreSQL: one statement), see server.upload
     sqlite = db_engine.dialect.name == "sqlite"
     app.state.uploader = Uploader(db_engine, app.state.host, app.state.limiter) if (
@@ -179,8 +181,13 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         app.include_router(r.router, prefix="/v1")
 
     @app.get("/healthz", tags=["meta"])
-    def healthz() -> dict[str, str]:
-        return {"status": "ok"}
+    def healthz() -> Any:
+        """Readiness: 200 once the engines can take an upload within the normal latency; 503 with ``Retry-After``
+        while they are still being compiled (first start after an install) or loaded."""
+        if app.state.host.ready():
+            return {"status": "ok", "ready": True}
+        return JSONResponse(status_code=503, headers={"Retry-After": "2"}, content={
+            "status": "starting", "ready": False, "detail": "the navigation engines are being compiled or loaded"})
 
     install_openapi(app)
     return app

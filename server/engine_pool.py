@@ -123,16 +123,23 @@ def _feed(
     return ("ok", fed)
 
 
-def _serve(conns: list[Any], cache_size: int) -> None:
-    """Helper process main loop: answer requests on any of ``conns`` until all are closed."""
+def _serve(conns: list[Any], cache_size: int, ready: Any = None, warm: bool = False) -> None:
+    """Helper process main loop: answer requests on any of ``conns`` until all are closed. With ``warm``, the
+    engine's kernels are compiled or loaded first (:func:`server.warmup.warm_up`); ``ready`` is set then."""
     import gc
     import selectors
 
-    import energy.engine  # noqa: F401 - loaded before the freeze below
+    import energy.engine
 
     global _CACHE_SIZE
     _CACHE_SIZE = cache_size
     _watch_parent()
+    if warm:
+        from server.warmup import warm_up
+
+        warm_up(energy.engine.Engine)
+    if ready is not None:
+        ready.set()
     gc.collect()
     gc.freeze()  # module objects out of the collector's reach (full collections stall every session's feed)
     # one selector for the helper's life (multiprocessing.connection.wait builds one and registers every
@@ -156,10 +163,11 @@ def _serve(conns: list[Any], cache_size: int) -> None:
 
 
 class _Helper:
-    def __init__(self, ctx: Any, channels: int, cache_size: int) -> None:
+    def __init__(self, ctx: Any, channels: int, cache_size: int, warm: bool = False) -> None:
         pairs = [ctx.Pipe(duplex=True) for _ in range(channels)]
-        self.proc = ctx.Process(target=_serve, args=([b for _, b in pairs], cache_size), daemon=True,
-                                name="pednav-engine")
+        self.ready = ctx.Event()
+        self.proc = ctx.Process(target=_serve, args=([b for _, b in pairs], cache_size, self.ready, warm),
+                                daemon=True, name="pednav-engine")
         self.proc.start()
         for _, b in pairs:
             b.close()
@@ -190,12 +198,15 @@ class EnginePool:
     channels : int
         Pipes per helper: the most requests in flight to one helper (one per ingest thread); further callers
         wait for a free pipe.
+    warm : bool
+        Each helper compiles or loads the engine's kernels before it takes requests (:mod:`server.warmup`).
     """
 
-    def __init__(self, processes: int, cache_size: int, channels: int = 16) -> None:
+    def __init__(self, processes: int, cache_size: int, channels: int = 16, warm: bool = False) -> None:
         self.processes = processes
         self.cache_size = cache_size
         self.channels = channels
+        self.warm = warm
         self._helpers: list[_Helper | None] | None = None
         self._lock = threading.Lock()
         # session id -> version this worker committed from its helper's cached engine (LRU, as the helpers')
@@ -207,13 +218,25 @@ class EnginePool:
         with self._lock:  # ingest threads may arrive together on the first request
             ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
             if self._helpers is None:  # all helpers start together (each imports the engine at start)
-                self._helpers = [_Helper(ctx, self.channels, self.cache_size) for _ in range(self.processes)]
+                self._helpers = [_Helper(ctx, self.channels, self.cache_size, self.warm) for _ in range(self.processes)]
             h = self._helpers[i]
             if h is None or h.broken or not h.proc.is_alive():
                 if h is not None:
                     h.stop()
-                h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
+                h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size, self.warm)
             return h
+
+    def start(self) -> None:
+        """Spawn the helpers now (at server start), so their warm-up runs before the first upload."""
+        self._helper(0)
+
+    def ready(self) -> bool:
+        """Every helper has been spawned and finished its warm-up (one replaced after a death warms up again;
+        the server stays ready meanwhile: its kernels are cached on disk by then and load in about a second)."""
+        with self._lock:
+            helpers = self._helpers
+        return helpers is not None and all(h is None or h.ready.is_set() or h.broken for h in helpers) and any(
+            h is not None and h.ready.is_set() for h in helpers)
 
     def committed(self, session_id: int, version: int) -> None:
         """The worker committed ``version`` of the session from the state its helper fed last (the helper's

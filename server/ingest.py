@@ -138,6 +138,9 @@ class EngineHost:
         Helper processes that run the engines of batch uploads (0 = in this process).
     channels : int
         Requests in flight to one helper process (one per ingest thread).
+    warm : bool
+        Compile or load the engine's kernels at :meth:`start` and report :meth:`ready` only then
+        (:mod:`server.warmup`); False: ready at once.
     """
 
     def __init__(
@@ -147,10 +150,16 @@ class EngineHost:
         serialize_writes: bool = False,
         engine_processes: int = 0,
         channels: int = 16,
+        warm: bool = False,
     ) -> None:
         self.cache_size = cache_size
+        self.warm = warm
         # engines in helper processes (only for the default engine class: helpers import it themselves)
-        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels) if engine_processes > 0 and engine_cls is None else None
+        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels, warm) if (
+            engine_processes > 0 and engine_cls is None) else None
+        self._warmed = threading.Event()
+        if not warm:
+            self._warmed.set()
         # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
         # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
         self.serialize_writes = serialize_writes
@@ -159,6 +168,28 @@ class EngineHost:
         self._cache: OrderedDict[int, tuple[int, EngineLike]] = OrderedDict()
         self._locks: dict[int, threading.Lock] = {}
         self._guard = threading.Lock()
+
+    def start(self) -> None:
+        """At server start: spawn the engine helpers (they warm up themselves), or warm up this process's engine
+        in a background thread (``warm``)."""
+        if self.pool is not None:
+            self.pool.start()
+        elif not self._warmed.is_set():
+            def warm() -> None:
+                from server.warmup import warm_up
+
+                try:
+                    warm_up(self.engine_cls)
+                finally:
+                    self._warmed.set()
+
+            threading.Thread(target=warm, daemon=True, name="engine-warmup").start()
+
+    def ready(self) -> bool:
+        """The engine's kernels are compiled and loaded: an upload is answered within the normal latency."""
+        if self.pool is not None:
+            return not self.warm or self.pool.ready()
+        return self._warmed.is_set()
 
     @property
     def engine_cls(self) -> Any:

@@ -35,6 +35,9 @@ class Settings(BaseSettings):
         Engines kept in memory between batches (their state is still persisted after every batch).
     engine_processes : int
         Helper processes per server process that run the navigation engines (0 = in the server process).
+    engine_warmup : bool
+        Compile or load the engine's kernels when the server starts and report ready on ``/healthz`` only then;
+        uploads before are refused with 503 ``Retry-After`` (nothing stored). False: the first upload compiles.
     ingest_threads : int
         Worker threads of one process that handle batch uploads (uploads in flight; a thread waiting for the
         engine helper or the commit holds no GIL).
@@ -87,6 +90,7 @@ class Settings(BaseSettings):
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
     ingest_threads: int = Field(default=16, ge=1, le=64)
     engine_processes: int = Field(default=1, ge=0, le=64)
+    engine_warmup: bool = True
     token_ttl_s: int = Field(default=30 * 86_400, ge=0)
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)

@@ -126,7 +126,7 @@ class _Server:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def wait(self, timeout: float = 60.0) -> None:
+    def wait(self, timeout: float = 900.0) -> None:  # /healthz is 200 once the engines are compiled (first start)
         import httpx2
 
         deadline = time.monotonic() + timeout

@@ -15,7 +15,7 @@ from server import crud
 from server.auth import authenticate, query_token_refused
 from server.deps import ID_MAX, ID_MIN, CurrentUser, PathId, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
-from server.ingest import apply_batch
+from server.ingest import EngineUnavailable, apply_batch
 from server.timing import Phases, phase
 from server.schemas import BatchResponse
 
@@ -34,6 +34,10 @@ def _upload_sync(app: Any, token: str | None, ctype: str | None, session_id: int
     """The whole upload in ONE worker thread: auth, decode, validate, apply, encode (no connection is held
     while a request waits for a thread). Returns the JSON answer and the extra response headers. ``client``: the
     peer address counted by the failed-authentication guard."""
+    if not app.state.host.ready():  # a fresh server compiling its engines: answered now, nothing stored
+        raise EngineUnavailable("the navigation engines are still being compiled or loaded after the server "
+                                "started; this batch was NOT stored: send it again with the same sequence number",
+                                retry_after_s=2)
     guard = app.state.auth_guard
     guard.check(client)  # 429 before the token lookup for a client that keeps failing
     try:
