@@ -38,6 +38,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="SQLAlchemy URL (default: a fresh SQLite file in a temporary folder); for PostgreSQL a "
                         "unique schema is created and dropped")
     p.add_argument("--encoding", choices=("msgpack", "json"), default="msgpack")
+    p.add_argument("--workers", type=int, default=1, help="uvicorn worker processes of the server (default 1)")
+    p.add_argument("--sweep", action="store_true",
+                   help="sweep --sweep-devices x --sweep-workers x --sweep-databases, each run --seconds long, and "
+                        "report devices per core at p99 <= --p99-ms (0 lost, 0 duplicated)")
+    p.add_argument("--sweep-devices", type=int, nargs="+", default=[100, 500, 1000, 2000])
+    p.add_argument("--sweep-workers", type=int, nargs="+", default=[1, 2, 4])
+    p.add_argument("--sweep-databases", nargs="+", default=["postgresql+psycopg://postgres@127.0.0.1:5432/test", "sqlite"],
+                   help="database URLs ('sqlite': a fresh file per run)")
+    p.add_argument("--p99-ms", type=float, default=250.0, help="latency bound of the sweep's capacity figure")
+    p.add_argument("--plot", default=None, help="PNG of p99 latency against devices per database and workers (sweep)")
 
 
 def _proc_stats() -> dict[int, tuple[int, str, float]]:
@@ -111,14 +121,14 @@ def _bodies(seconds: int, rate_hz: float, encoding: str) -> list[tuple[bytes, st
 
 
 class _Server:
-    def __init__(self, database_url: str, schema: str | None) -> None:
+    def __init__(self, database_url: str, schema: str | None, workers: int = 1) -> None:
         self.port = _free_port()
         env = {**os.environ, "PEDNAV_DATABASE_URL": database_url, "PEDNAV_MIGRATE_ON_STARTUP": "true"}
         if schema:
             env["PEDNAV_DB_SCHEMA"] = schema
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "server.app:app_from_env", "--factory", "--host", "127.0.0.1",
-             "--port", str(self.port), "--workers", "1", "--log-level", "warning", "--no-access-log"],
+             "--port", str(self.port), "--workers", str(workers), "--log-level", "warning", "--no-access-log"],
             env=env,
         )
 
@@ -339,6 +349,76 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.sweep:
+        return _sweep(args)
+    return _run_one(args)
+
+
+def _sweep(args: argparse.Namespace) -> dict[str, Any]:
+    """Every (database, workers, devices) point, one run each; the capacity figure per (database, workers)."""
+    points = []
+    for db in args.sweep_databases:
+        for w in args.sweep_workers:
+            for n in args.sweep_devices:
+                one = argparse.Namespace(**{**vars(args), "devices": n, "workers": w,
+                                            "database_url": None if db == "sqlite" else db})
+                try:
+                    r = _run_one(one)
+                except Exception as exc:  # noqa: BLE001 - a point that could not run is reported, the sweep goes on
+                    points.append({"database": "sqlite" if db == "sqlite" else "postgresql", "workers": w,
+                                   "devices": n, "error": f"{type(exc).__name__}: {exc}"})
+                    continue
+                points.append({k: r[k] for k in ("database", "server_workers", "devices", "acked", "lost_batches",
+                                                 "duplicated_batches", "late_sends", "other_statuses", "throughput_rps",
+                                                 "cpu_ms_per_batch", "loadavg_1_5_15_at_end")}
+                              | {"p50_ms": r["latency_ms"]["p50"], "p99_ms": r["latency_ms"]["p99"],
+                                 "max_ms": r["latency_ms"]["max"], "workers": w})
+    cores = os.cpu_count() or 1
+    capacity = {}
+    for db in {p["database"] for p in points}:
+        for w in args.sweep_workers:
+            ok = [p["devices"] for p in points if p["database"] == db and p["workers"] == w and "error" not in p
+                  and p["p99_ms"] is not None and p["p99_ms"] <= args.p99_ms and p["lost_batches"] == 0
+                  and p["duplicated_batches"] == 0]
+            best = max(ok, default=0)
+            # cores the server could use: each worker has an engine helper; never more than the machine has
+            used = min(cores, 2 * w)
+            capacity[f"{db}/{w}"] = {"devices": best, "cores_usable": used, "devices_per_core": round(best / used, 1)}
+    out = {"p99_bound_ms": args.p99_ms, "seconds_per_point": args.seconds, "rate_hz": args.rate_hz, "cpus": cores,
+           "points": points, "capacity": capacity}
+    if args.plot:
+        _plot(points, args.plot, args.p99_ms)
+        out["plot"] = args.plot
+    return out
+
+
+def _plot(points: list[dict[str, Any]], path: str, bound_ms: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for db in sorted({p["database"] for p in points}):
+        for w in sorted({p["workers"] for p in points}):
+            xs = [(p["devices"], p["p99_ms"]) for p in points if p["database"] == db and p["workers"] == w
+                  and p.get("p99_ms") is not None]
+            if xs:
+                xs.sort()
+                ax.plot([x for x, _ in xs], [y for _, y in xs], marker="o", ls="-" if db == "postgresql" else "--",
+                        label=f"{db}, {w} worker{'s' * (w > 1)}")
+    ax.axhline(bound_ms, color="k", lw=0.8, ls=":")
+    ax.set_xlabel("devices (one 1-s batch of 100 Hz samples per second each)")
+    ax.set_ylabel("p99 upload latency [ms]")
+    ax.set_yscale("log")
+    ax.set_title("pednav bench load --sweep")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _run_one(args: argparse.Namespace) -> dict[str, Any]:
     import tempfile
 
     from server.db import drop_schema, make_engine
@@ -356,7 +436,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tmp = tempfile.TemporaryDirectory(prefix="pednav-load-")
         url = f"sqlite:///{tmp.name}/load.db"
     load_start = os.getloadavg()
-    srv = _Server(url, schema)
+    srv = _Server(url, schema, args.workers)
     try:
         srv.wait()
         settings = Settings(database_url=url, db_schema=schema)
@@ -388,7 +468,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "encoding": args.encoding,
         "body_bytes": len(bodies[0][0]),
         "database": backend,
-        "server_workers": 1,
+        "server_workers": args.workers,
         "engine_processes": Settings(database_url=url).engine_processes,  # what the server read (env or default)
         "cpus": os.cpu_count(),
         "loadavg_1_5_15_at_start": [round(x, 2) for x in load_start],
