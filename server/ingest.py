@@ -35,6 +35,7 @@ from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state, unpack_state
 from server.timing import phase, since
+from server.plausibility import STILL_GYRO
 from server.watermarks import advanced, check_after
 
 __all__ = [
@@ -566,6 +567,7 @@ def _apply_once(
         newest0 = {"gyr": row.gyr_newest_ns, "mag": row.mag_newest_ns}
         try:
             check_after(batch, newest0)  # 422: late gyroscope/magnetometer samples (nothing stored)
+            STILL_GYRO.check(batch)  # 422: a gyroscope in deg/s while standing
         except BatchError:
             db.rollback()
             raise

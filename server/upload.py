@@ -35,6 +35,7 @@ from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_b
 from server.security import hash_token
 from server.statecodec import pack_state
 from server.timing import phase, since
+from server.plausibility import STILL_GYRO
 from server.watermarks import advanced, check_after
 
 __all__ = ["SqliteGroupWriter", "Uploader"]
@@ -343,6 +344,7 @@ class Uploader:
         if seq > sess.next_seq:
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {sess.next_seq}", sess.next_seq)
         check_after(batch, sess.newest())  # 422: late gyroscope/magnetometer samples (nothing stored)
+        STILL_GYRO.check(batch)  # 422: a gyroscope in deg/s while standing (the engine's check needs motion)
         newest = advanced(batch, sess.newest())
 
         def load_state() -> tuple[bytes | None, str, Any]:
