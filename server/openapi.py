@@ -81,6 +81,7 @@ BATCH_JSON_SCHEMA: dict[str, Any] = {
 _MSGPACK_STREAM: dict[str, Any] = {
     "type": "object",
     "required": ["n", "dtype", "xyz"],
+    "additionalProperties": False,
     "properties": {
         "n": {"type": "integer", "minimum": 0, "maximum": 2**31 - 1, "description": "samples"},
         "dtype": {"type": "string", "enum": ["<f4", "<f8"], "description": "little-endian float32 or float64"},
@@ -98,6 +99,7 @@ BATCH_MSGPACK_SCHEMA: dict[str, Any] = {
     "description": "The compact binary form of BatchJson as a msgpack map (server/formats.py): version 1, per "
                    "stream its sample count, packed values and packed timestamps.",
     "required": ["v"],
+    "additionalProperties": False,
     "properties": {"v": {"type": "integer", "enum": [1]}, **{name: _MSGPACK_STREAM for name in ("acc", "gyr", "mag")}},
 }
 
