@@ -68,16 +68,18 @@ def _proc_stats() -> dict[int, tuple[int, str, float]]:
     return out
 
 
-def _cpu_probe(server_pid: int) -> dict[str, float]:
-    """CPU seconds used so far by this load generator, the server process, its descendants (the engine helper)
-    and all postgres processes (on a shared machine the latter include other clients of the database)."""
+def _cpu_probe(server_pid: int, workers: int = 1) -> dict[str, float]:
+    """CPU seconds used so far by this load generator, the server's worker processes (the uvicorn process itself
+    with one worker; its children, plus the supervising parent, with several), their descendants (the engine
+    helpers) and all postgres processes (on a shared machine the latter include other clients of the database)."""
     if not os.path.isdir("/proc"):
         return {}
     st = _proc_stats()
     kids: dict[int, list[int]] = {}
     for pid, (ppid, _, _) in st.items():
         kids.setdefault(ppid, []).append(pid)
-    desc, todo = [], list(kids.get(server_pid, []))
+    top = [server_pid] if workers <= 1 else [server_pid, *kids.get(server_pid, [])]
+    desc, todo = [], [k for p in top for k in kids.get(p, []) if k not in top]
     while todo:
         p = todo.pop()
         desc.append(p)
@@ -85,7 +87,7 @@ def _cpu_probe(server_pid: int) -> dict[str, float]:
     me = os.times()
     return {
         "load_generator": me.user + me.system,  # this process (all its threads)
-        "server_worker": st.get(server_pid, (0, "", 0.0))[2],
+        "server_worker": sum(st.get(p, (0, "", 0.0))[2] for p in top),
         "engine_helpers": sum(st[p][2] for p in desc if p in st),
         "postgres_all": sum(c for _, n, c in st.values() if n.startswith("postgres")),
     }
@@ -451,7 +453,7 @@ def _run_one(args: argparse.Namespace) -> dict[str, Any]:
             tokens = [crud.create_user(db, f"load-{run_id}-{i}")[1] for i in range(args.devices + 1)]
             db.commit()
         eng.dispose()
-        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid)))
+        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid, args.workers)))
     finally:
         srv.stop()
         if schema:
