@@ -61,19 +61,27 @@ class _Worker:
             cls.state = {"sm": make_sessionmaker(eng), "host": EngineHost(0, engine_processes=0)}
         return cls.state["sm"], cls.state["host"]
 
+    @classmethod
+    def redis(cls, url: str) -> Any:
+        """This process's Redis client of ``url`` (one connection pool per process, not one per job)."""
+        import redis
+
+        clients = cls.state.setdefault("redis", {})
+        if url not in clients:
+            clients[url] = redis.Redis.from_url(url)
+        return clients[url]
+
 
 def reprocess_job(session_id: int, run: str, engine_mode: str | None = None, dry_run: bool = False,
                   redis_url: str | None = None) -> str:
     """Re-process one stored session with this worker's engine; counts the outcome under ``run`` in Redis and
     returns it (``identical``, ``changed``, ``missing``). A :class:`server.reprocess.ReprocessConflict` is raised
     (Dramatiq retries the job) after being counted as a conflict."""
-    import redis
-
     from server.models import TrackSession, User
     from server.reprocess import ReprocessConflict, reprocess_session
 
     sm, host = _Worker.get()
-    r = redis.Redis.from_url(redis_url or os.environ.get("PEDNAV_REDIS_URL", "redis://127.0.0.1:6379/0"))
+    r = _Worker.redis(redis_url or os.environ.get("PEDNAV_REDIS_URL", "redis://127.0.0.1:6379/0"))
     key = _COUNTS.format(run=run)
     with sm() as db:
         sess = db.get(TrackSession, session_id)

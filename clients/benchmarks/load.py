@@ -138,19 +138,24 @@ class _Server:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def wait(self, timeout: float = 900.0) -> None:  # /healthz is 200 once the engines are compiled (first start)
+    def wait(self, timeout: float = 900.0, workers: int = 1) -> None:
+        """Until ``/healthz`` is 200 (the engines compiled or loaded) on every worker: with several workers each
+        answers for itself and a new connection meets any of them, so 10 answers per worker in a row must be 200."""
         import httpx2
 
         deadline = time.monotonic() + timeout
+        in_a_row = 0
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}")
             try:
-                if httpx2.get(self.url + "/healthz", timeout=1.0).status_code == 200:
-                    return
+                ok = httpx2.get(self.url + "/healthz", timeout=1.0, headers={"Connection": "close"}).status_code == 200
             except httpx2.TransportError:
-                pass
-            time.sleep(0.2)
+                ok = False
+            in_a_row = in_a_row + 1 if ok else 0
+            if in_a_row >= 10 * workers:
+                return
+            time.sleep(0.02 if ok else 0.2)
         raise RuntimeError("server did not start")
 
     def stop(self) -> None:
@@ -265,6 +270,10 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
                 stats["transport_errors"] += 1
                 await asyncio.sleep(0.05 * (attempt + 1))
                 continue
+            if status in (429, 503) and attempt < 4:  # refused, nothing stored: wait as asked, same number
+                stats[f"retried_{status}"] = stats.get(f"retried_{status}", 0) + 1
+                await asyncio.sleep(float(hdrs.get("retry-after", "1")))
+                continue
             if status == 200:
                 lat.append(time.perf_counter() - start)
                 sent.append(start - t0)
@@ -295,8 +304,12 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
             warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
             for k, (body, ctype) in enumerate(bodies[:_SPREAD_S]):  # every phase of the walk (stand, walk, turns)
                 # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
-                r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
-                                     headers={**h, "content-type": ctype}, timeout=600.0)
+                for _ in range(300):  # a worker still warming up answers 503 Retry-After: wait as a device does
+                    r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
+                                         headers={**h, "content-type": ctype}, timeout=600.0)
+                    if r.status_code != 503:
+                        break
+                    await asyncio.sleep(float(r.headers.get("retry-after", "1")))
                 r.raise_for_status()
 
         await asyncio.gather(*[warm_up() for _ in range(_WARM_SESSIONS)])
@@ -340,6 +353,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         "late_sends": stats["late_sends"],
         "transport_errors": stats["transport_errors"],
         "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
+        "retried_after": {k: v for k, v in stats.items() if k.startswith("retried_")},
         "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
         "server_phases_ms": _phase_report(a, timings),
         "latency_p99_ms_by_10s": _by_window(np.array(sent), a, 10.0),
@@ -440,7 +454,7 @@ def _run_one(args: argparse.Namespace) -> dict[str, Any]:
     load_start = os.getloadavg()
     srv = _Server(url, schema, args.workers)
     try:
-        srv.wait()
+        srv.wait(workers=args.workers)
         settings = Settings(database_url=url, db_schema=schema)
         eng = make_engine(settings)
         from server import crud
