@@ -45,7 +45,7 @@ class RedactTokens(logging.Filter):
         return True
 
 
-LOGGERS = ("uvicorn.access", "uvicorn.error", "uvicorn", "pednav")
+LOGGERS = ("uvicorn.access", "uvicorn.error", "uvicorn", "pednav", "pednav.access", "pednav.server")
 
 
 def install(names: tuple[str, ...] = LOGGERS) -> None:

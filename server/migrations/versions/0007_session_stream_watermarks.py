@@ -5,8 +5,8 @@ is refused with 422 (the engine would drop them without a word, as it refuses la
 these columns let the server decide that from the row it reads anyway, before the engine runs. Sessions
 started before this revision get NULL: their next upload is taken as before and sets them.
 
-Revision ID: 0006
-Revises: 0005
+Revision ID: 0007
+Revises: 0006
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from __future__ import annotations
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0006"
-down_revision = "0005"
+revision = "0007"
+down_revision = "0006"
 branch_labels = None
 depends_on = None
 
