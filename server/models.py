@@ -128,6 +128,10 @@ class TrackSession(Base):
     reprocessed_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     reprocess_count: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     version: Mapped[int] = mapped_column(Integer, nullable=False, default=0)
+    # newest gyroscope / magnetometer sample time received [ns] (None: none yet): later uploads must start after
+    # them (server.watermarks)
+    gyr_newest_ns: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+    mag_newest_ns: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
 
     __mapper_args__ = {"version_id_col": version}
 

@@ -83,7 +83,7 @@ def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] |
         last = d
 
     for row in raws:
-        batch = decode_batch(row.raw, MSGPACK_TYPE, 2**62)
+        batch = decode_batch(row.raw, MSGPACK_TYPE, 2**62, allow_empty=True)
         try:
             upd = engine.feed(batch)
         except BatchError as exc:

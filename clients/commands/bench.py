@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         ("engine", "CPU per batch of the server's engine helper (restore, feed, serialise) on real data"),
         ("load", "many simulated devices against one server worker: latency percentiles, lost batches"),
         ("state", "engine state size and CPU per batch against the time a person stands"),
+        ("coldstart", "a fresh install's first upload, readiness and first accepted batch (empty numba cache)"),
+        ("jobs", "re-processing stored sessions through the job engine (Dramatiq, Dask) with 1, 2, 4 workers"),
     ):
         try:
             module = importlib.import_module(f"clients.benchmarks.{name}")
