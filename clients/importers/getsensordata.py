@@ -27,7 +27,7 @@ What the recording holds besides the engine's streams: :attr:`clients.recording.
 :attr:`clients.recording.Recording.aux` the location fixes ``gnss`` (``t_ns``, ``latitude_deg``,
 ``longitude_deg``, ``altitude_m``, ``bearing_deg``, ``accuracy_m``, ``speed_m_s``, ``sats_in_view``,
 ``sats_in_use``), the phone's orientation ``ahrs`` (``t_ns``, ``pitch_roll_yaw_deg``, ``quat_xyz``) and
-``device`` (manufacturer, model, Android version from the header). Damaged lines follow the sample policy of
+``device`` (manufacturer, model, Android version and the creation ``date`` from the header). Damaged lines follow the sample policy of
 :mod:`clients.importers._common`: a line with too few fields or an unreadable number is skipped and noted.
 """
 
@@ -73,6 +73,16 @@ def _numbers(fields: list[str]) -> list[float] | None:
         except ValueError:
             return None
     return out
+
+
+def _creation_date(text: str) -> str | None:
+    """ISO date of the header's ``Date of creation: Wed Jun 14 10:46:42 GMT+02:00 2023`` (None if unreadable)."""
+    parts = text.split()
+    months = ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec")
+    try:
+        return f"{int(parts[-1]):04d}-{months.index(parts[1][:3]) + 1:02d}-{int(parts[2]):02d}"
+    except (IndexError, ValueError):
+        return None
 
 
 def _parse_group(tag: str, lines: list[tuple[int, str]], need: int) -> tuple[list[list[float]], list[int]]:
@@ -123,6 +133,10 @@ def _read_lines(p: Path) -> tuple[dict[str, list[list[float]]], dict[str, str], 
             for key in ("Manufacturer", "Model", "Android version Release"):
                 if h.startswith(key + ":"):
                     header[key] = h.split(":", 1)[1].strip()
+            if h.startswith("Date of creation:"):
+                day = _creation_date(h.split(":", 1)[1])
+                if day is not None:
+                    header["date"] = day
             continue
         tag, _, rest = line.partition(";")
         if tag in groups:

@@ -13,6 +13,7 @@ from clients.importers import ImporterError, importer_for, list_recordings, load
 from clients.importers.getsensordata import SOURCE_FORMAT
 
 _HEADER = """% LogFile created by the 'GetSensorData' App for Android.
+% Date of creation: Wed Jun 14 10:46:42 GMT+02:00 2023
 % Phone used for this logfile:
 % Manufacturer:            \tsamsung
 % Model:                   \tSM-A520F
@@ -92,7 +93,7 @@ def test_round_trip(tmp_path: Path, empty_mag_column: bool) -> None:
     assert gnss["t_ns"][0] == 820_200_000 and gnss["latitude_deg"][0] == pytest.approx(49.461069)
     assert gnss["accuracy_m"][0] == 8.0 and gnss["sats_in_use"][0] == 15
     assert rec.aux["ahrs"]["quat_xyz"].shape == (s["ta"].size, 3)
-    assert rec.aux["device"]["Model"] == "SM-A520F"
+    assert rec.aux["device"]["Model"] == "SM-A520F" and rec.aux["device"]["date"] == "2023-06-14"
 
 
 def test_detected_by_content_and_listed(tmp_path: Path) -> None:
