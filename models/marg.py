@@ -257,14 +257,29 @@ def _inject(q: np.ndarray, b: np.ndarray, s: np.ndarray, dx: np.ndarray) -> None
 
 @njit(cache=True)
 def _scalar_update(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, h: np.ndarray, z: float, r: float) -> None:
-    """Kalman update with one scalar measurement ``z = h . x + noise(r)`` (Joseph form)."""
-    ph = P @ h
-    sv = h @ ph + r
-    k = ph / sv
-    dx = k * z
+    """Kalman update with one scalar measurement ``z = h . x + noise(r)``: ``P <- P - k (P h)^T``, symmetrised."""
     n = P.shape[0]
-    ikh = np.eye(n) - np.outer(k, h)
-    P[:, :] = ikh @ P @ ikh.T + np.outer(k, k) * r
+    ph = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += P[i, j] * h[j]
+        ph[i] = acc
+    sv = r
+    for i in range(n):
+        sv += h[i] * ph[i]
+    dx = np.empty(n)
+    for i in range(n):
+        dx[i] = ph[i] / sv * z
+    for i in range(n):
+        ki = ph[i] / sv
+        for j in range(n):
+            P[i, j] -= ki * ph[j]
+    for i in range(n):
+        for j in range(i + 1, n):
+            a = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = a
+            P[j, i] = a
     _inject(q, b, s, dx)
 
 
@@ -299,11 +314,17 @@ def marg_predict(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: 
         nrm = math.sqrt(qn[0] ** 2 + qn[1] ** 2 + qn[2] ** 2 + qn[3] ** 2)
         for i in range(4):
             q[i] = qn[i] / nrm
-        # P <- F P F^T + Q with F = [[I, -C dt, 0], [0, I, 0], [0, 0, 1]]
-        G_ = -C * dt
-        A = P[0:3, :] + G_ @ P[3:6, :]
+        # P <- F P F^T + Q with F = [[I, -C dt, 0], [0, I, 0], [0, 0, 1]]: rows 0-2, then columns 0-2
+        n = P.shape[0]
+        A = np.empty((3, n))
+        for i in range(3):
+            for j in range(n):
+                A[i, j] = P[i, j] - dt * (C[i, 0] * P[3, j] + C[i, 1] * P[4, j] + C[i, 2] * P[5, j])
         P[0:3, :] = A
-        B = P[:, 0:3] + P[:, 3:6] @ G_.T
+        B = np.empty((n, 3))
+        for i in range(n):
+            for j in range(3):
+                B[i, j] = P[i, j] - dt * (P[i, 3] * C[j, 0] + P[i, 4] * C[j, 1] + P[i, 5] * C[j, 2])
         P[:, 0:3] = B
         for i in range(3):
             P[i, i] += c[0] * c[0] * dt
@@ -364,7 +385,9 @@ def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w:
         return
     s[S_TMAG] = t
     C = q2dcm(q)
-    mn = C @ m
+    mn = np.empty(3)
+    for i in range(3):
+        mn[i] = C[i, 0] * m[0] + C[i, 1] * m[1] + C[i, 2] * m[2]
     mh = math.sqrt(mn[0] ** 2 + mn[1] ** 2)
     if mh < 1.0:
         return
@@ -430,11 +453,6 @@ def marg_event(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: np
         marg_gravity(q, b, P, s, v, c)
     else:
         marg_magnetic(q, b, P, s, w, ref, v, t, c)
-    for i in range(_N):  # keep P symmetric
-        for j in range(i + 1, _N):
-            a = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = a
-            P[j, i] = a
 
 
 @njit(cache=True)

@@ -5,7 +5,8 @@ Forms (DESIGN.md "Evaluation contracts")::
     pednav eval vicon DIR --json
     pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
 
-Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
+``pednav eval ipin DIR --json`` (GetSensorData logfiles with POSI landmarks, :mod:`clients.evaluation.ipin`;
+``--mode {auto,always-on}``, ``--placement``). Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
 of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`).
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
@@ -335,6 +336,49 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     return 1 if failed or not items else 0
 
 
+def _run_ipin(args: argparse.Namespace) -> int:
+    from clients.evaluation.harness import select
+    from clients.evaluation.ipin import evaluate_ipin
+    from clients.importers import list_recordings, load
+
+    directory = Path(args.dir) if args.dir else _default_dir("ipin2023-t3-phone")
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval ipin: data folder not found ({args.dir or 'PEDNAV_DATA/ipin2023-t3-phone'})", file=sys.stderr)
+        return 2
+    files = select(list_recordings(directory), lambda f: f.stem, args.match, args.limit)
+    recs, rows_failed = [], []
+    for f in _progress(files, "ipin load"):
+        try:
+            rec = load(f)
+            if rec.truth is None or rec.truth.t_ns is None or len(rec.truth.t_ns) < 2:
+                raise ValueError(f"{f}: no landmarks (POSI lines): nothing to score")
+            recs.append(rec)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            _log_failure(f, exc)
+            rows_failed.append({"name": f.stem, "error": f"{type(exc).__name__}: {exc}"})
+    if len({r.name.rsplit("_repetition", 1)[0] for r in recs}) < 2:
+        print(f"pednav eval ipin: {len(recs)} scorable recording(s) in {directory}; the leave-one-route-out step "
+              "constant needs trials of at least two routes", file=sys.stderr)
+        return 1
+    placement = None if args.placement == "recognise" else args.placement
+    doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds)
+    doc["trials"] += rows_failed
+
+    def line(r: dict[str, Any]) -> str:
+        return (f"{r['name']:<42} {r['mean_err_m']:>6.2f} {r['p75_err_m']:>6.2f} {r['final_err_m']:>6.2f} "
+                f"{r['path_ratio']:>6.3f} {r['steps']:>5d} {r['energy_ratio']:>6.2f} {r['always_on']['mean_err_m']:>7.2f} "
+                f"{r['baseline']['mean_err_m']:>7.2f}")
+
+    if _print(doc, doc["trials"], args.json, 42, f"{'trial':<42} {'mean m':>6} {'p75 m':>6} {'final':>6} {'path':>6} "
+              f"{'steps':>5} {'energy':>6} {'alw-on':>7} {'basel.':>7}", line):
+        s = doc["summary"]
+        print(f"\n{s['trials']} trials ({args.mode}): median mean error {_fmt(s['mean_err_m']['median'], '.2f')} m "
+              f"(worst {_fmt(s['mean_err_m']['worst'], '.2f')}), median p75 {_fmt(s['p75_err_m']['median'], '.2f')} m, "
+              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')}; always-on "
+              f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
+    return 1 if rows_failed else 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -346,7 +390,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate the engine on public datasets (VICON ARMSE, gdin loop/stride errors, "
-                                    "gaitmap stride lengths against motion capture)")
+                                    "gaitmap stride lengths against motion capture, IPIN phone landmark errors)")
     esub = p.add_subparsers(dest="dataset", metavar="DATASET", required=True)
     pv = esub.add_parser("vicon", help="University of Toronto VICON trials: authors' ARMSE, behaviour fractions")
     _common(pv)
@@ -367,3 +411,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(pm)
     pm.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
     pm.set_defaults(func=_run_gaitmap)
+    pi = esub.add_parser("ipin", help="GetSensorData phone logfiles with surveyed landmarks (IPIN 2023 Track 3): "
+                                      "landmark errors, path ratio, steps, energy against always-on")
+    pi.add_argument("dir", nargs="?", default=None, help="folder of logfiles (default: PEDNAV_DATA/ipin2023-t3-phone)")
+    pi.add_argument("--json", action="store_true", help="print one JSON document")
+    pi.add_argument("--mode", choices=("auto", "always-on"), default="auto",
+                    help="step-and-heading engine mode: auto = energy-aware (default), always-on = every sensor at its full rate")
+    pi.add_argument("--placement", choices=("phone-hand", "phone-pocket", "recognise"), default="phone-hand",
+                    help="placement given to the engine (default phone-hand: the dataset's phones are held in the hand); "
+                         "recognise = let the engine recognise it")
+    pi.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
+    pi.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
+    pi.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pi.set_defaults(func=_run_ipin)
