@@ -40,7 +40,7 @@ from models.batch import STREAMS, BatchError, SensorBatch
 from models.marg import MargConfig, MargState, merge_streams
 from models.pdr import STEP_RECORD, PdrState, run_pdr
 from models.pdr_step_length import PdrStepLength, StepLengthConfig
-from models.placement import DEVICE_PLACEMENTS, STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
+from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
 from models.step_detector import StepDetectorConfig
 from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
 
@@ -232,8 +232,9 @@ class PhoneEngine:
             raise ValueError(f"mode: expected one of {PHONE_MODES}, got {mode!r}")
         if device_kind not in ("phone", "watch"):
             raise ValueError(f"device_kind: the step-and-heading engine serves phones and watches, got {device_kind!r}")
-        if placement is not None and placement not in DEVICE_PLACEMENTS[device_kind]:
-            raise ValueError(f"placement: a {device_kind} can be {', '.join(DEVICE_PLACEMENTS[device_kind])}, got {placement!r}")
+        if placement is not None and (placement not in STEP_AND_HEADING or (device_kind == "watch") != (placement == "watch")):
+            raise ValueError(f"placement: the step-and-heading engine serves a {device_kind} as "
+                             f"{'watch' if device_kind == 'watch' else 'phone-hand or phone-pocket'}, got {placement!r}")
         self.mode = mode
         self.config = config or PhoneEngineConfig()
         self.trace = _new_trace() if trace else None

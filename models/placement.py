@@ -19,14 +19,17 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
-__all__ = ["PLACEMENTS", "STEP_AND_HEADING", "DEVICE_PLACEMENTS", "PlacementConfig", "PlacementRecognizer",
-           "default_placement", "check_placement"]
+__all__ = ["PLACEMENTS", "STEP_AND_HEADING", "DEVICE_PLACEMENTS", "RECOGNISED", "PlacementConfig",
+           "PlacementRecognizer", "default_placement", "check_placement"]
 
 PLACEMENTS: tuple[str, ...] = ("foot", "phone-hand", "phone-pocket", "watch")
 STEP_AND_HEADING: tuple[str, ...] = ("phone-hand", "phone-pocket", "watch")
-# what each device kind can be (the first: before anything is recognised)
-DEVICE_PLACEMENTS: dict[str, tuple[str, ...]] = {"foot": ("foot",), "phone": ("phone-hand", "phone-pocket"),
+# where each device kind can be carried (the first: the default when the client does not say); a phone strapped to a
+# shoe is a foot sensor (the Sensor Logger route's use)
+DEVICE_PLACEMENTS: dict[str, tuple[str, ...]] = {"foot": ("foot",), "phone": ("phone-hand", "phone-pocket", "foot"),
                                                  "watch": ("watch",)}
+# what the step-and-heading engine tells apart by itself, per device kind
+RECOGNISED: dict[str, tuple[str, ...]] = {"phone": ("phone-hand", "phone-pocket")}
 
 
 def check_placement(placement: str) -> str:
@@ -77,9 +80,9 @@ class PlacementRecognizer:
 
     Parameters
     ----------
-    device_kind : {"foot", "phone", "watch"}
+    device_kind : {"phone", "watch"}
     placement : str, optional
-        Given by the client: then it is not recognised (``fixed``).
+        Given by the client: then it is not recognised (``fixed``); a step-and-heading placement.
     config : PlacementConfig
     """
 
@@ -88,13 +91,14 @@ class PlacementRecognizer:
         self.device_kind = device_kind
         self.fixed = placement is not None
         self.placement = check_placement(placement) if placement is not None else default_placement(device_kind)
+        if self.placement not in STEP_AND_HEADING:
+            raise ValueError(f"placement: {self.placement!r} is not navigated by step and heading")
         self._other = 0  # consecutive steps that looked like the other placement
 
     def step(self, tilt_r: float, rate_rad_s: float) -> str | None:
         """One step's tilt steadiness and mean angular rate (NaN: gyroscope off); returns the new placement when
         it changes, else None."""
-        options = DEVICE_PLACEMENTS[self.device_kind]
-        if self.fixed or len(options) < 2:
+        if self.fixed or len(RECOGNISED.get(self.device_kind, ())) < 2:
             return None
         swinging = tilt_r < self.config.steady_tilt or (math.isfinite(rate_rad_s) and rate_rad_s > self.config.slow_rate_rad_s)
         looks = "phone-pocket" if swinging else "phone-hand"
