@@ -272,10 +272,15 @@ class PednavClient:
         latitude_deg: float | None = None,
         longitude_deg: float | None = None,
         altitude_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
-        """Start a session (optional WGS-84 start for GeoJSON export); returns the session document."""
+        """Start a session (optional WGS-84 start for GeoJSON export and true-north headings; ``placement``:
+        ``foot``, ``phone-hand``, ``phone-pocket``, ``watch`` or None to let the server recognise a phone's);
+        returns the session document."""
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
+        if placement is not None:
+            body["placement"] = placement
         return self._json("POST", "/v1/sessions", json=body)
 
     def session(self, session_id: int) -> dict[str, Any]:
@@ -657,9 +662,12 @@ class AsyncPednavClient:
         latitude_deg: float | None = None,
         longitude_deg: float | None = None,
         altitude_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
+        if placement is not None:
+            body["placement"] = placement
         return await self._json("POST", "/v1/sessions", json=body)
 
     async def session(self, session_id: int) -> dict[str, Any]:

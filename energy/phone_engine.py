@@ -103,7 +103,7 @@ class PhoneEngineConfig:
     acc_rate_hz: float = 50.0
     gyr_rate_hz: float = 100.0
     mag_rate_hz: float = 50.0
-    walk_mag_rate_hz: float = 20.0
+    walk_mag_rate_hz: float = 25.0
     stand_acc_rate_hz: float = 25.0
     stand_mag_rate_hz: float = 10.0
     stand_after_s: float = 2.0

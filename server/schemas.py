@@ -29,9 +29,11 @@ __all__ = [
     "SensorLoggerPush",
     "ReprocessIn",
     "ReprocessOut",
+    "DistanceIn",
 ]
 
 DeviceKind = Literal["foot", "phone", "watch"]
+Placement = Literal["foot", "phone-hand", "phone-pocket", "watch"]
 BehaviourName = Literal["stand", "walk", "run", "other"]
 
 
@@ -111,7 +113,13 @@ infinities are refused too."""
 
 
 class SessionCreate(BaseModel):
-    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
+    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres and
+    magnetic headings refer to magnetic north (with it, to true north through the WMM declination there).
+
+    ``placement`` decides the pipeline (DESIGN.md "Placement"): ``foot`` runs the ZUPT-KF / Gait-DR engine, the
+    others the step-and-heading engine. Omitted: a foot sensor is on the foot, a watch on the wrist, and a phone's
+    placement (hand or pocket) is recognised by the engine, a change reported as a ``placement_changed`` event. A
+    placement the device kind cannot have (a watch in a pocket) is 422.
 
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
     Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
@@ -121,10 +129,21 @@ class SessionCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
+    placement: Placement | None = None
     device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1, strict=True)  # "5" or true: 422
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
+
+
+class DistanceIn(BaseModel):
+    """A distance walked between two times of the session (user-entered, or measured by a foot sensor or GNSS)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    t0_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="start of the stretch [ns], device clock")
+    t1_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="its end [ns], after t0_ns")
+    distance_m: float = Field(gt=0.0, le=100_000.0, strict=True, allow_inf_nan=False, description="distance walked [m]")
 
 
 class SensorConfigOut(BaseModel):
@@ -154,6 +173,7 @@ class SensorConfigOut(BaseModel):
 class SessionOut(_Out):
     id: int
     device_kind: str
+    placement: str | None = Field(default=None, description="placement given at the start; null: recognised by the engine")
     device_id: int | None
     latitude_deg: float | None
     longitude_deg: float | None

@@ -27,13 +27,15 @@ def load_recording(spec: str, mag_scale_ut: float | None = None):  # type: ignor
         if m is None or m.__name__ != "clients.importers.gaitmap":
             raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files (gaitmap/Xsens CSV) only")
         return m.load_gaitmap(spec, mag_scale_ut=mag_scale_ut)
+    from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
     from clients.synth import scenario_names, synthesize
 
-    if spec in scenario_names():
+    if spec in scenario_names() or spec in PHONE_SCENARIOS:
         if mag_scale_ut is not None:
             raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files only, not to synthetic scenarios")
-        return synthesize(spec)
-    raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(scenario_names())})")
+        return synthesize(spec) if spec in scenario_names() else synthesize_phone(spec)
+    names = [*scenario_names(), *PHONE_SCENARIOS]
+    raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(names)})")
 
 
 def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int) -> dict[str, Any]:
@@ -48,23 +50,29 @@ def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int
     }
 
 
-def replay_local(rec, batch_seconds: float, mode: str = "auto") -> dict[str, Any]:  # type: ignore[no-untyped-def]
-    """Device emulation through a local engine (no server)."""
+def replay_local(rec, batch_seconds: float, mode: str = "auto", spec: Any = None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """Device emulation through a local engine (no server); ``spec`` (:class:`energy.engines.EngineSpec`) picks
+    the engine as a server session would (default: a foot sensor)."""
     from energy.device import replay
-    from energy.engine import Engine
+    from energy.engines import new_engine
 
-    res = replay(Engine(mode=mode), rec.batch, batch_seconds)  # type: ignore[arg-type]
+    res = replay(new_engine(mode, None, spec), rec.batch, batch_seconds)
     rows = [(p.t_ns, p.north, p.east, p.down, p.behaviour, p.mode, p.gyro_on) for p in res.positions]
     return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction}
 
 
-def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot") -> dict[str, Any]:  # type: ignore[no-untyped-def]
-    """The same device emulation, streamed through the HTTP API (lossless msgpack bodies)."""
+def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot",  # type: ignore[no-untyped-def]
+                  placement: str | None = "foot", anchor: tuple[float, float, float] | None = None) -> dict[str, Any]:
+    """The same device emulation, streamed through the HTTP API (lossless msgpack bodies); the session starts with
+    ``placement`` (None: recognised by the server) and ``anchor`` (latitude, longitude, altitude)."""
     from clients.sdk import PednavClient
     from clients.simulators import simulator_for
 
+    start = None if anchor is None else {"latitude_deg": anchor[0], "longitude_deg": anchor[1], "altitude_m": anchor[2]}
     with PednavClient(server, token, encoding="msgpack", float_dtype="<f8") as api:
-        res = simulator_for(device, rec, batch_seconds).run(api)
+        sim = simulator_for(device, rec, batch_seconds, placement)
+        sim.placement = placement
+        res = sim.run(api, start=start)
     rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in res.positions]
     return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, "session_id": res.session_id}
 
@@ -90,6 +98,25 @@ def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
     return replace(rec, batch=batch, meta=meta)
 
 
+def _spec(args: argparse.Namespace, rec: Any) -> Any:
+    """The engine the session gets: device kind (given, else the recording's mount), placement (given, else the
+    kind's own; a phone's recognised), anchor (``--anchor``), today's date (as a server session started now)."""
+    import datetime as dt
+
+    from energy.engines import EngineSpec, check_spec
+
+    device = args.device or (rec.meta.mount if rec.meta.mount in ("foot", "phone", "watch") else "foot")
+    placement = {"recognise": None, None: None if device == "phone" else device}.get(args.placement, args.placement)
+    check_spec(device, placement)
+    anchor = None
+    if args.anchor:
+        parts = [float(x) for x in args.anchor.split(",")]
+        if len(parts) not in (2, 3) or not (-90 <= parts[0] <= 90 and -180 <= parts[1] <= 180):
+            raise ValueError(f"--anchor: expected LAT,LON[,ALT] in degrees (and metres), got {args.anchor!r}")
+        anchor = (parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0)
+    return EngineSpec(device, placement, anchor, dt.datetime.now(dt.timezone.utc).date())
+
+
 def _run(args: argparse.Namespace) -> int:
     try:
         if args.mag_scale_ut is not None and not args.mag_scale_ut > 0:
@@ -102,20 +129,30 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if args.rate_hz is not None:
         rec = desampled(rec, args.rate_hz)
-    if len(rec.batch.gyr_t_ns) == 0:
+    try:
+        spec = _spec(args, rec)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if spec.pipeline == "foot" and len(rec.batch.gyr_t_ns) == 0:
         # every engine mode starts on the ZUPT-KF, which integrates the gyroscope: without one the replay
         # would end with no position at all and look like a success
         print(f"error: {args.file}: the recording has no gyroscope samples; the engine needs a gyroscope to start "
               "(record or export the gyroscope too)", file=sys.stderr)
+        return 1
+    if spec.pipeline != "foot" and len(rec.batch.gyr_t_ns) == 0 and len(rec.batch.mag_t_ns) == 0:
+        # step and heading: steps from the accelerometer, but the heading needs a gyroscope or a magnetometer
+        print(f"error: {args.file}: the recording has no gyroscope samples and no magnetometer samples: nothing "
+              "gives the walking heading (record or export either)", file=sys.stderr)
         return 1
     if args.server:
         token = args.token or os.environ.get("PEDNAV_TOKEN")
         if not token:
             print("error: --token (or PEDNAV_TOKEN) is required with --server", file=sys.stderr)
             return 2
-        doc = replay_server(rec, args.server, token, args.batch_seconds, args.device)
+        doc = replay_server(rec, args.server, token, args.batch_seconds, spec.device_kind, spec.placement, spec.anchor)
     else:
-        doc = replay_local(rec, args.batch_seconds, args.mode)
+        doc = replay_local(rec, args.batch_seconds, args.mode, spec)
     doc["notes"] = list(rec.meta.notes)  # what the importer repaired or left out
     if args.json:
         print(json.dumps(doc))
@@ -137,9 +174,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--server", default=None, help="server URL, e.g. http://127.0.0.1:8000 (default: local engine)")
     p.add_argument("--token", default=None, help="bearer token (default PEDNAV_TOKEN)")
     p.add_argument("--batch-seconds", type=float, default=1.0, help="seconds per uploaded batch (default 1)")
-    p.add_argument("--device", choices=("foot", "phone", "watch"), default="foot", help="device kind of the session")
+    p.add_argument("--device", choices=("foot", "phone", "watch"), default=None,
+                   help="device kind of the session (default: the recording's own, e.g. phone for a phone app's log; else foot)")
+    p.add_argument("--placement", choices=("foot", "phone-hand", "phone-pocket", "watch", "recognise"), default=None,
+                   help="where the device is carried: decides the engine (foot: ZUPT-KF/Gait-DR, the others step and "
+                        "heading); default: the device kind's own, a phone's recognised")
+    p.add_argument("--anchor", default=None, metavar="LAT,LON[,ALT]",
+                   help="geodetic start: magnetic headings referred to true north (WMM declination there)")
     p.add_argument("--mode", choices=("auto", "zupt", "pdr"), default="auto",
-                   help="local engine mode (the server uses its own configured mode)")
+                   help="local engine mode (the server uses its own configured mode); a phone's zupt = always on, "
+                        "pdr/auto = energy-aware")
     p.add_argument("--mag-scale-ut", type=float, default=None, metavar="UT",
                    help="field [uT] that a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV: the field "
                         "at their calibration site); without it such a magnetometer is left out")
