@@ -11,10 +11,13 @@ out. What it does per step (003 Figure 5, eq. 24):
 2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
    walking direction: the device's forward axis held in front, the horizontal acceleration's principal
    direction otherwise;
-3. the walking heading (:mod:`models.walk_heading`) moves by the gyroscope's increment and takes the MARG
-   filter's heading (whose compass updates it carries) with that filter's variance; with the gyroscope off it
-   holds and follows the compass, taking a compass change beyond its gate as a turn;
-4. the step length (:mod:`models.pdr_step_length`, Weinberg 000 eq. 35 or 003 eq. 28), calibrated per user and
+3. the walking heading (:mod:`models.walk_heading`) is the MARG filter's (whose compass updates it carries)
+   once the gyroscope has carried it for ``gyro_min_steps`` steps; in the first steps after the gyroscope was off
+   it moves by the gyroscope's increment and takes the filter's heading with that filter's variance; with the
+   gyroscope off it holds and follows the compass, taking a compass change beyond its gate as a turn;
+4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
+   take out the heading's drift on straight stretches along them (003 Section 6.1);
+5. the step length (:mod:`models.pdr_step_length`, Weinberg 000 eq. 35 or 003 eq. 28), calibrated per user and
    placement from known distances (:meth:`PhoneEngine.calibrate_distance`), places the step.
 
 Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (first steps, until the compass's
@@ -37,6 +40,7 @@ import numpy as np
 from energy import codec
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import STREAMS, BatchError, SensorBatch
+from models.dominant_directions import DominantDirections, DominantDirectionsConfig
 from models.marg import MargConfig, MargState, merge_streams
 from models.pdr import STEP_RECORD, PdrState, run_pdr
 from models.pdr_step_length import PdrStepLength, StepLengthConfig
@@ -51,6 +55,9 @@ PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (ener
 _STATE_VERSION = 1
 _F = {k: i for i, k in enumerate(STEP_RECORD)}
 _LOG_STEPS = 4000  # steps kept for a known-distance calibration (about 40 min of walking)
+# a mean angular rate over a step above this [rad/s] is a device waved about, not carried along (hand-held walking:
+# 0.3 rad/s on the IPIN trials; their calibration manoeuvre: 3-7 rad/s)
+_WAVED_RAD_S = 1.5
 
 
 def wmm_declination(latitude_deg: float, longitude_deg: float, altitude_m: float = 0.0,
@@ -71,8 +78,8 @@ class PhoneEngineConfig:
 
     Attributes
     ----------
-    marg, steps, step_length, heading, placement
-        The parts' own configurations.
+    marg, steps, step_length, heading, placement, directions
+        The parts' own configurations (``directions``: None switches the dominant directions off).
     acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
         Full rates (the always-on baseline: a phone's usual 50 / 100 / 50 Hz).
     walk_mag_rate_hz : float
@@ -100,6 +107,7 @@ class PhoneEngineConfig:
     step_length: StepLengthConfig = field(default_factory=StepLengthConfig)
     heading: WalkHeadingConfig = field(default_factory=WalkHeadingConfig)
     placement: PlacementConfig = field(default_factory=PlacementConfig)
+    directions: DominantDirectionsConfig | None = field(default_factory=DominantDirectionsConfig)
     acc_rate_hz: float = 50.0
     gyr_rate_hz: float = 100.0
     mag_rate_hz: float = 50.0
@@ -130,9 +138,9 @@ class PhoneEngineConfig:
         d = dict(d)
         parts = {"marg": MargConfig.from_dict, "steps": StepDetectorConfig.from_dict,
                  "step_length": StepLengthConfig.from_dict, "heading": WalkHeadingConfig.from_dict,
-                 "placement": lambda x: PlacementConfig(**x)}
+                 "placement": lambda x: PlacementConfig(**x), "directions": DominantDirectionsConfig.from_dict}
         for k, f in parts.items():
-            if k in d:
+            if d.get(k) is not None:
                 d[k] = f(d[k])
         d["gyro_min_steps"] = int(d.get("gyro_min_steps", 6))
         return cls(**d)
@@ -250,11 +258,15 @@ class PhoneEngine:
         self._profile_in = profile
         self._lengths = {p: self._new_length(p, profile) for p in STEP_AND_HEADING}
         self._heading = WalkHeading(self.config.heading)
+        self._directions = None if self.config.directions is None else DominantDirections(self.config.directions)
         self._streams = _Streams()
         self._t0_ns: int | None = None
         self._pos = np.zeros(2)  # [north, east] m
         self._prev_dir = math.nan  # the gyroscope-carried walking direction of the previous step [rad]
         self._prev_gyro = False
+        self._gyro_run = 0  # consecutive gyroscope-carried steps
+        self._cadence = 0  # consecutive steps of a steady gait
+        self._last_compass = math.nan  # compass walking direction of the latest step [rad]
         self._last_step_s = -math.inf
         self._gyro_want = True
         self._gyro_steps = 0  # steps since the gyroscope was last asked for
@@ -381,6 +393,13 @@ class PhoneEngine:
         f_hz = 1.0 / period if math.isfinite(period) and period > 0 else math.nan
         direction, compass = self._direction(r)
         gyro = bool(r[_F["gyro_frac"]] >= 0.9)
+        # a steady gait: a walking cadence, and a device that is not being waved about (a calibration wave's
+        # "steps" turn the device with the compass, which then looks perfect)
+        rate = float(r[_F["rate_rad_s"]])
+        steady = math.isfinite(period) and 0.3 <= period <= 1.0 and not (math.isfinite(rate) and rate > _WAVED_RAD_S)
+        self._cadence = self._cadence + 1 if steady else 0
+        walking = self._cadence >= 2
+        stood = t_s - self._last_step_s >= self.config.stand_after_s
         hd = self._heading
         if not hd.initialised:
             if gyro and float(r[_F["yaw_std"]]) < 1.0:
@@ -389,15 +408,34 @@ class PhoneEngine:
                 hd.update(compass)
         elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
             hd.predict(wrap(direction - self._prev_dir))
-            hd.update(compass, apply=False)
-            hd.observe(direction, float(r[_F["yaw_std"]]) ** 2)
+            if walking:
+                hd.update(compass, apply=False)  # the compass's noise, measured on a walk
+            var = float(r[_F["yaw_std"]]) ** 2
+            if self._gyro_run >= self.config.gyro_min_steps:
+                hd.set(direction, var)  # the MARG filter has carried it for a while: its heading is the heading
+            else:
+                hd.observe(direction, var)  # the gyroscope was off: the filter's heading is catching up
+        elif stood and math.isfinite(compass) and math.isfinite(self._last_compass):
+            # the first step after a stand without the gyroscope: whatever the walker turned standing is the
+            # compass's change at one place, where the building's error is the same before and after
+            hd.predict(None)
+            hd.set(hd.heading + wrap(compass - self._last_compass), hd.var)
+        elif self._directions is not None and self._directions.locked:
+            # straight along the building's dominant direction: the heading holds unless the compass turns
+            hd.predict(None)
+            hd.hold(compass)
+            if hd.turned:
+                events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass change"}))
         else:
             hd.predict(None)
             hd.update(compass)
             if hd.turned:
                 events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass"}))
+        if math.isfinite(compass):
+            self._last_compass = compass
         self._prev_dir = direction if gyro else math.nan
         self._prev_gyro = gyro
+        self._gyro_run = self._gyro_run + 1 if gyro else 0
         self._gyro_steps += 1
         if not hd.initialised:
             return  # no heading yet: neither gyroscope nor compass has said anything
@@ -407,10 +445,11 @@ class PhoneEngine:
                           float(STEP_AND_HEADING.index(self.placement))])
         if len(self._log) > _LOG_STEPS:
             del self._log[: len(self._log) - _LOG_STEPS]
-        self._pos += length * np.array([math.cos(hd.heading), math.sin(hd.heading)])
+        heading = hd.heading if self._directions is None else self._directions.step(hd.heading, compass, walking)
+        self._pos += length * np.array([math.cos(heading), math.sin(heading)])
         self._behaviour = "run" if math.isfinite(f_hz) and f_hz >= self.config.run_step_hz else "walk"
         self._last_step_s = t_s
-        p = Position(t_ns, float(self._pos[0]), float(self._pos[1]), 0.0, float(hd.heading), self._behaviour, "pdr",
+        p = Position(t_ns, float(self._pos[0]), float(self._pos[1]), 0.0, float(heading), self._behaviour, "pdr",
                      float(length), gyro)
         positions.append(p)
         if self.trace is not None:
@@ -424,11 +463,14 @@ class PhoneEngine:
             return
         c = self.config
         hd = self._heading
-        want = (hd.turned or hd.n_noise < c.gyro_min_steps or hd.forecast_std() > c.max_heading_std_rad
+        locked = self._directions is not None and self._directions.locked
+        want = (hd.turned or hd.n_noise < c.gyro_min_steps
+                or (hd.forecast_std() > c.max_heading_std_rad and not locked)
                 or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))
         if want != self._gyro_want:
             reason = ("turn" if hd.turned else "compass noise unknown" if hd.n_noise < c.gyro_min_steps
-                      else "heading uncertain" if want else "compass consistent")
+                      else "heading uncertain" if want else "straight along the building" if locked
+                      else "compass consistent")
             events.append(Event(t_ns, "gyro", {"on": want, "reason": reason, "heading_std_rad": hd.std(),
                                                "compass_std_rad": math.sqrt(hd.compass_var)}))
             self._gyro_want = want
@@ -475,11 +517,15 @@ class PhoneEngine:
             "profile_in": self._profile_in,
             "lengths": {p: L.get_state() for p, L in self._lengths.items()},
             "heading": self._heading.get_state(),
+            "directions": None if self._directions is None else self._directions.get_state(),
             "streams": self._streams.get_state(),
             "t0_ns": self._t0_ns,
             "pos": self._pos,
             "prev_dir": self._prev_dir,
             "prev_gyro": self._prev_gyro,
+            "gyro_run": self._gyro_run,
+            "cadence": self._cadence,
+            "last_compass": self._last_compass,
             "last_step_s": self._last_step_s,
             "gyro_want": self._gyro_want,
             "gyro_steps": self._gyro_steps,
@@ -503,11 +549,15 @@ class PhoneEngine:
         obj._profile_in = d["profile_in"]
         obj._lengths = {p: PdrStepLength.from_state(s) for p, s in d["lengths"].items()}
         obj._heading = WalkHeading.from_state(d["heading"])
+        obj._directions = None if d["directions"] is None else DominantDirections.from_state(d["directions"])
         obj._streams = _Streams.from_state(d["streams"])
         obj._t0_ns = None if d["t0_ns"] is None else int(d["t0_ns"])
         obj._pos = np.asarray(d["pos"], dtype=float).reshape(2).copy()
         obj._prev_dir = float(d["prev_dir"])
         obj._prev_gyro = bool(d["prev_gyro"])
+        obj._gyro_run = int(d["gyro_run"])
+        obj._cadence = int(d["cadence"])
+        obj._last_compass = float(d["last_compass"])
         obj._last_step_s = float(d["last_step_s"])
         obj._gyro_want = bool(d["gyro_want"])
         obj._gyro_steps = int(d["gyro_steps"])

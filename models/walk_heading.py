@@ -50,6 +50,10 @@ class WalkHeadingConfig:
         Steps of the exponential mean of the compass innovations.
     turn_gate : float
         With the gyroscope off, a compass innovation beyond this many standard deviations is a turn.
+    turn_rad : float
+        With the gyroscope off and ``hold``, a change of the compass beyond this since the last step the heading
+        was known at is a turn, taken as that change (relative: the building's error where the walker turned is
+        the same before and after).
     """
 
     straight_sigma_rad: float = math.radians(3.0)
@@ -58,6 +62,7 @@ class WalkHeadingConfig:
     compass_prior_rad: float = math.radians(30.0)
     noise_steps: float = 30.0
     turn_gate: float = 3.0
+    turn_rad: float = math.radians(25.0)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -89,6 +94,7 @@ class WalkHeading:
         self.n_noise = 0  # innovations that estimated it
         self.gyro_step = False  # the last prediction was the gyroscope's
         self.turned = False  # the last update took a turn the gyroscope did not see
+        self.ref_compass = math.nan  # compass at the last step whose heading was known [rad] (hold mode)
 
     @property
     def initialised(self) -> bool:
@@ -123,6 +129,23 @@ class WalkHeading:
         self.heading = wrap(self.heading + k * wrap(heading_rad - self.heading))
         self.var *= 1.0 - k
 
+    def hold(self, compass_rad: float) -> None:
+        """A gyroscope-off step that keeps the heading (the walker goes straight, as the building's dominant
+        directions say) unless the compass changed by more than ``turn_rad`` since :attr:`ref_compass`: a turn,
+        taken as that change (:attr:`turned`)."""
+        self.turned = False
+        if not math.isfinite(compass_rad):
+            return
+        if not math.isfinite(self.ref_compass):
+            self.ref_compass = compass_rad
+            return
+        d = wrap(compass_rad - self.ref_compass)
+        if abs(d) > self.config.turn_rad:
+            self.heading = wrap(self.heading + d)
+            self.var += 2.0 * self.compass_var
+            self.ref_compass = compass_rad
+            self.turned = True
+
     def update(self, compass_rad: float, apply: bool = True) -> dict[str, float]:
         """The compass's walking direction of the step [rad].
 
@@ -134,6 +157,8 @@ class WalkHeading:
         self.turned = False
         if not math.isfinite(compass_rad):
             return {"innovation_rad": math.nan, "sigma_rad": math.nan}
+        if self.gyro_step:
+            self.ref_compass = compass_rad
         if not self.initialised:
             self.set(compass_rad, self.compass_var)
             return {"innovation_rad": 0.0, "sigma_rad": math.sqrt(self.var)}
@@ -169,11 +194,12 @@ class WalkHeading:
     def get_state(self) -> dict[str, Any]:
         return {"config": self.config.to_dict(), "heading": self.heading, "var": self.var,
                 "compass_var": self.compass_var, "n_noise": self.n_noise, "gyro_step": self.gyro_step,
-                "turned": self.turned}
+                "turned": self.turned, "ref_compass": self.ref_compass}
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> WalkHeading:
         obj = cls(WalkHeadingConfig.from_dict(d["config"]))
         obj.heading, obj.var, obj.compass_var = float(d["heading"]), float(d["var"]), float(d["compass_var"])
         obj.n_noise, obj.gyro_step, obj.turned = int(d["n_noise"]), bool(d["gyro_step"]), bool(d["turned"])
+        obj.ref_compass = float(d["ref_compass"])
         return obj
