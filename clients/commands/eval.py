@@ -379,6 +379,26 @@ def _run_ipin(args: argparse.Namespace) -> int:
     return 1 if rows_failed else 0
 
 
+def _run_phone_watch(args: argparse.Namespace) -> int:
+    from clients.evaluation.phone_watch import evaluate_phone_watch
+
+    if args.seeds < 1:
+        print("pednav eval phone-watch: --seeds must be at least 1", file=sys.stderr)
+        return 2
+    doc = evaluate_phone_watch(range(args.seeds))
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"{'seed':>4} {'phone m':>8} {'watch m':>8} {'fused m':>8} {'blended':>8}")
+    for r in doc["recordings"]:
+        print(f"{r['seed']:>4} {r['phone']['mean_err_m']:>8.2f} {r['watch']['mean_err_m']:>8.2f} "
+              f"{r['fused']['mean_err_m']:>8.2f} {r['blended_fraction']:>8.2f}")
+    s = doc["summary"]
+    print(f"\nmedian mean error: phone {s['phone']['mean_err_m']:.2f} m, watch {s['watch']['mean_err_m']:.2f} m, "
+          f"fused {s['fused']['mean_err_m']:.2f} m ({doc['dataset']})")
+    return 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -424,3 +444,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     pi.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
     pi.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
     pi.set_defaults(func=_run_ipin)
+    pw = esub.add_parser("phone-watch", help="a phone's and a watch's steps fused (000 eq. 70) on synthetic walks "
+                                             "(no public recording has both)")
+    pw.add_argument("--json", action="store_true", help="print one JSON document")
+    pw.add_argument("--seeds", type=int, default=6, help="synthetic walks (seeds 0..N-1)")
+    pw.set_defaults(func=_run_phone_watch)

@@ -224,3 +224,22 @@ def test_placement_recognition_needs_consecutive_steps() -> None:
     assert PlacementRecognizer("watch").placement == "watch"
     with pytest.raises(ValueError, match="placement"):
         PlacementRecognizer("phone", "foot")
+
+
+# ---------------------------------------------------------------------------------------------- fusion
+def test_step_fusion_blends_agreeing_steps_and_keeps_the_primary_otherwise() -> None:
+    from models.step_fusion import StepFusionConfig, fuse_steps
+
+    t = np.arange(10) * 0.55
+    la, ha = np.full(10, 0.70), np.full(10, 0.5)
+    lb, hb = np.full(10, 0.66), np.full(10, 0.5 + math.radians(10.0))
+    lb[3] = 0.2  # a false short step of the secondary: the 000 Table 7 ratio gate keeps it out
+    hb[4] = 0.5 + math.radians(90.0)  # a heading the primary disagrees with by far
+    length, head, blended = fuse_steps(t, la, ha, t + 0.05, lb, hb)
+    assert length[0] == pytest.approx(0.68) and head[0] == pytest.approx(0.5 + math.radians(5.0))  # 000 eq. (70)
+    assert length[3] == 0.70 and head[4] == 0.5 and blended.all()
+    # nothing to pair with: the primary as it is
+    length, head, blended = fuse_steps(t, la, ha, t + 50.0, lb, hb)
+    assert not blended.any() and np.array_equal(length, la)
+    with pytest.raises(ValueError):
+        StepFusionConfig(ratio_low=1.1)
