@@ -361,7 +361,11 @@ def _run_ipin(args: argparse.Namespace) -> int:
               "constant needs trials of at least two routes", file=sys.stderr)
         return 1
     placement = None if args.placement == "recognise" else args.placement
-    doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds)
+    import math
+
+    bound = None if args.max_heading_std_deg is None else math.radians(args.max_heading_std_deg)
+    doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
+                        max_heading_std_rad=bound)
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:
@@ -443,6 +447,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pi.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
     pi.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
     pi.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pi.add_argument("--max-heading-std-deg", type=float, default=None, metavar="DEG",
+                    help="auto: the heading standard deviation above which the gyroscope is asked for (default: the "
+                         "engine's, 6 deg): the energy / accuracy trade-off")
     pi.set_defaults(func=_run_ipin)
     pw = esub.add_parser("phone-watch", help="a phone's and a watch's steps fused (000 eq. 70) on synthetic walks "
                                              "(no public recording has both)")

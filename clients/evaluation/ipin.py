@@ -130,8 +130,9 @@ class TrialResult:
 
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
-              batch_seconds: float = 1.0) -> TrialResult:
-    """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration."""
+              batch_seconds: float = 1.0, max_heading_std_rad: float | None = None) -> TrialResult:
+    """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
+    (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's)."""
     from dataclasses import replace
 
     from energy.device import replay
@@ -140,6 +141,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     anchor, day = _anchor_and_date(rec)
     base = PhoneEngineConfig()
     cfg = replace(base, step_length=replace(base.step_length, weinberg_k=float(weinberg_k)))
+    if max_heading_std_rad is not None:
+        cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
     eng = PhoneEngine(mode=mode, config=cfg, device_kind="phone", placement=placement, anchor=anchor, date=day)
     res = replay(eng, rec.batch, batch_seconds)
     t_end = int(rec.batch.t_end_ns or 0) + 1
@@ -220,7 +223,8 @@ def _surveyed(rec: Recording) -> float:
 
 
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
-                  batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                  batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
+                  max_heading_std_rad: float | None = None) -> dict[str, Any]:
     """The ``pednav eval ipin`` document for loaded recordings (see the module docstring).
 
     Every trial is replayed always-on (the energy baseline; its steps also fit the Weinberg constant of the
@@ -248,7 +252,7 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
         T, L = _truth(rec)
         k = _loo_k(rec.name, totals)
         on = run_phone(rec, "always-on", k, placement, batch_seconds)
-        run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds)
+        run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad)
         e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
         e_on = landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
         kb = _loo_k(rec.name, base_totals)
@@ -261,7 +265,10 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
                "always_on": {**e_on.row(), "energy_mj": on.energy_mj},
                "baseline": {**e_b.row(), "weinberg_k": kb}}
         trials.append(row)
-    return {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}
+    doc = {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}
+    if max_heading_std_rad is not None:
+        doc["max_heading_std_rad"] = max_heading_std_rad
+    return doc
 
 
 def _stats(values: list[float], worst: str) -> dict[str, Any]:
