@@ -19,8 +19,8 @@ from typing import Any
 from energy import codec
 from models.placement import DEVICE_PLACEMENTS, PLACEMENTS
 
-__all__ = ["EngineSpec", "new_engine", "engine_from_bytes", "engine_from_state", "profile_for", "phone_mode",
-           "check_spec", "FOOT_BEHAVIOURS"]
+__all__ = ["EngineSpec", "new_engine", "engine_class", "engine_from_bytes", "engine_from_state", "profile_for",
+           "phone_mode", "check_spec", "FOOT_BEHAVIOURS"]
 
 FOOT_BEHAVIOURS: tuple[str, ...] = ("walk", "run")
 _PHONE_MODES = {"auto": "auto", "pdr": "auto", "zupt": "always-on", "always-on": "always-on"}
@@ -84,6 +84,17 @@ def profile_for(profile: dict[str, Any] | None, pipeline: str) -> dict[str, Any]
     keep = FOOT_BEHAVIOURS if pipeline == "foot" else (PROFILE_KEY,)
     behaviours = {b: c for b, c in (profile.get("behaviours") or {}).items() if b in keep}
     return {**profile, "behaviours": behaviours} if behaviours else None
+
+
+def engine_class(spec: EngineSpec) -> Any:
+    """The engine class of ``spec``'s pipeline (its ``NORTH_REFERENCE`` says what north its positions have)."""
+    if spec.pipeline == "foot":
+        from energy.engine import Engine
+
+        return Engine
+    from energy.phone_engine import PhoneEngine
+
+    return PhoneEngine
 
 
 def new_engine(mode: str, profile: dict[str, Any] | None = None, spec: EngineSpec | None = None,

@@ -24,8 +24,9 @@ Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (fi
 noise is known; after a turn; whenever the heading's standard deviation one step ahead without it would exceed
 ``max_heading_std_rad``); standing, the accelerometer and magnetometer run at their low rates and the gyroscope
 is off. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
-Magnetic headings are referred to true north by the World Magnetic Model's declination at the session's anchor;
-without an anchor north is magnetic (the first event says which).
+North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
+geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
+Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecogni
 from models.step_detector import StepDetectorConfig
 from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
 
-__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_MODES", "PROFILE_KEY", "wmm_declination"]
+__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_MODES", "PROFILE_KEY"]
 
 PHONE_MODES: tuple[str, ...] = ("auto", "always-on")
 PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (energy.profile.PROFILE_BEHAVIOURS)
@@ -60,16 +61,14 @@ _LOG_STEPS = 4000  # steps kept for a known-distance calibration (about 40 min o
 _WAVED_RAD_S = 1.5
 
 
-def wmm_declination(latitude_deg: float, longitude_deg: float, altitude_m: float = 0.0,
-                    date: _dt.date | None = None) -> tuple[np.ndarray, float]:
-    """The World Magnetic Model's field in NED [uT] and declination [rad] (east positive) at a place.
+def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | None) -> np.ndarray:
+    """The World Magnetic Model's field at the anchor in the engine's magnetic-north NED frame [uT]
+    (:func:`models.geo.magnetic_elements`: no east component)."""
+    from models.geo import Anchor, magnetic_elements
 
-    A small stand-in until the project's ``models.geo`` provides the declination; it uses the same
-    :func:`models.magnetic.wmm_reference` (``ahrs`` WMM)."""
-    from models.magnetic import wmm_reference
-
-    ref = wmm_reference(latitude_deg, longitude_deg, altitude_m / 1000.0, date)
-    return ref, float(math.atan2(ref[1], ref[0]))
+    kw = {"date": date} if date is not None else {}
+    el = magnetic_elements(Anchor(anchor[0], anchor[1], anchor[2], **kw))
+    return np.asarray(el.field_magnetic_ned_ut, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -207,6 +206,9 @@ class _Streams:
 class PhoneEngine:
     """One step-and-heading navigation session (see the module docstring).
 
+    ``NORTH_REFERENCE = "magnetic"``: positions and headings are in NED about the first step with magnetic north
+    (the compass's), as :func:`models.geo.engine_north` reads it.
+
     Parameters
     ----------
     mode : {"auto", "always-on"}
@@ -218,12 +220,14 @@ class PhoneEngine:
     placement : str, optional
         Given by the client; None: recognised (a phone: hand or pocket).
     anchor : (latitude_deg, longitude_deg, altitude_m), optional
-        The session's geodetic start: headings refer to true north through the WMM declination there.
+        The session's geodetic start: the WMM field there weighs the compass (north stays magnetic).
     date : datetime.date, optional
-        Date for the WMM (default: that of :func:`models.magnetic.wmm_reference`).
+        Date for the WMM (default: today, UTC).
     trace : bool
         Keep the positions in :attr:`trace` (evaluation); not part of the state.
     """
+
+    NORTH_REFERENCE = "magnetic"
 
     def __init__(
         self,
@@ -248,12 +252,9 @@ class PhoneEngine:
         self.trace = _new_trace() if trace else None
         self.anchor = None if anchor is None else tuple(float(x) for x in anchor)
         self.date = date
-        if self.anchor is not None:
-            ref, decl = wmm_declination(self.anchor[0], self.anchor[1], self.anchor[2], date)
-        else:
-            ref, decl = None, 0.0
-        self.declination_rad = decl
-        self._pdr = PdrState.new(MargState.new(self.config.marg, ref, decl))
+        ref = None if self.anchor is None else _magnetic_reference(self.anchor, date)
+        self.declination_rad = 0.0  # magnetic north: the declination is applied when geo-referenced
+        self._pdr = PdrState.new(MargState.new(self.config.marg, ref, 0.0))
         self._placement = PlacementRecognizer(device_kind, placement, self.config.placement)
         self._profile_in = profile
         self._lengths = {p: self._new_length(p, profile) for p in STEP_AND_HEADING}
@@ -353,8 +354,8 @@ class PhoneEngine:
         if not self._started and self._t0_ns is not None:
             self._started = True
             events.append(Event(self._t0_ns, "heading_reference", {
-                "north": "true" if self.anchor is not None else "magnetic", "declination_rad": self.declination_rad,
-                "placement": self.placement, "recognised": not self._placement.fixed}))
+                "north": "magnetic", "wmm_field": self.anchor is not None, "placement": self.placement,
+                "recognised": not self._placement.fixed}))
         t, kind, v = merge_streams(streams["acc"], streams["gyr"], streams["mag"])
         if len(t) and self._t0_ns is not None:
             ts = (t - self._t0_ns).astype(np.float64) * 1e-9

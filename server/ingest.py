@@ -160,6 +160,14 @@ class EngineHost:
             self._engine_cls = _default_factory()
         return self._engine_cls
 
+    def engine_class_of(self, placement: str | None, device_kind: str) -> Any:
+        """The engine class a session of that placement and device kind runs (a custom ``engine_cls`` for all)."""
+        if self._engine_cls is not None:
+            return self._engine_cls
+        from energy.engines import EngineSpec, engine_class
+
+        return engine_class(EngineSpec(device_kind, placement))
+
     def new(self, mode: str, profile: dict[str, Any] | None, spec: Any = None) -> EngineLike:
         """A fresh engine; ``spec`` (:class:`energy.engines.EngineSpec`, default: a foot sensor) picks the
         pipeline of the default engines; a custom ``engine_cls`` is always used as it is."""
@@ -342,7 +350,8 @@ def session_spec(device_kind: str, placement: str | None, latitude_deg: float | 
     anchor = None
     if latitude_deg is not None and longitude_deg is not None:
         anchor = (float(latitude_deg), float(longitude_deg), float(altitude_m or 0.0))
-    return EngineSpec(device_kind, placement, anchor, created_at.date() if created_at is not None else None)
+    day = created_at.date() if hasattr(created_at, "date") and callable(created_at.date) else created_at
+    return EngineSpec(device_kind, placement, anchor, day)
 
 
 def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:

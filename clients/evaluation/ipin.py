@@ -3,8 +3,9 @@
 
 Scoring (datasets/ipin2023-t3-phone/ABOUT.md): the estimate starts at the first landmark: the track is translated
 so that its position at the first landmark's time is that landmark (NED at the first landmark); no truth sets the
-heading (the engine's own: magnetometer with the WMM declination at the anchor, the first landmark's latitude
-and longitude as a phone app would know its building). The estimate at a time is interpolated linearly between
+heading (the engine's own, magnetic north, turned to true north by the WMM declination at the anchor as
+geo-referencing does, :func:`models.geo.to_true_north`; the anchor is the first landmark's latitude and longitude,
+as a phone app would know its building, on the logfile's date). The estimate at a time is interpolated linearly between
 the step positions around it (the origin before the first step). Per trial: the horizontal error at every later
 landmark, their mean and 75th percentile (the competition's metric), the error at the last landmark (the trials
 return to the first: the loop error), the path ratio (sum of the step lengths between the first and last
@@ -152,7 +153,12 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
         for e in u.events:
             ev[e.kind] = ev.get(e.kind, 0) + 1
     pos = res.positions
-    return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.array([[p.north, p.east] for p in pos]).reshape(-1, 2),
+    from models.geo import to_true_north
+
+    _, decl = _declination(rec)  # the engine's north is magnetic: turned as geo-referencing turns it
+    n, e, _h = to_true_north(np.array([p.north for p in pos]), np.array([p.east for p in pos]),
+                             np.array([p.heading_rad for p in pos]), decl)
+    return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.column_stack([n, e]).reshape(-1, 2),
                        np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev)
 
 
@@ -189,11 +195,13 @@ def baseline_track(rec: Recording, weinberg_k: float) -> tuple[np.ndarray, np.nd
     return t[pk], ne.reshape(-1, 2), sl, feat
 
 
-def _declination(rec: Recording) -> tuple[np.ndarray, float]:
-    from energy.phone_engine import wmm_declination
+def _declination(rec: Recording) -> tuple[Any, float]:
+    """The WMM's elements and declination [rad] at the first landmark on the logfile's date."""
+    from models.geo import Anchor, magnetic_elements
 
     (lat, lon, alt), day = _anchor_and_date(rec)
-    return wmm_declination(lat, lon, alt, day)
+    el = magnetic_elements(Anchor(lat, lon, alt, **({"date": day} if day else {})))
+    return el, el.declination_rad
 
 
 def _loo_k(name: str, totals: dict[str, tuple[float, float]]) -> float:

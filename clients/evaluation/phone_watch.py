@@ -19,15 +19,15 @@ import numpy as np
 __all__ = ["evaluate_phone_watch"]
 
 
-def _track(rec: Any, device_kind: str, placement: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _track(rec: Any, device_kind: str, placement: str, declination_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from energy.device import replay
     from energy.phone_engine import PhoneEngine
 
-    res = replay(PhoneEngine("always-on", device_kind=device_kind, placement=placement, anchor=(49.46, 11.11, 300.0)),
-                 rec.batch, 1.0)
+    res = replay(PhoneEngine("always-on", device_kind=device_kind, placement=placement), rec.batch, 1.0)
     p = res.positions
+    # the engine's north is magnetic; the synthetic field's declination turns it to the truth's north
     return (np.array([q.t_ns for q in p], dtype=np.int64), np.array([q.step_length_m for q in p]),
-            np.array([q.heading_rad for q in p]))
+            np.array([q.heading_rad for q in p]) + declination_rad)
 
 
 def _errors(truth: Any, t: np.ndarray, length: np.ndarray, head: np.ndarray) -> dict[str, float]:
@@ -53,8 +53,9 @@ def evaluate_phone_watch(seeds: range = range(6)) -> dict[str, Any]:
         phone = replace(base, placement="phone-hand", gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
         watch = replace(base, placement="watch", swing_deg=30.0, gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
         rp, rw = synthesize_phone(phone, seed=seed), synthesize_phone(watch, seed=seed + 100)
-        tp, lp, hp = _track(rp, "phone", "phone-hand")
-        tw, lw, hw = _track(rw, "watch", "watch")
+        decl = float(np.arctan2(base.field_ned_ut[1], base.field_ned_ut[0]))
+        tp, lp, hp = _track(rp, "phone", "phone-hand", decl)
+        tw, lw, hw = _track(rw, "watch", "watch", decl)
         lf, hf, blended = fuse_steps(tp * 1e-9, lp, hp, tw * 1e-9, lw, hw)
         rows.append({"seed": seed, "phone": _errors(rp.truth, tp, lp, hp), "watch": _errors(rw.truth, tw, lw, hw),
                      "fused": _errors(rp.truth, tp, lf, hf), "blended_fraction": float(blended.mean()),

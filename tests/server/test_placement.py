@@ -53,7 +53,9 @@ def test_phone_and_watch_sessions_run_the_step_and_heading_engine(client, make_u
     assert len(res.positions) > 40 and {p["mode"] for p in res.positions} == {"pdr"}
     ev = api.events(res.session_id)
     ref = [e for e in ev if e["kind"] == "heading_reference"]
-    assert ref and ref[0]["detail"]["north"] == "true" and abs(ref[0]["detail"]["declination_rad"] - 0.0702) < 0.01
+    assert ref and ref[0]["detail"]["north"] == "magnetic" and ref[0]["detail"]["wmm_field"]
+    traj = api.trajectory(res.session_id)  # geo-referenced when read: magnetic north turned by the declination
+    assert traj["north"] == "true" and 3.0 < traj["declination_deg"] < 5.0
 
 
 def test_a_recognised_pocket_is_an_event(client, make_user) -> None:  # type: ignore[no-untyped-def]
@@ -121,12 +123,12 @@ def test_pdr_profile_is_validated_by_the_phone_engine(client, make_user) -> None
 
 
 def test_older_sessions_become_foot_sessions(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """Every session before revision 0006 ran the foot engine: that is the placement the migration gives them."""
+    """Every session before revision 0007 ran the foot engine: that is the placement the migration gives them."""
     from server.db import make_engine, migrate
     from server.settings import Settings
 
     eng = make_engine(Settings(database_url=f"sqlite:///{tmp_path / 'old.db'}"))
-    migrate(eng, "0005")
+    migrate(eng, "0006")
     with eng.begin() as conn:
         conn.execute(text("INSERT INTO users (id, name, is_admin, created_at) VALUES (1, 'u', 0, '2026-01-01')"))
         conn.execute(text("INSERT INTO sessions (user_id, device_kind, status, engine_mode, created_at, next_seq, behaviour, "
