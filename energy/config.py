@@ -210,6 +210,9 @@ class StepLengthConfig:
                                  "generic prior's spread", lo=0.0)
     height_m: float = _f(1.75, "m", "user height for the height/frequency model", lo=0.5)
     min_stride_m: float = _f(0.3, "m", "shorter ZUPT-KF displacements are shuffles, not calibration strides")
+    pause_period: float = _f(1.25, "-", "a stride of a walking pattern's re-placement this many times longer than "
+                             "the pattern's median holds a stop and gets the median stride (strides scatter by "
+                             "3 %, two paces lie 10-15 % apart)", lo=1.0)
     recent_strides: int = _f(8, "strides", "latest ZUPT-KF strides whose median places steps before a model "
                              "is fitted", lo=1)
 

@@ -46,7 +46,6 @@ _STATE_VERSION = 3
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
 _FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance sets its turn
 _DR_LOG = 24  # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern)
-_PAUSE_PERIOD = 1.25  # ... a stride of it this much longer than its median holds a pause
 _NORTH_STEP = math.radians(1.0)  # a change of magnetic north's azimuth in the session frame announced again
 
 
@@ -869,7 +868,7 @@ class Engine:
         tested = (label in sched.deviation_pending or exam) and label == sched.behaviour
         prior = HeadingDeviationKF.from_state(gait.kf2[model_behaviour(label)].get_state()) if tested else None
         pending = sorted(sched.deviation_pending)
-        z = gait.learn(st, e, label)
+        z = gait.learn(st, e, label, step_model=sched.working == "zupt" or exam)
         heading = None if prior is None or z is None or not prior.n_updates else _heading_test(z, prior, c.exam_sigmas)
         verdict: list[Event] = []
         if exam:
@@ -995,13 +994,13 @@ class Engine:
         d_new = [max(gait.step_length(e, b)[0], 0.0) for e in strides]
         periods = [e.period_s for e in strides]
         per = float(np.median(periods))
-        paced = [d for d, q in zip(d_new, periods) if q <= _PAUSE_PERIOD * per]
+        paced = [d for d, q in zip(d_new, periods) if q <= self.config.step_length.pause_period * per]
         if paced:
             # a stride far longer than its pattern's holds a pause (the segmenter takes one as such only when the
             # stance before lasted most of a stride): its cadence and mean force describe the pause, not the
             # stride, the first of the new pace (mixed day seed 12: 1.48 s among 1.00-s strides, placed 1.25 m,
             # re-placed at its own cadence 1.13 m, for 1.66 m); it gets the pattern's median stride
-            d_new = [d if q <= _PAUSE_PERIOD * per else float(np.median(paced)) for d, q in zip(d_new, periods)]
+            d_new = [d if q <= self.config.step_length.pause_period * per else float(np.median(paced)) for d, q in zip(d_new, periods)]
         delta = np.zeros(3)
         for (_, _, d_old, un, ue), d in zip(rows, d_new):
             delta[0] += (d - d_old) * un

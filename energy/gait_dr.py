@@ -416,7 +416,7 @@ class GaitPipeline:
         which = "" if cal is None else ("own" if cal is self.mag else "loaded")
         if which != self.in_use:
             self.in_use = which
-            self._prev_field = None
+            self._prev_field = self.last_reading = None
             if which == "own":
                 self.est.set_offset_prior(0.0, self.config.heading.offset_prior_rad)
             else:
@@ -475,7 +475,8 @@ class GaitPipeline:
             est.predict_gyro(delta, change)
         else:
             est.predict_free(delta, unseen, change)
-        self.last_reading = None if reading is None else reading[1:]
+        if reading is not None:
+            self.last_reading = reading[1:]
         if reading is not None:
             est.update_compass(reading[0], reading[1], reading[2], learn=unseen <= 0.0)
         h = self.config.heading
@@ -499,25 +500,25 @@ class GaitPipeline:
     def forecast_drift_pct(self, behaviour: str) -> float:
         """Cross-track drift [% of distance] over the next 100 m if the gyroscope went off now.
 
-        From the heading estimator's forecast one gyroscope-off stride ahead (with a compass reading as noisy
-        as the latest, none without one): a persistent heading error ``s_p`` (the compass's offsets, KF II's
+        Infinite without a calibrated compass (no magnetometer, or its fit not ready): nothing would observe the
+        heading. Otherwise from the heading estimator's forecast one gyroscope-off stride ahead (with a compass
+        reading as noisy as the latest): a persistent heading error ``s_p`` (the compass's offsets, KF II's
         deviation, 004 eq. 16) moves the path aside by ``100 s_p`` metres per 100 m; an error ``s_w`` that
         changes from stride to stride (the compass's own noise) by ``s_w sqrt(100 L)`` (a random walk of
         ``100 / L`` strides of length ``L``: the latest ZUPT-KF strides' median, 1.4 m before there is one).
         """
-        if not self.est.started:
+        if not self.est.started or self.last_reading is None or self.compass() is None:
             return math.inf
         kf = self.kf2[model_behaviour(behaviour)]
         dev_var = kf.variance if kf.n_updates else math.pi**2
-        last = self.last_reading
-        total, persistent = self.est.forecast(None) if last is None else self.est.forecast(*last)
+        total, persistent = self.est.forecast(*self.last_reading)
         white = max(total**2 - persistent**2, 0.0)
         recent = self.recent_d[model_behaviour(behaviour)]
         stride = max(float(np.median(recent)), 0.5) if recent else 1.4
         return 100.0 * math.sqrt(persistent**2 + dev_var + white * stride / 100.0)
 
     # ------------------------------------------------------------------ calibration
-    def learn(self, st: Stance, e: StepEvent, behaviour: str) -> float | None:
+    def learn(self, st: Stance, e: StepEvent, behaviour: str, step_model: bool = True) -> float | None:
         """Calibration pair: ZUPT-KF stride ``st`` (session frame) and its step event ``e`` (004 eq. 15, 19, 20,
         Table 3), and the stance for this session's compass fit.
 
@@ -525,8 +526,10 @@ class GaitPipeline:
         mixes the directions before and after the turn) and observes the others against the heading half-way
         through the swing (the chord lies between the stance headings before and after it).
 
-        Returns the KF II observation ``gamma - psi`` [rad] of the stride (None when it gave none), so that the
-        engine can test a stored deviation against it (sensor re-mounted).
+        ``step_model``: the stride joins the step-length calibration (an initialisation's or an examination's:
+        004 calibrates in the initialisation; the strides the gyroscope runs for the heading alone, in disturbed
+        fields and their odd gaits, stay out). Returns the KF II observation ``gamma - psi`` [rad] of the stride
+        (None when it gave none), so that the engine can test a stored deviation against it (sensor re-mounted).
         """
         m = self.mag_at(e)
         if m is not None:
@@ -546,7 +549,8 @@ class GaitPipeline:
         if behaviour not in _BEHAVIOURS or st.step_length < sl.min_stride_m or e.after_rest:
             return None
         features = self.features(e, behaviour)
-        self.cal.add(behaviour, features, st.step_length)
+        if step_model:
+            self.cal.add(behaviour, features, st.step_length)
         self._note_cadence(e, behaviour)
         peak = self.stride_peak.get(e.index)
         if behaviour == "walk" and peak is not None and math.isfinite(peak):

@@ -246,7 +246,8 @@ def _run_vicon(args: argparse.Namespace) -> int:
         return ev
 
     rows, failed = _evaluate_each(files, f"vicon {args.mode}", lambda f: (f, f.stem), evaluate, plot_vicon, args.plot)
-    doc = {"dataset": "vicon", "mode": args.mode, "trials": rows, "summary": harness.vicon_summary(rows)}
+    doc = {"dataset": "vicon", "mode": args.mode, "trials": rows, "summary": harness.vicon_summary(rows),
+           "settings": _settings(args.set)}
     _energy_doc(doc, accounting, rows, [r for r in rows if "error" not in r], args.plot)
 
     def line(r: dict[str, Any]) -> str:
@@ -328,6 +329,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
     doc = {
         "dataset": "gdin",
         "mode": args.mode,
+        "settings": _settings(args.set),
         "l0_m": args.l0,
         "conventional": args.conventional,
         "recordings": rows,
@@ -468,7 +470,8 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
 
     rows, failed = _evaluate_each(items, f"gaitmap {args.mode}", lambda it: (it[0], f"{it[0].stem}-{it[1]}"),
                                   evaluate, plot_gaitmap, args.plot)
-    doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows)}
+    doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows),
+           "settings": _settings(args.set)}
     _energy_doc(doc, accounting, rows, [r for r in rows if r.get("truth") and "error" not in r], args.plot)
 
     def line(r: dict[str, Any]) -> str:
@@ -553,7 +556,7 @@ def _run_plot(args: argparse.Namespace) -> int:
             return 2
         docs.append(doc)
     try:
-        n = plot_energy_accuracy(args.out, docs)
+        n = plot_energy_accuracy(args.out, docs, curve=args.curve)
     except ValueError as exc:
         print(f"pednav eval plot: {exc}", file=sys.stderr)
         return 1
@@ -718,4 +721,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "of eval vicon/gdin/gaitmap --mode auto|pdr")
     pp.add_argument("docs", nargs="+", metavar="DOC.json", help="saved JSON documents (one series each)")
     pp.add_argument("--out", required=True, metavar="FILE.png", help="PNG to write")
+    pp.add_argument("--curve", action="store_true",
+                    help="join the documents' medians in the order given (a sweep of one --set value)")
     pp.set_defaults(func=_run_plot)

@@ -308,8 +308,9 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         notes.append("no ground truth (no SensorConnectData_NN.mat with GCP_meters for this experiment): "
                      "figures without truth only, left out of the summary")
         est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
+        refused = [d.get("reason") for kind, d in run.events if kind == "gyroscope_off_refused"]
         row0: dict[str, Any] = {
-            "name": rec.name, "distance_err_pct": None, "strides_detected": count_moved(st[:, 1:3]),
+            "name": rec.name, "distance_err_pct": None, "gyro_off_refused": refused[0] if refused else None, "strides_detected": count_moved(st[:, 1:3]),
             "stances": int(st.shape[0]),
             "strides_truth": None, "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
             "gt_usable": False, "format": rec.meta.source_format, "est_path_m": est_len, "truth_path_m": None,
@@ -356,6 +357,10 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
     row["strides_truth"] = int(n_truth) if n_truth is not None else int(len(x["gcp_m"]) - 1)
     row["gyro_on_fraction"] = run.gyro_on_fraction
     row["mean_rate_hz"] = run.mean_rate_hz
+    if mode != "zupt":
+        # --mode pdr kept the gyroscope because nothing would hold the heading (the engine's event says why)
+        refused = [d.get("reason") for kind, d in run.events if kind == "gyroscope_off_refused"]
+        row["gyro_off_refused"] = refused[0] if refused else None
     # a sensor file cut short against its truth (clients.importers.gdin.load_gdin) is not comparable either
     row["gt_usable"] = bool(x.get("gcp_exist_and_correct", True)) and bool(x.get("truth_covers_recording", True))
     row["format"] = rec.meta.source_format

@@ -143,11 +143,12 @@ def _log_axis(ax: Any, which: str, lo: float, hi: float) -> None:
     axis.set_minor_formatter(NullFormatter())
 
 
-def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
+def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]], curve: bool = False) -> int:
     """Energy ratio (x) against accuracy ratio (y), both against the always-on ZUPT-KF on the same recording, one
     series per document (``pednav eval ... --mode auto|pdr --json``), one point per recording; the series'
     median as a large hollow marker, the baseline itself at (1, 1). Log axes. Returns the number of points;
-    ``ValueError`` when no row of any document has both ratios (e.g. ``eval recordings``: no truth)."""
+    ``ValueError`` when no row of any document has both ratios (e.g. ``eval recordings``: no truth). ``curve``:
+    the medians are joined in the documents' order (a sweep of one setting, ``--set``, labelled by it)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -157,6 +158,7 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
     n = 0
     xs: list[float] = [1.0]
     ys: list[float] = [1.0]
+    medians: list[tuple[float, float, str]] = []
     for i, doc in enumerate(docs):
         # the rows the document's summary is made of (gdin: usable ground truth only)
         rows = [r for r in doc.get("trials", doc.get("recordings")) or [] if r.get("gt_usable", True)]
@@ -168,7 +170,9 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
         c, mk = f"C{i % 10}", _MARKERS[i % len(_MARKERS)]
         x, y = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
         metric = ", ".join(sorted(k for k in (doc.get("accuracy_metrics") or {}) if k != "None"))
-        label = (f"{doc.get('dataset', '?')} --mode {doc.get('mode', '?')}"
+        settings = " ".join(f"{k}={v}" for k, v in (doc.get("settings") or {}).items())
+        medians.append((float(np.median(x)), float(np.median(y)), settings))
+        label = (f"{doc.get('dataset', '?')} --mode {doc.get('mode', '?')}{' ' + settings if settings else ''}"
                  f"{' (' + str(doc['profile']) + ')' if doc.get('profile') not in (None, 'none') else ''}: "
                  f"{len(pts)} recordings, median energy {np.median(x):.2f}, accuracy {np.median(y):.2f}"
                  f"{' [' + metric + ']' if metric else ''}{f'; {missing} without accuracy truth' if missing else ''}")
@@ -193,6 +197,12 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
         plt.close(fig)
         raise ValueError("no recording has both energy_ratio and accuracy_ratio (runs of --mode auto|pdr on a "
                          "dataset with truth are needed)")
+    if curve and len(medians) > 1:
+        ax.plot([m[0] for m in medians], [m[1] for m in medians], "-", color="0.2", lw=1.5, zorder=6,
+                label="medians in the order given")
+        for mx, my, text in medians:
+            ax.annotate(text.split("=")[-1], (mx, my), xytext=(-6, 6), textcoords="offset points", fontsize=8,
+                        color="0.1", ha="right")
     ax.scatter([1.0], [1.0], s=260, marker="*", color="k", zorder=5, label="always-on ZUPT-KF (the baseline, = 1, 1)")
     ax.axhline(1.0, color="k", lw=0.6, ls="--")
     ax.axvline(1.0, color="k", lw=0.6, ls="--")
@@ -208,7 +218,7 @@ def plot_energy_accuracy(path: str | Path, docs: list[dict[str, Any]]) -> int:
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out)
+    fig.savefig(out, bbox_inches="tight")
     plt.close(fig)
     return n
 
@@ -260,6 +270,6 @@ def plot_recording_timeline(out_dir: str | Path, row: dict[str, Any], plot: dict
     out = Path(out_dir) / (str(row["name"]).replace("/", "__") + ".png")
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(out)
+    fig.savefig(out, bbox_inches="tight")
     plt.close(fig)
     return out

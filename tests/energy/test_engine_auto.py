@@ -213,3 +213,16 @@ def test_step_events_arrive_within_the_declared_latency(demo) -> None:
         gait.queue.clear()
     assert len(lags) > 20
     assert max(lags) < SEGMENTER_LATENCY_S, max(lags)
+
+
+def test_events_and_positions_never_contradict_each_other(replayed) -> None:
+    """A mode_switch is announced exactly where the positions' mode changes (from, to and time), each with the
+    reason the scheduler gave; gyroscope requests and releases alternate."""
+    _, res = replayed
+    stream = [("pos", p.t_ns, p.mode) for u in res.updates for p in u.positions]
+    switches = [e for u in res.updates for e in u.events if e.kind == "mode_switch"]
+    changes = [(b[1], a[2], b[2]) for a, b in zip(stream, stream[1:]) if a[2] != b[2]]
+    assert changes and [(e.t_ns, e.detail["from"], e.detail["to"]) for e in switches] == changes
+    assert all(e.detail["reason"] for e in switches)
+    gyro = [e.kind for u in res.updates for e in u.events if e.kind in ("gyroscope_requested", "gyroscope_released")]
+    assert gyro and all(a != b for a, b in zip(gyro, gyro[1:]))

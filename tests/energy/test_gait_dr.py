@@ -333,9 +333,9 @@ def kf2_movement_after_convergence(rec) -> dict[str, float]:
     hist: dict[str, list[tuple[float, bool]]] = {}
     learn = GaitPipeline.learn
 
-    def recording_learn(self: GaitPipeline, st: Stance, e: StepEvent, behaviour: str) -> None:
+    def recording_learn(self: GaitPipeline, st: Stance, e: StepEvent, behaviour: str, step_model: bool = True) -> None:
         before = {b: k.n_updates for b, k in self.kf2.items()}
-        learn(self, st, e, behaviour)
+        learn(self, st, e, behaviour, step_model)
         for b, k in self.kf2.items():
             if k.n_updates != before[b]:
                 hist.setdefault(b, []).append((k.deviation, k.converged))
