@@ -26,7 +26,7 @@ What the recording holds besides the engine's streams: :attr:`clients.recording.
 ``longitude_deg``, ``floor``, ``building``, ``counter``, ``origin_deg``), and
 :attr:`clients.recording.Recording.aux` the location fixes ``gnss`` (``t_ns``, ``latitude_deg``,
 ``longitude_deg``, ``altitude_m``, ``bearing_deg``, ``accuracy_m``, ``speed_m_s``, ``sats_in_view``,
-``sats_in_use``), the phone's orientation ``ahrs`` (``t_ns``, ``pitch_roll_yaw_deg``, ``quat_xyz``) and
+``sats_in_use``, ``utc_ns`` the fix's own UTC time; the first good one is ``RecordingMeta.anchor``), the phone's orientation ``ahrs`` (``t_ns``, ``pitch_roll_yaw_deg``, ``quat_xyz``) and
 ``device`` (manufacturer, model, Android version and the creation ``date`` from the header). Damaged lines follow the sample policy of
 :mod:`clients.importers._common`: a line with too few fields or an unreadable number is skipped and noted.
 """
@@ -194,12 +194,26 @@ def _gnss(gnss: list[list[float]]) -> dict[str, np.ndarray] | None:
     if not gnss:
         return None
     a = np.asarray(gnss, dtype=np.float64)
+    utc = a[:, 1]  # the fix's own time: UTC epoch seconds
     names = ("latitude_deg", "longitude_deg", "altitude_m", "bearing_deg", "accuracy_m", "speed_m_s", "sats_in_view",
              "sats_in_use")
     out = {"t_ns": _to_ns(a[:, 0])}  # AppTimestamp; the SensorTimeStamp column is the fix's UTC time
     for i, name in enumerate(names):
         out[name] = a[:, 2 + i] if a.shape[1] > 2 + i else np.full(len(a), np.nan)
+    out["utc_ns"] = np.round(utc * 1e9).astype(np.int64)
     return out
+
+
+def _anchor(fixes: dict[str, np.ndarray] | None) -> Any:
+    """The recording's anchor: its first good GNSS fix (:func:`models.geo.anchor_from_fixes`), dated by the fix's
+    UTC time; None without one."""
+    if fixes is None:
+        return None
+    from models.geo import Fix, anchor_from_fixes
+
+    return anchor_from_fixes((Fix(int(t), float(la), float(lo), float(h), float(acc)) for t, la, lo, h, acc in zip(
+        fixes["utc_ns"], fixes["latitude_deg"], fixes["longitude_deg"], fixes["altitude_m"], fixes["accuracy_m"])),
+        source="gnss")
 
 
 def load_getsensordata(path: str | Path) -> Recording:
@@ -241,7 +255,8 @@ def load_getsensordata(path: str | Path) -> Recording:
     return Recording(
         name=p.stem,
         batch=batch,
-        meta=RecordingMeta(source_format=SOURCE_FORMAT, rate_hz=batch.rate_hz("acc"), mount="phone", notes=tuple(notes)),
+        meta=RecordingMeta(source_format=SOURCE_FORMAT, rate_hz=batch.rate_hz("acc"), mount="phone", notes=tuple(notes),
+                           anchor=_anchor(fixes)),
         truth=_landmarks(p, rows["POSI"]),
         aux=aux,
     )

@@ -92,6 +92,9 @@ def test_round_trip(tmp_path: Path, empty_mag_column: bool) -> None:
     gnss = rec.aux["gnss"]
     assert gnss["t_ns"][0] == 820_200_000 and gnss["latitude_deg"][0] == pytest.approx(49.461069)
     assert gnss["accuracy_m"][0] == 8.0 and gnss["sats_in_use"][0] == 15
+    a = rec.meta.anchor  # the first good fix anchors the recording, dated by the fix's UTC time
+    assert a is not None and a.source == "gnss" and a.latitude_deg == pytest.approx(49.461069)
+    assert a.date.isoformat() == "2023-06-14" and a.accuracy_m == 8.0
     assert rec.aux["ahrs"]["quat_xyz"].shape == (s["ta"].size, 3)
     assert rec.aux["device"]["Model"] == "SM-A520F" and rec.aux["device"]["date"] == "2023-06-14"
 
