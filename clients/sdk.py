@@ -311,15 +311,19 @@ class PednavClient:
         altitude_m: float | None = None,
         anchor_date: str | None = None,
         anchor_accuracy_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
         """Start a session, optionally anchored (WGS-84 position of the first stance; ``anchor_date`` ISO
-        ``YYYY-MM-DD``, the World Magnetic Model's date); returns the session document."""
+        ``YYYY-MM-DD``, the World Magnetic Model's date); ``placement``: ``foot``, ``phone-hand``,
+        ``phone-pocket``, ``watch`` or None to let the server recognise a phone's; returns the session document."""
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
         if anchor_date is not None:
             body["anchor_date"] = anchor_date
         if anchor_accuracy_m is not None:
             body["anchor_accuracy_m"] = anchor_accuracy_m
+        if placement is not None:
+            body["placement"] = placement
         return self._json("POST", "/v1/sessions", json=body)
 
     def patch_session(self, session_id: int, **changes: Any) -> dict[str, Any]:
@@ -713,9 +717,12 @@ class AsyncPednavClient:
         latitude_deg: float | None = None,
         longitude_deg: float | None = None,
         altitude_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
+        if placement is not None:
+            body["placement"] = placement
         return await self._json("POST", "/v1/sessions", json=body)
 
     async def session(self, session_id: int) -> dict[str, Any]:

@@ -101,14 +101,14 @@ def _feed(
     ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state``,
     also when an engine is cached at ``version`` (the worker does not vouch for it, see the module docstring).
     """
-    from energy.engine import Engine
+    from energy.engines import engine_from_bytes
     from models.batch import BatchError, SensorBatch
     from server.ingest import feed_engine
     from server.statecodec import unpack_state
 
     hit = _CACHE.pop(session_id, None)
     if state is not None:
-        engine = Engine.from_bytes(unpack_state(state))
+        engine = engine_from_bytes(unpack_state(state))
     elif hit is not None and hit[0] == version:
         engine = hit[1]
     else:
@@ -129,7 +129,8 @@ def _serve(conns: list[Any], cache_size: int, ready: Any = None, warm: bool = Fa
     import gc
     import selectors
 
-    import energy.engine
+    import energy.engine  # noqa: F401 - loaded before the freeze below
+    import energy.phone_engine  # noqa: F401
 
     global _CACHE_SIZE
     _CACHE_SIZE = cache_size

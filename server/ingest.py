@@ -46,8 +46,10 @@ __all__ = [
     "StorageBusy",
     "apply_batch",
     "close_session",
+    "apply_known_distance",
     "engine_profile_in",
     "engine_profile_from_stored",
+    "session_spec",
     "feed_engine",
     "is_contention",
     "pool_feed",
@@ -198,7 +200,21 @@ class EngineHost:
             self._engine_cls = _default_factory()
         return self._engine_cls
 
-    def new(self, mode: str, profile: dict[str, Any] | None) -> EngineLike:
+    def engine_class_of(self, placement: str | None, device_kind: str) -> Any:
+        """The engine class a session of that placement and device kind runs (a custom ``engine_cls`` for all)."""
+        if self._engine_cls is not None:
+            return self._engine_cls
+        from energy.engines import EngineSpec, engine_class
+
+        return engine_class(EngineSpec(device_kind, placement))
+
+    def new(self, mode: str, profile: dict[str, Any] | None, spec: Any = None) -> EngineLike:
+        """A fresh engine; ``spec`` (:class:`energy.engines.EngineSpec`, default: a foot sensor) picks the
+        pipeline of the default engines; a custom ``engine_cls`` is always used as it is."""
+        if self._engine_cls is None:
+            from energy.engines import new_engine
+
+            return new_engine(mode, profile, spec)  # type: ignore[no-any-return]
         return self.engine_cls(mode=mode, profile=profile)
 
     def restore(self, sess: TrackSession) -> EngineLike:
@@ -215,8 +231,12 @@ class EngineHost:
             self._cache.move_to_end(session_id)
             return hit[1]
         blob = load_state()
-        if blob is None:
+        if blob is None:  # only sessions from before engine states were stored: all ran the foot engine
             return self.new(mode, engine_profile_from_stored(profile))
+        if self._engine_cls is None:
+            from energy.engines import engine_from_bytes
+
+            return engine_from_bytes(unpack_state(blob))  # type: ignore[no-any-return]
         return self.engine_cls.from_bytes(unpack_state(blob))
 
     def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
@@ -325,8 +345,13 @@ def validate_calibration(behaviour: str, data: dict[str, Any], host: EngineHost 
     try:
         Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
         if host is not None:
+            from energy.engines import EngineSpec
+            from energy.phone_engine import PROFILE_KEY
+
             stored = json_safe(data)  # what is stored; a session start reads it back through _calibration_in
-            host.new("auto", {"version": 1, "behaviours": {behaviour: _calibration_in(stored)}})  # "auto" loads it
+            # the engine that takes this calibration ("auto" loads it): a phone's for the step-and-heading entry
+            spec = EngineSpec("phone", "phone-hand") if behaviour == PROFILE_KEY else None
+            host.new("auto", {"version": 1, "behaviours": {behaviour: _calibration_in(stored)}}, spec)
     except ValueError:
         raise
     except RecursionError:
@@ -344,10 +369,29 @@ def engine_profile_from_stored(profile: dict[str, Any] | None) -> dict[str, Any]
     return {**profile, "behaviours": {b: _calibration_in(c) for b, c in behaviours.items() if isinstance(c, dict)}}
 
 
-def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:
-    """The user's current calibration profiles in the engine's form, or None when there are none."""
+def engine_profile_in(db: Session, user: User, pipeline: str | None = None) -> dict[str, Any] | None:
+    """The user's current calibration profiles in the engine's form, or None when there are none; with
+    ``pipeline`` (``foot`` / ``step-and-heading``) only what an engine of that pipeline takes."""
     cur = {b: _calibration_in(p.data) for b, p in crud.current_profiles(db, user).items() if p.data is not None}
-    return {"version": 1, "behaviours": cur} if cur else None
+    prof = {"version": 1, "behaviours": cur} if cur else None
+    if pipeline is None:
+        return prof
+    from energy.engines import profile_for
+
+    return profile_for(prof, pipeline)
+
+
+def session_spec(device_kind: str, placement: str | None, latitude_deg: float | None, longitude_deg: float | None,
+                 altitude_m: float | None, created_at: Any) -> Any:
+    """The :class:`energy.engines.EngineSpec` of a session's stored fields (anchor from its geodetic start, WMM
+    date from its creation)."""
+    from energy.engines import EngineSpec
+
+    anchor = None
+    if latitude_deg is not None and longitude_deg is not None:
+        anchor = (float(latitude_deg), float(longitude_deg), float(altitude_m or 0.0))
+    day = created_at.date() if hasattr(created_at, "date") and callable(created_at.date) else created_at
+    return EngineSpec(device_kind, placement, anchor, day)
 
 
 def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:
@@ -678,6 +722,47 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
         sess.closed_at = utcnow()
         db.commit()
         return sess
+
+
+def apply_known_distance(db: Session, host: EngineHost, user: User, session_id: int, t0_ns: int, t1_ns: int,
+                         distance_m: float) -> dict[str, Any] | None:
+    """A distance the user walked between two times of an open session (a user-entered distance, a stretch a foot
+    sensor or GNSS measured): the session's step-and-heading engine calibrates its step length from the steps
+    between them; the ``calibration`` event is stored and returned, the engine state with it (the profile takes it
+    at the close). None when the user has no such session.
+
+    Raises
+    ------
+    IngestConflict
+        The session is closed.
+    ValueError
+        Not a step-and-heading session, or the engine refuses the distance (no steps between the times ...).
+    """
+    with host.lock(session_id):
+        sess = crud.get_session(db, user, session_id, for_update=True)
+        if sess is None:
+            return None
+        if sess.status != "open":
+            db.rollback()
+            raise IngestConflict(f"session {session_id} is closed; a distance calibrates an open session", sess.next_seq)
+        engine = host.restore(sess)
+        host.forget(session_id)
+        calibrate = getattr(engine, "calibrate_distance", None)
+        if calibrate is None:
+            db.rollback()
+            raise ValueError("session: a foot sensor's step length is calibrated by its own ZUPT-KF; known distances "
+                             "calibrate phone and watch sessions")
+        try:
+            ev = calibrate(int(t0_ns), int(t1_ns), float(distance_m))
+        except ValueError:
+            db.rollback()
+            raise
+        detail = json_safe(dict(ev.detail))
+        db.add(EventRecord(session_id=sess.id, seq=max(sess.next_seq - 1, 0), t_ns=int(ev.t_ns), kind=ev.kind, detail=detail))
+        sess.engine_state = pack_state(engine.to_bytes())
+        with host.write_lock:
+            db.commit()
+        return {"t_ns": int(ev.t_ns), "kind": ev.kind, "detail": detail}
 
 
 def _profiles_out(engine: EngineLike) -> dict[str, dict[str, Any]]:

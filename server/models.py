@@ -106,6 +106,9 @@ class TrackSession(Base):
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
     device_id: Mapped[int | None] = mapped_column(ForeignKey("devices.id", ondelete="SET NULL"), nullable=True)
     device_kind: Mapped[str] = mapped_column(String(20))
+    # where the device is carried (models.placement.PLACEMENTS); NULL: recognised by the engine (migration 0008
+    # set 'foot' on older sessions: they all ran the foot engine)
+    placement: Mapped[str | None] = mapped_column(String(12), nullable=True)
     latitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     longitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     altitude_m: Mapped[float | None] = mapped_column(Float, nullable=True)

@@ -37,9 +37,11 @@ __all__ = [
     "SensorLoggerPush",
     "ReprocessIn",
     "ReprocessOut",
+    "DistanceIn",
 ]
 
 DeviceKind = Literal["foot", "phone", "watch"]
+Placement = Literal["foot", "phone-hand", "phone-pocket", "watch"]
 BehaviourName = Literal["stand", "walk", "run", "other"]
 
 CONTROL_CHARS = re.compile(r"[\x00-\x1f\x7f]")
@@ -163,6 +165,11 @@ class SessionCreate(BaseModel):
     """Start of a session. The anchor (the WGS-84 position of the first stance) is optional: without it
     GeoJSON/GPX/KML exports are refused (409) and north stays the engine's; it can be set later (PATCH).
 
+    ``placement`` decides the pipeline (DESIGN.md "Placement"): ``foot`` runs the ZUPT-KF / Gait-DR engine, the
+    others the step-and-heading engine. Omitted: a foot sensor is on the foot, a watch on the wrist, and a phone's
+    placement (hand or pocket) is recognised by the engine, a change reported as a ``placement_changed`` event. A
+    placement the device kind cannot have (a watch in a pocket) is 422.
+
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
     Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
     altitude -500..10 000 m, and ``device_id`` a JSON integer; anything else is 422 naming the field.
@@ -171,6 +178,7 @@ class SessionCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
+    placement: Placement | None = None
     device_id: int | None = Field(default=None, strict=True, **_ID)  # "5" or true: 422; the id column's range
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
@@ -193,6 +201,16 @@ class SessionPatch(BaseModel):
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
     anchor_date: date | None = None
     anchor_accuracy_m: float | None = Field(default=None, ge=0.0, le=1e7, **_COORD)
+
+
+class DistanceIn(BaseModel):
+    """A distance walked between two times of the session (user-entered, or measured by a foot sensor or GNSS)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    t0_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="start of the stretch [ns], device clock")
+    t1_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="its end [ns], after t0_ns")
+    distance_m: float = Field(gt=0.0, le=100_000.0, strict=True, allow_inf_nan=False, description="distance walked [m]")
 
 
 class SensorConfigOut(BaseModel):
@@ -222,6 +240,7 @@ class SensorConfigOut(BaseModel):
 class SessionOut(_Out):
     id: int
     device_kind: str
+    placement: str | None = Field(default=None, description="placement given at the start; null: recognised by the engine")
     device_id: int | None
     latitude_deg: float | None
     longitude_deg: float | None

@@ -7,7 +7,7 @@ recordings and are skipped).
 
 Modules: ``vicon`` (University of Toronto .mat), ``sensorconnect`` (MicroStrain CSV, gdin formats A/B),
 ``gdin`` (format C .mat, truth pairing), ``gaitmap`` (gaitmap CSV), and, when present, ``sensor_logger`` and
-``phyphox`` (phone apps).
+``phyphox`` (phone apps), ``getsensordata`` (GetSensorData logfiles, the IPIN smartphone format).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ _MODULES: tuple[str, ...] = (
     "clients.importers.gaitmap",
     "clients.importers.sensor_logger",
     "clients.importers.phyphox",
+    "clients.importers.getsensordata",
 )
 
 
@@ -98,7 +99,7 @@ def _header_hint(p: Path) -> str:
     return f"; its first line: {line[:120]!r}{' ...' if len(line) > 120 else ''}" if line.strip() else "; it is empty"
 
 
-_SUFFIXES = (".mat", ".csv", ".json", ".zip")
+_SUFFIXES = (".mat", ".csv", ".json", ".zip", ".txt")
 
 
 def list_recordings(directory: str | Path, recursive: bool = True) -> list[Path]:

@@ -290,8 +290,8 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
         return link, False
     profile = engine_profile_in(db, user)
     engine = host.new(settings.engine_mode, profile)
-    sess = crud.create_session(
-        db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
+    sess = crud.create_session(  # the foot engine: a Sensor Logger phone is strapped to a shoe (placement "foot")
+        db, user, device_kind="phone", placement="foot", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
         engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id,
