@@ -123,7 +123,7 @@ def test_pdr_profile_is_validated_by_the_phone_engine(client, make_user) -> None
 
 
 def test_older_sessions_become_foot_sessions(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """Every session before revision 0007 ran the foot engine: that is the placement the migration gives them."""
+    """Every session before revision 0008 ran the foot engine: that is the placement the migration gives them."""
     from server.db import make_engine, migrate
     from server.settings import Settings
 
