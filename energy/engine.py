@@ -280,7 +280,7 @@ class Engine:
         if mode not in _MODES:
             raise ValueError(f"mode: expected one of {_MODES}, got {mode!r}")
         self.mode: EngineMode = mode
-        self.config = config or EngineConfig()
+        self.config = config or EngineConfig.default()
         self.trace = Trace() if trace else None
         self._t0_ns: int | None = None
         self._last_acc_t: int | None = None
@@ -1094,7 +1094,7 @@ class Engine:
     def from_state(cls, d: dict[str, Any], trace: bool = False) -> Engine:
         if d.get("version") != _STATE_VERSION:
             raise ValueError(f"engine state version {d.get('version')!r} is not {_STATE_VERSION}")
-        config = EngineConfig().override(d["config"])
+        config = EngineConfig.default().override(d["config"])
         obj = cls(mode=d["mode"], config=config, trace=trace)
         for k in cls._SCALARS:
             setattr(obj, "_" + k, d[k])
