@@ -956,9 +956,17 @@ class Engine:
         return cal
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
+        """The answer to a batch; its ``mode`` is what the device is told to run next (``zupt`` with the
+        gyroscope on, ``pdr`` with it off while moving, ``idle`` standing with it off, the device perhaps left to
+        wake it), so it never contradicts
+        the sensor configuration beside it."""
         sched = self._sched
         config, idle = sched.config_and_idle()
-        return Update(positions, events, config, sched.behaviour, "idle" if idle else sched.working)
+        if config.gyro_on or self.mode == "zupt":
+            mode = "zupt"
+        else:
+            mode = "idle" if idle or sched.behaviour == "stand" else "pdr"
+        return Update(positions, events, config, sched.behaviour, mode)
 
     def _log_stride(self, step: Any, e: Any, prev: np.ndarray | None) -> None:
         """Keep a placed Gait-DR stride (its event, length and direction) for :meth:`_correct_pattern`."""
