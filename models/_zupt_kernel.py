@@ -154,6 +154,7 @@ FS = {
             # per channel (acc x, y, z, gyr x, y, z): sum of sigma * dt over the current run of clipped samples
             "sat_s0", "sat_s1", "sat_s2", "sat_s3", "sat_s4", "sat_s5",
             "sat_cnt",  # samples with a clipped channel since the last reported stance
+            "sat_open",  # the previous sample's clipped channels (0: no run open, nothing to advance)
             # heading variance clipped gyroscope axes added [rad^2] (kept out of P: no ZUPT can observe it, and in P
             # it let the ZUPTs turn the heading on velocity errors of other causes), and its first and second
             # moments over the distance travelled when it was added: the position variance it causes later is
@@ -260,6 +261,7 @@ _SWMIN = PAR["swing_min_s"]
 _SWSPD = PAR["swing_speed"]
 _F_SS = FS["sat_s0"]
 _F_SCNT = FS["sat_cnt"]
+_F_SOPEN = FS["sat_open"]
 _F_CS0 = FS["clip_s0"]
 _F_CS1 = FS["clip_s1"]
 _F_CS2 = FS["clip_s2"]
@@ -867,13 +869,12 @@ def _relevel(x, f_mean):
 
 
 @njit(cache=True)
-def _clip_runs(fs, sat, sig, dt):
+def _clip_runs(fs, sat, sig, dt, q):
     """Advance the per-channel sums ``sum sigma * dt`` of the current runs of clipped samples (``sat`` bits 0-5,
     ``sig`` (6,) the 1-sigma error of this sample's values, :class:`models.saturation.ClipRepair`); a channel not
-    clipped ends its run. Returns the variance increments (6,): the error of a clipped (or repaired) value persists
-    over its run, so the run's error grows with its length, ``(sum sigma dt)^2``, not with the square root of
-    its sample count (independent of the sample rate)."""
-    q = np.zeros(6)
+    clipped ends its run. Writes the variance increments into ``q`` (6,): the error of a clipped (or repaired) value
+    persists over its run, so the run's error grows with its length, ``(sum sigma dt)^2``, not with the square root
+    of its sample count (independent of the sample rate)."""
     for a in range(6):
         if (sat >> a) & 1:
             s0 = fs[_F_SS + a]
@@ -882,7 +883,7 @@ def _clip_runs(fs, sat, sig, dt):
             q[a] = s1 * s1 - s0 * s0
         else:
             fs[_F_SS + a] = 0.0
-    return q
+            q[a] = 0.0
 
 
 @njit(cache=True)
@@ -911,19 +912,24 @@ def _clip_noise(P, C, q, fs):
         fs[_F_CS2] += v * d * d
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _sigmas(x, P, fs):
-    """1-sigma heading [rad] (004 Appendix A's heading row) and horizontal position [m]: the covariance's, plus the
-    heading clipped gyroscope axes lost (``clip_s0``) and the position error it has caused over the distance
-    travelled since."""
-    C = quat_dcm_s(x[0:4])
-    h = _heading_row(C)
-    var = 0.0
-    for r in range(6, 9):
-        for cc in range(6, 9):
-            var += h[r] * P[r, cc] * h[cc]
-    d = fs[_F_DIST]
-    extra = d * d * fs[_F_CS0] - 2.0 * d * fs[_F_CS1] + fs[_F_CS2]
+    """1-sigma heading [rad] (004 Appendix A's heading row, :func:`_heading_row`) and horizontal position [m]: the
+    covariance's, plus the heading clipped gyroscope axes lost (``clip_s0``) and the position error it has caused
+    over the distance travelled since. Scalar arithmetic: it runs for every output sample."""
+    w, a, b, c = x[0], x[1], x[2], x[3]
+    c00 = 1.0 - 2.0 * (b * b + c * c)
+    c10 = 2.0 * (a * b + w * c)
+    c20 = 2.0 * (a * c - w * b)
+    d = c00 * c00 + c10 * c10
+    if d < 1e-9:
+        d = 1e-9
+    h6 = -c00 * c20 / d
+    h7 = -c10 * c20 / d
+    var = (h6 * h6 * P[6, 6] + h7 * h7 * P[7, 7] + P[8, 8] + 2.0 * h6 * h7 * P[6, 7] + 2.0 * h6 * P[6, 8]
+           + 2.0 * h7 * P[7, 8])
+    dist = fs[_F_DIST]
+    extra = dist * dist * fs[_F_CS0] - 2.0 * dist * fs[_F_CS1] + fs[_F_CS2]
     return math.sqrt(max(var + fs[_F_CS0], 0.0)), math.sqrt(max(P[0, 0] + P[1, 1] + extra, 0.0))
 
 
@@ -951,6 +957,7 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
     sw2 = par[_SW] ** 2
     ew = par[_EROS]
     dx = np.zeros(15)
+    q_sat = np.zeros(6)
     n_st = 0
     i = i0
     while i < n_all:
@@ -1024,7 +1031,9 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
         o_sat[k] = sat
         if sat:
             fs[_F_SCNT] += 1.0
-        q_sat = _clip_runs(fs, sat, sig_in[i], dt)
+        if sat or fs[_F_SOPEN] != 0.0:
+            _clip_runs(fs, sat, sig_in[i], dt, q_sat)
+            fs[_F_SOPEN] = float(sat)
         has_m = not (math.isnan(mag[i, 0]) or math.isnan(mag[i, 1]) or math.isnan(mag[i, 2]))
         if gap == 2 and ist[0]:
             # ---- a gap longer than gap_max_s: the foot may have taken a stride in it. Rather than integrate a

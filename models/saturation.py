@@ -107,20 +107,25 @@ class SaturationConfig:
 _RANGE, _MIN, _FRAC, _FLAT, _FITN, _MAXS, _REL, _SIG = 0, 2, 4, 5, 6, 7, 8, 9
 
 
+# columns of ClipRepair's row buffer
+_T, _V, _R, _M, _S, _F, _NCOL = 0, 1, 7, 13, 16, 22, 23
+
+
 @njit(cache=True)
-def _scan(t, v, flags, start, stop, final, peaks, par):
-    """Flag rows ``start .. stop - 1`` of ``v`` (N, 6: acc, gyr) whose next row exists (or ``final``); returns the
-    first row not scanned. Row ``start - 1`` must be the previous row; ``peaks`` (12), the largest |value| per
-    channel and sign so far, is updated in row order."""
-    n = t.shape[0]
+def _scan(buf, start, final, peaks, par):
+    """Flag rows ``start ..`` of the buffer (column ``_F``) whose next row exists (or ``final``) from their recorded
+    values (columns ``_V .. _V + 5``: acc, gyr); returns the first row not scanned. Row ``start - 1`` must be the
+    previous row; ``peaks`` (12), the largest |value| per channel and sign so far, is updated in row order."""
+    n = buf.shape[0]
     i = start
-    while i < stop:
+    while i < n:
         if i + 1 >= n and not final:
             break
         f = 0
         for ch in range(6):
             s = 0 if ch < 3 else 1
-            val = v[i, ch]
+            col = _V + ch
+            val = buf[i, col]
             mag = abs(val)
             slot = 2 * ch + (1 if val < 0.0 else 0)
             if mag > peaks[slot]:
@@ -131,11 +136,12 @@ def _scan(t, v, flags, start, stop, final, peaks, par):
             else:
                 hit = mag >= par[_MIN + s] and mag >= par[_FRAC] * peaks[slot]
                 if hit:  # a plateau: a neighbour of the same sign holds the value
-                    hit = ((i > 0 and v[i - 1, ch] * val > 0.0 and abs(v[i - 1, ch] - val) <= par[_FLAT] * mag)
-                           or (i + 1 < n and v[i + 1, ch] * val > 0.0 and abs(v[i + 1, ch] - val) <= par[_FLAT] * mag))
+                    hit = ((i > 0 and buf[i - 1, col] * val > 0.0 and abs(buf[i - 1, col] - val) <= par[_FLAT] * mag)
+                           or (i + 1 < n and buf[i + 1, col] * val > 0.0
+                               and abs(buf[i + 1, col] - val) <= par[_FLAT] * mag))
             if hit:
                 f |= 1 << ch
-        flags[i] = f
+        buf[i, _F] = f
         i += 1
     return i
 
@@ -168,11 +174,11 @@ def _quad_at(tt, yy, m, tq):
 
 
 @njit(cache=True)
-def _repair(t, v, r, flags, sig, lo, scanned, final, par):
-    """Repair, in ``r`` (a copy of ``v``), the runs of each channel that have rows in ``lo .. scanned - 1`` and are
-    decided: closed (their end and ``fit_n`` rows after it scanned, or ``final``) or longer than ``max_s`` (never
-    repaired). Fits read the original values ``v``. ``sig`` (N, 6) receives the 1-sigma error of each flagged
-    value. Returns the first row of the earliest undecided run (or ``scanned``): the rows before it are decided."""
+def _repair(buf, lo, scanned, final, par):
+    """Repair, in the buffer's columns ``_R`` (a copy of the recorded ``_V``), the runs of each channel that have
+    rows in ``lo .. scanned - 1`` and are decided: closed (their end and ``fit_n`` rows after it scanned, or
+    ``final``) or longer than ``max_s`` (never repaired). Fits read the recorded values. Columns ``_S`` receive the
+    1-sigma error of each flagged value. Returns the first row of the earliest undecided run (or ``scanned``): the rows before it are decided."""
     fit_n = int(par[_FITN])
     release = scanned
     tt = np.empty(2 * fit_n)
@@ -182,19 +188,19 @@ def _repair(t, v, r, flags, sig, lo, scanned, final, par):
         floor = par[_SIG + s]
         i = lo
         while i < scanned:
-            if not (flags[i] >> ch) & 1:
+            if not (int(buf[i, _F]) >> ch) & 1:
                 i += 1
                 continue
-            if i > 0 and (flags[i - 1] >> ch) & 1:
+            if i > 0 and (int(buf[i - 1, _F]) >> ch) & 1:
                 # the rest of a run decided before (repaired, or too long to be): too long, its rows are flagged only
-                if sig[i, ch] == 0.0:
-                    sig[i, ch] = floor
+                if buf[i, _S + ch] == 0.0:
+                    buf[i, _S + ch] = floor
                 i += 1
                 continue
             j = i
-            while j < scanned and (flags[j] >> ch) & 1:
+            while j < scanned and (int(buf[j, _F]) >> ch) & 1:
                 j += 1
-            too_long = t[j - 1] - t[i] > par[_MAXS]
+            too_long = buf[j - 1, _T] - buf[i, _T] > par[_MAXS]
             closed = final or (j < scanned and j + fit_n <= scanned)
             if not (closed or too_long):
                 if i < release:
@@ -204,30 +210,30 @@ def _repair(t, v, r, flags, sig, lo, scanned, final, par):
             n_left = 0
             if not too_long:
                 k = i - 1
-                while k >= 0 and m < fit_n and i - k <= 2 * fit_n and t[i] - t[k] <= par[_MAXS]:
-                    if not (flags[k] >> ch) & 1:
-                        tt[m] = t[k] - t[i]
-                        yy[m] = v[k, ch]
+                while k >= 0 and m < fit_n and i - k <= 2 * fit_n and buf[i, _T] - buf[k, _T] <= par[_MAXS]:
+                    if not (int(buf[k, _F]) >> ch) & 1:
+                        tt[m] = buf[k, _T] - buf[i, _T]
+                        yy[m] = buf[k, _V + ch]
                         m += 1
                     k -= 1
                 n_left = m
                 k = j
-                while k < scanned and k - j < fit_n and t[k] - t[j - 1] <= par[_MAXS]:
-                    if not (flags[k] >> ch) & 1:
-                        tt[m] = t[k] - t[i]
-                        yy[m] = v[k, ch]
+                while k < scanned and k - j < fit_n and buf[k, _T] - buf[j - 1, _T] <= par[_MAXS]:
+                    if not (int(buf[k, _F]) >> ch) & 1:
+                        tt[m] = buf[k, _T] - buf[i, _T]
+                        yy[m] = buf[k, _V + ch]
                         m += 1
                     k += 1
             repairable = not too_long and n_left >= 1 and m - n_left >= 1 and m >= 3
             for q in range(i, j):
-                orig = v[q, ch]
+                orig = buf[q, _V + ch]
                 added = 0.0
                 if repairable:
-                    est = _quad_at(tt, yy, m, t[q] - t[i])
+                    est = _quad_at(tt, yy, m, buf[q, _T] - buf[i, _T])
                     if est * orig > 0.0 and abs(est) > abs(orig):
                         added = abs(est) - abs(orig)
-                        r[q, ch] = est
-                sig[q, ch] = max(floor, par[_REL] * added)
+                        buf[q, _R + ch] = est
+                buf[q, _S + ch] = max(floor, par[_REL] * added)
             i = j
     return release
 
@@ -244,12 +250,8 @@ class ClipRepair:
         self.config = config
         self._par = config.to_array()
         self._peaks = np.zeros(12)
-        self._t = np.zeros(0)
-        self._v = np.zeros((0, 6))  # acc, gyr as recorded (detection and fits read these)
-        self._r = np.zeros((0, 6))  # ... repaired (the output)
-        self._m = np.zeros((0, 3))  # mag (passed through)
-        self._f = np.zeros(0, dtype=np.uint8)
-        self._sig = np.zeros((0, 6))
+        # one row per sample: t, acc+gyr as recorded, as repaired, mag, 1-sigma errors, flags (columns _T .. _F)
+        self._buf = np.zeros((0, _NCOL))
         self._n_tail = 0  # leading rows already released (context for the next runs)
         self._scanned = 0  # rows flagged so far
 
@@ -259,73 +261,52 @@ class ClipRepair:
         the rows that are decided: ``(t, acc, gyr, mag, flags, sigma)`` with the clipped values repaired,
         ``flags`` (uint8, :data:`SAT_ACC` | :data:`SAT_GYR` bits) and ``sigma`` (M, 6) the 1-sigma error of each
         flagged value (0 elsewhere). ``final``: the recording ends here, release everything."""
-        if len(t):
-            self._t = np.concatenate([self._t, t])
-            v = np.concatenate([acc, gyr], axis=1)
-            self._v = np.concatenate([self._v, v])
-            self._r = np.concatenate([self._r, v])
-            self._m = np.concatenate([self._m, mag])
-            self._f = np.concatenate([self._f, np.zeros(len(t), dtype=np.uint8)])
-            self._sig = np.concatenate([self._sig, np.zeros((len(t), 6))])
-        n = self._t.shape[0]
-        self._scanned = _scan(self._t, self._v, self._f, self._scanned, n, final, self._peaks, self._par)
+        k = len(t)
+        if k:
+            new = np.zeros((k, _NCOL))
+            new[:, _T] = t
+            new[:, _V:_V + 3] = acc
+            new[:, _V + 3:_R] = gyr
+            new[:, _R:_M] = new[:, _V:_R]
+            new[:, _M:_S] = mag
+            self._buf = np.concatenate([self._buf, new]) if len(self._buf) else new
+        buf = self._buf
+        self._scanned = _scan(buf, self._scanned, final, self._peaks, self._par)
         lo = self._n_tail
-        release = _repair(self._t, self._v, self._r, self._f, self._sig, lo, self._scanned, final, self._par)
-        out = (self._t[lo:release].copy(), self._r[lo:release, :3].copy(), self._r[lo:release, 3:].copy(),
-               self._m[lo:release].copy(), self._f[lo:release].copy(), self._sig[lo:release].copy())
+        release = _repair(buf, lo, self._scanned, final, self._par)
+        out = buf[lo:release].copy()
         if final:
-            self._forget(n)
+            self.reset()
         else:
-            self._drop(release)
-        return out
-
-    def _drop(self, release: int) -> None:
-        """Keep the released rows the next runs may fit to (``2 fit_n``) and everything not released."""
-        keep_from = max(release - 2 * int(self.config.fit_n), 0)
-        self._t = self._t[keep_from:]
-        self._v = self._v[keep_from:]
-        self._r = self._r[keep_from:]
-        self._m = self._m[keep_from:]
-        self._f = self._f[keep_from:]
-        self._sig = self._sig[keep_from:]
-        self._n_tail = release - keep_from
-        self._scanned -= keep_from
-
-    def _forget(self, n: int = 0) -> None:
-        """After the end of a recording (or a restart): no row is context for what follows; the peaks stay (they
-        are the sensor's range)."""
-        self._t = np.zeros(0)
-        self._v = np.zeros((0, 6))
-        self._r = np.zeros((0, 6))
-        self._m = np.zeros((0, 3))
-        self._f = np.zeros(0, dtype=np.uint8)
-        self._sig = np.zeros((0, 6))
-        self._n_tail = 0
-        self._scanned = 0
+            keep_from = max(release - 2 * int(self.config.fit_n), 0)  # the context the next runs may fit to
+            self._buf = buf[keep_from:]
+            self._n_tail = release - keep_from
+            self._scanned -= keep_from
+        return (out[:, _T], out[:, _R:_R + 3], out[:, _R + 3:_M], out[:, _M:_S], out[:, _F].astype(np.uint8),
+                out[:, _S:_F])
 
     def reset(self) -> None:
-        """Forget the held rows (a new segment of data starts after a gap); the learnt ranges stay."""
-        self._forget(0)
+        """Forget the held rows (the recording ended, or a new segment of data starts after a gap: no row is context
+        for what follows); the peaks stay (they are the sensor's range)."""
+        self._buf = np.zeros((0, _NCOL))
+        self._n_tail = 0
+        self._scanned = 0
 
     @property
     def held(self) -> int:
         """Rows taken but not released yet."""
-        return int(self._t.shape[0] - self._n_tail)
+        return int(self._buf.shape[0] - self._n_tail)
 
     def get_state(self) -> dict[str, Any]:
-        return {"peaks": self._peaks.copy(), "t": self._t.copy(), "v": self._v.copy(), "r": self._r.copy(), "m": self._m.copy(),
-                "f": self._f.copy(), "sig": self._sig.copy(), "n_tail": self._n_tail, "scanned": self._scanned}
+        """Complete state as plain values and arrays (for ``energy.codec``)."""
+        return {"peaks": self._peaks.copy(), "buf": self._buf.copy(), "n_tail": self._n_tail, "scanned": self._scanned}
 
     @classmethod
     def from_state(cls, config: SaturationConfig, d: dict[str, Any]) -> ClipRepair:
+        """Restore from :meth:`get_state` output."""
         obj = cls(config)
         obj._peaks = np.asarray(d["peaks"], dtype=np.float64).reshape(12)
-        obj._t = np.asarray(d["t"], dtype=np.float64).reshape(-1)
-        obj._v = np.asarray(d["v"], dtype=np.float64).reshape(-1, 6)
-        obj._r = np.asarray(d["r"], dtype=np.float64).reshape(-1, 6)
-        obj._m = np.asarray(d["m"], dtype=np.float64).reshape(-1, 3)
-        obj._f = np.asarray(d["f"], dtype=np.uint8).reshape(-1)
-        obj._sig = np.asarray(d["sig"], dtype=np.float64).reshape(-1, 6)
+        obj._buf = np.asarray(d["buf"], dtype=np.float64).reshape(-1, _NCOL).copy()
         obj._n_tail = int(d["n_tail"])
         obj._scanned = int(d["scanned"])
         return obj
