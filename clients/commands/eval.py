@@ -5,7 +5,9 @@ Forms (DESIGN.md "Evaluation contracts")::
     pednav eval vicon DIR --json
     pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
 
-Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
+Beyond the contracts: ``pednav eval behaviour [ROOT] [--rate-hz HZ ...] --json`` (the behaviour recogniser against
+labels derived from the recordings' truth, :mod:`clients.evaluation.behaviour`) and ``pednav eval gaitmap [DIR]
+[--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
 of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`).
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
@@ -335,6 +337,35 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     return 1 if failed or not items else 0
 
 
+def _run_behaviour(args: argparse.Namespace) -> int:
+    from clients.datasets import data_root
+    from clients.evaluation import behaviour
+
+    root = Path(args.dir) if args.dir else data_root()
+    if root is None or not root.is_dir():
+        print(f"pednav eval behaviour: data folder not found ({args.dir or 'PEDNAV_DATA'})", file=sys.stderr)
+        return 2
+    rates = [None] + [float(r) for r in (args.rate_hz or [])]
+    if any(r is not None and not r > 0 for r in rates):
+        print("pednav eval behaviour: --rate-hz must be a positive rate in Hz", file=sys.stderr)
+        return 2
+    doc = {"dataset": "behaviour", "labels": str(behaviour.LABEL_TABLE), **behaviour.evaluate(root, rates)}
+    if not any(v["recordings"] for v in doc["rates"].values()):
+        print(f"pednav eval behaviour: no labelled recording found under {root}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(doc))
+        return 0
+    for rate, v in doc["rates"].items():
+        s = v["summary"]
+        print(f"{rate:>9} Hz  walk/run share mean {_fmt(s['walk_run_share_mean'], '.3f')} worst "
+              f"{_fmt(s['walk_run_share_worst'], '.3f')} ({s['worst_recording']}), other share "
+              f"{_fmt(s['other_share_mean'], '.3f')}, stand left {_fmt(s['stand_left_median_abs_s'], '.2f')} s / "
+              f"entered {_fmt(s['stand_entered_median_abs_s'], '.2f')} s (median |latency|, "
+              f"{s['stand_boundaries']} boundaries, {s['stand_boundaries_missed']} missed)")
+    return 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -367,3 +398,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(pm)
     pm.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
     pm.set_defaults(func=_run_gaitmap)
+    pb = esub.add_parser("behaviour", help="stand/walk/run/other recognition (accelerometer only) against the labels "
+                                           "derived from the recordings' truth (clients/evaluation/behaviour_labels.csv)")
+    pb.add_argument("dir", nargs="?", default=None, help="datasets root (default: PEDNAV_DATA or ../shared/datasets)")
+    pb.add_argument("--rate-hz", type=float, action="append", default=None, metavar="HZ",
+                    help="also de-sampled to HZ (repeatable), as a sensor set to HZ would deliver it")
+    pb.add_argument("--json", action="store_true", help="print one JSON document")
+    pb.set_defaults(func=_run_behaviour)
