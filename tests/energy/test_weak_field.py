@@ -40,7 +40,10 @@ def _run(day: tuple, config: EngineConfig) -> tuple[np.ndarray, list]:
 
 def test_the_gyroscope_carries_the_heading_through_a_field_too_weak_for_the_compass(day) -> None:
     err, events = _run(day, EngineConfig())
-    assert events == [("gyroscope_requested", "weak magnetic field"), ("gyroscope_released", "Earth's magnetic field back")]
+    # released once the field is back: by the Earth's field at a stance, or (since the 1.6-s stop at 374.3-375.8 s
+    # is recognised as a stand, issue 25) by a clean field after it
+    assert events[0] == ("gyroscope_requested", "weak magnetic field") and len(events) == 2
+    assert events[1] in (("gyroscope_released", "Earth's magnetic field back"), ("gyroscope_released", "magnetic field clean"))
     assert len(err) > 30 and err.max() < 10.0, err.max()
 
 
