@@ -9,7 +9,7 @@ import numpy as np
 
 from models.batch import SensorBatch
 
-__all__ = ["RecordingMeta", "Truth", "Recording"]
+__all__ = ["RecordingMeta", "Truth", "Recording", "require_gyroscope"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,9 @@ class RecordingMeta:
         Where the sensor sat (``"foot"``, ``"phone"``, ``"watch"``) and anything known about its axes.
     notes : tuple of str
         Anything the importer repaired or flagged (logged as well).
+    anchor : models.geo.Anchor or None
+        Where the recording started, when it says (a phone's first good location fix,
+        ``models.geo.anchor_from_fixes``); ``pednav replay`` uses it unless ``--anchor`` is given.
     """
 
     source_format: str
@@ -36,6 +39,7 @@ class RecordingMeta:
     units_converted: dict[str, str] = field(default_factory=dict)
     mount: str = "foot"
     notes: tuple[str, ...] = ()
+    anchor: Any = None
 
 
 @dataclass(frozen=True)
@@ -65,3 +69,12 @@ class Recording:
     batch: SensorBatch
     meta: RecordingMeta
     truth: Truth | None = None
+
+
+def require_gyroscope(rec: Recording, spec: str) -> None:
+    """``ValueError`` naming ``spec`` when ``rec`` has no gyroscope samples: every engine mode starts on the
+    ZUPT-KF, which integrates the gyroscope; without one a replay would end with no position at all and look
+    like a success."""
+    if len(rec.batch.gyr_t_ns) == 0:
+        raise ValueError(f"{spec}: the recording has no gyroscope samples; the engine needs a gyroscope to start "
+                         "(record or export the gyroscope too)")

@@ -272,11 +272,27 @@ class PednavClient:
         latitude_deg: float | None = None,
         longitude_deg: float | None = None,
         altitude_m: float | None = None,
+        anchor_date: str | None = None,
+        anchor_accuracy_m: float | None = None,
     ) -> dict[str, Any]:
-        """Start a session (optional WGS-84 start for GeoJSON export); returns the session document."""
+        """Start a session, optionally anchored (WGS-84 position of the first stance; ``anchor_date`` ISO
+        ``YYYY-MM-DD``, the World Magnetic Model's date); returns the session document."""
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
+        if anchor_date is not None:
+            body["anchor_date"] = anchor_date
+        if anchor_accuracy_m is not None:
+            body["anchor_accuracy_m"] = anchor_accuracy_m
         return self._json("POST", "/v1/sessions", json=body)
+
+    def patch_session(self, session_id: int, **changes: Any) -> dict[str, Any]:
+        """Change a session's anchor (``latitude_deg``, ``longitude_deg``, ``altitude_m``, ``anchor_date``,
+        ``anchor_accuracy_m``; latitude and longitude None remove it); returns the session document."""
+        return self._json("PATCH", f"/v1/sessions/{session_id}", json=changes)
+
+    def delete_session(self, session_id: int) -> None:
+        """Delete a session with its batches, positions and events (the calibration profiles stay)."""
+        _raise_for(self.request("DELETE", f"/v1/sessions/{session_id}"))
 
     def session(self, session_id: int) -> dict[str, Any]:
         return self._json("GET", f"/v1/sessions/{session_id}")
@@ -296,10 +312,10 @@ class PednavClient:
         return self._json("PUT", f"/v1/sessions/{session_id}/batches/{seq}", content=body, headers={"content-type": ctype})
 
     def trajectory(self, session_id: int, format: str = "json") -> Any:  # noqa: A002
-        """Positions as JSON (dict), GeoJSON (dict) or CSV (str)."""
+        """Positions as JSON or GeoJSON (dict), or GPX, KML, CSV (str)."""
         r = self.request("GET", f"/v1/sessions/{session_id}/trajectory", params={"format": format})
         _raise_for(r)
-        return r.text if format == "csv" else r.json()
+        return r.json() if format in ("json", "geojson") else r.text
 
     def events(self, session_id: int) -> list[dict[str, Any]]:
         return self._json("GET", f"/v1/sessions/{session_id}/events")

@@ -462,6 +462,7 @@ def synthesize(
     rate_hz: float = 200.0,
     errors: SensorErrors = LSM9DS1,
     mag_rate_hz: float | None = None,
+    earth_field_ut: np.ndarray | None = None,
 ) -> Recording:
     """Synthesise a foot-mounted MARG recording with ground truth.
 
@@ -478,6 +479,10 @@ def synthesize(
         Sensor error model (default: 002 Table 3, LSM9DS1).
     mag_rate_hz : float, optional
         Magnetometer rate [Hz]; default ``rate_hz``.
+    earth_field_ut : ndarray (3,), optional
+        The Earth's field in the truth's (true-north) NED frame [uT]; default :data:`EARTH_FIELD_UT`. A field
+        with a declination (e.g. ``models.geo.magnetic_elements(anchor).field_true_ned_ut``) makes a recording
+        whose magnetic north differs from the truth's north.
 
     Returns
     -------
@@ -553,7 +558,8 @@ def synthesize(
         direction = rng.standard_normal(3)
         direction /= np.linalg.norm(direction)
         d_n[m] = STEEL_UT * np.outer(bump, direction)
-    m_b = np.einsum("nji,nj->ni", c_nb, EARTH_FIELD_UT + d_n)
+    m_e = EARTH_FIELD_UT if earth_field_ut is None else np.asarray(earth_field_ut, dtype=np.float64).reshape(3)
+    m_b = np.einsum("nji,nj->ni", c_nb, m_e + d_n)
 
     # Sensor errors (per-sample white noise sigma = density * sqrt(rate)).
     def bias_process(sigma: float, turn_on: float) -> np.ndarray:

@@ -76,9 +76,17 @@ class Desampler:
         half = d.taps_per_factor * d.factor / 2 if d.factor > 1 else 0.0  # (numtaps - 1) / 2, see models.fir.Decimator
         return int(round(half / self.native_rate_hz * 1e9))
 
+    def factor_for(self, target_rate_hz: float) -> int:
+        """Whole decimation factor that delivers ``target_rate_hz`` [Hz]: the nearest to native / target, >= 1."""
+        return max(1, int(round(self.native_rate_hz / max(target_rate_hz, 1e-9))))
+
+    def output_rate_hz(self, target_rate_hz: float) -> float:
+        """Rate [Hz] actually delivered when ``target_rate_hz`` is asked for (0: off): native / :meth:`factor_for`."""
+        return self.native_rate_hz / self.factor_for(target_rate_hz) if target_rate_hz > 0 else 0.0
+
     def set_rate(self, target_rate_hz: float) -> None:
         """Change the output rate [Hz]; applies from the next call to :meth:`process`."""
-        factor = max(1, int(round(self.native_rate_hz / max(target_rate_hz, 1e-9))))
+        factor = self.factor_for(target_rate_hz)
         if factor != self._dec.factor:
             # the samples the old filter still holds back (its group delay) go out with the next chunk, as a
             # sensor's FIFO keeps what it has measured: dropping them left a 0.32-0.36 s hole at every change
@@ -157,7 +165,9 @@ class DeviceEmulator:
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
     the gyroscope awake; a switch to wake-on-motion then lets it sleep only after the inactivity duration.
     :attr:`last_spans` holds the stretches of constant sensor state of the last batch (what the energy
-    accounting charges: the gyroscope from its activity sample on).
+    accounting charges: the gyroscope from its activity sample on), each sensor at the rate it delivered
+    (:meth:`delivered_rate_hz`: a 250-Hz recording asked for 200 Hz runs at 250 Hz; a stream the recording does
+    not have is off).
     """
 
     def __init__(self, recording: SensorBatch, gyro_turn_on_s: float = GYRO_TURN_ON_S) -> None:
@@ -184,6 +194,13 @@ class DeviceEmulator:
         self._weak_mode = False  # the last batch's configuration was a weak-field wake
         self._last_acc_ns = np.iinfo(np.int64).min
         self.last_spans: list[Span] = []
+
+    def delivered_rate_hz(self, name: str, rate_hz: float) -> float:
+        """Output data rate [Hz] of stream ``name`` when ``rate_hz`` is asked for: the recorded rate divided by the
+        whole decimation factor (:meth:`Desampler.output_rate_hz`); 0 when off or when the recording has no such
+        stream (the device it stands for has no such sensor)."""
+        des = self._desamplers.get(name)
+        return des.output_rate_hz(rate_hz) if des is not None else 0.0
 
     def emit(self, t0_ns: int, t1_ns: int, config: SensorConfig) -> SensorBatch:
         """The batch the device sends for ``t0_ns <= t < t1_ns`` under ``config``."""
@@ -221,7 +238,8 @@ class DeviceEmulator:
             self._armed_ns = t1_ns
             self._deliver_ns = np.iinfo(np.int64).min
             self._ref = None
-            self.last_spans = [(t0_ns, t1_ns, config.acc_rate_hz, rates["gyr"], config.mag_rate_hz)]
+            self.last_spans = [(t0_ns, t1_ns, self.delivered_rate_hz("acc", config.acc_rate_hz),
+                                self.delivered_rate_hz("gyr", rates["gyr"]), self.delivered_rate_hz("mag", config.mag_rate_hz))]
         else:
             kw["acc_t_ns"], kw["acc"], windows = self._wake_on_motion(t0_ns, t1_ns, kw["acc_t_ns"], kw["acc"], fast_t, fast_v,
                                                                       blk_t, blk_v, config, events)
@@ -392,7 +410,8 @@ class DeviceEmulator:
             delivering = any(w[1] <= a and b <= w[2] for w in windows)
             acc = config.gyr_rate_hz if delivering else config.acc_rate_hz
             mag = config.mag_rate_hz if (charged or not config.mag_follows_gyro) else 0.0
-            spans.append((a, b, acc, config.gyr_rate_hz if charged else 0.0, mag))
+            spans.append((a, b, self.delivered_rate_hz("acc", acc), self.delivered_rate_hz("gyr", config.gyr_rate_hz if charged else 0.0),
+                          self.delivered_rate_hz("mag", mag)))
         return spans
 
 

@@ -2,9 +2,11 @@
 
 ``Engine.feed(batch)`` pairs the sensor streams on the accelerometer's time axis, recognises behaviour, and
 navigates: where gyroscope samples arrived the ZUPT-aided MARG Kalman filter, elsewhere calibrated gait dead
-reckoning (004 Sections 2, 4); the two hand over at stances. The scheduler (:mod:`energy.scheduler`) decides
-which sensors the device should use next (004 Tables 1-3). The complete state serialises to bytes
-(:meth:`Engine.to_bytes`) through the safe codec of :mod:`energy.codec`.
+reckoning (004 Sections 2, 4); the two hand over at stances. One heading estimator
+(:class:`models.heading.HeadingEstimator`, inside :class:`energy.gait_dr.GaitPipeline`) follows the heading
+through both, stride by stride, with its uncertainty; the scheduler (:mod:`energy.scheduler`) decides from it
+and from 004 Tables 1-3 which sensors the device should use next. The complete state serialises to bytes
+(:meth:`Engine.to_bytes`) through the safe codec of :mod:`energy.codec`. ``docs/engine.md`` has the design.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from energy import codec
 from energy.config import EngineConfig
 from energy.gait_dr import PAIR_TOL_S, GaitPipeline, model_behaviour
 from energy.profile import BehaviourCalibration, Profile
-from energy.scheduler import PATTERN_STRIDES, SLEEP_AFTER_S, Scheduler
+from energy.scheduler import Scheduler
 from energy.types import Event, Position, SensorConfig, Update
 from models.attitude import align_at_rest
 from models.batch import BatchError, SensorBatch
@@ -40,60 +42,21 @@ __all__ = ["Engine", "EngineConfig", "EngineMode", "Trace"]  # EngineConfig re-e
 
 EngineMode = Literal["zupt", "pdr", "auto"]
 _MODES: tuple[str, ...] = ("zupt", "pdr", "auto")
-_STATE_VERSION = 2
-_GYRO_GAP_S = 0.25  # a longer gap in gyroscope samples ends a ZUPT-KF segment (the gyro was off)
-_GYRO_OFF_S = 0.075  # ... so does a shorter one with accelerometer rows inside it (below the 80-ms turn-on time)
-_GYRO_OFF_NS = int(_GYRO_OFF_S * 1e9)
+_STATE_VERSION = 3
 _LABEL_KEEP_S = 60.0  # behaviour decisions kept behind the newest sample (>> any detector look-ahead)
-_STREAM_WAIT_S = 0.5  # accelerometer samples wait this long for a lagging gyroscope/magnetometer stream
-_STREAM_WAIT_NS = int(_STREAM_WAIT_S * 1e9)
-_ASSIST_AFTER_STEPS = 2  # Gait-DR steps on a disturbed field before the gyroscope is asked to carry the heading
-_ASSIST_RELEASE_STEPS = 3  # clean-field stances before it is released
-_WEAK_RELEASE_GATE_STEPS = 10  # stances passing the gate that release a weak-field assist without a settled field
-_WEAK_HANDOVER = 1.5  # a ZUPT-KF stance hands over to Gait-DR only on a field above this multiple of weak_field_h
-_REANCHOR_STANCES = 3  # consecutive ZUPT-KF stances whose trusted compass agrees on an offset before it is taken
-_REST_GYR = 1.0  # |w| below this [rad/s] ...
-_REST_ACC = 1.5  # ... and ||a| - g| below this [m/s^2] ...
-# ... for this long [s]: the foot is on the ground, a ZUPT-KF segment may start. 40 ms let a quiet moment in the
-# swing pass at 100 Hz (gdin exp37 resampled: 5.65-5.70 s, 0.6-0.8 rad/s; the restart took zero velocity there,
-# stride error 17.7 m against the ZUPT-KF's 2.3 m); a stance is 0.1-0.4 s
-_REST_S = 0.08
-_LEAD_MAX_S = 2.0  # a segment that starts on its own from a still foot integrates back to it over at most this [s]
-_HEADING_SIGMAS = 3.0  # a stored heading deviation fits a stride within this many sigma (as 004 Table 3's 3 sigma_d)
-# A turn the gyroscope missed before a segment's hand-over stance is taken from the compass only beyond 3 sigma and
-# beyond this [rad]: the compass's change between two stances on an established clean field erred by up to 7.4
-# deg walking, 7.9 deg running (synthetic demo and mixed days, seeds 0-5, new and returning: 2410 stance pairs,
-# RMS 1.0 / 1.8 deg), more than 3 sigma of its calibration residual (1-2 deg) allows
-_MISSED_TURN_MIN = math.radians(10.0)
-# ... and not when the gyroscope was on for at least this fraction of the hand-over stride (from Gait-DR's last stance
-# onset; a walk's swing is its last 35-50 %) and turned along the missed turn by less than this fraction of it: the
-# foot's turn is spread over its swing, so a gyroscope that saw most of the swing sees a good part of it (synthetic
-# days: the turns truly missed had 8-32 % of the stride watched, or 40-190 % of the missed turn seen; mixed day seed
-# 18, 3 s into steel: 40 % watched, -0.6 deg seen, +10.5 deg "missed" by the drifting field)
-_MISSED_WATCHED = 0.35
-_MISSED_ALONG = 0.25
-_FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance (0.25 s at 200 Hz)
-# Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern): more than the detection window
-# (PATTERN_STRIDES) plus the strides placed until the ZUPT-KF takes over (2-6 on the synthetic mixed day: one long
-# upload and the hand-over stance)
-_DR_LOG = 24
-# ... a stride of it whose period exceeds its median by this factor holds a pause: the synthetic strides' periods
-# scatter by 3 % and come in 0.04-s samples at 25 Hz (a 1.0-s pace reads 0.96-1.04 s), two walking paces lie 10-15 %
-# apart
-_PAUSE_PERIOD = 1.25
+_FIRST_SLICE = 50  # samples per ZUPT-KF call before a segment's hand-over stance sets its turn
+_DR_LOG = 24  # Gait-DR strides kept for a walking pattern's correction (Engine._correct_pattern)
+_NORTH_STEP = math.radians(1.0)  # a change of magnetic north's azimuth in the session frame announced again
 
 
-def _heading_test(z: float, kf: HeadingDeviationKF) -> dict[str, Any]:
-    """Does a stride's ``z = gamma - psi`` [rad] (004 eq. 19-20) fit the deviation ``kf`` held before it?
-
-    sigma is KF II's innovation standard deviation: the variance of the deviation estimate plus the
-    per-stride spread of gamma - psi (its observation noise R^II), so a stored deviation is held to what one
-    stride can tell, as 004 Table 3 holds the step model to 3 sigma_d. A re-mounted sensor (turned around,
-    other shoe) moves gamma - psi by the change of the mount, far beyond it.
-    """
+def _heading_test(z: float, kf: HeadingDeviationKF, sigmas: float) -> dict[str, Any]:
+    """Direction examination: does a stride's ``z = gamma - psi`` [rad] (004 eq. 19-20) fit the deviation
+    ``kf`` held before it within ``sigmas`` of KF II's innovation standard deviation (the deviation's
+    variance plus the per-stride spread R^II)? Backward or sideways walking, a re-mounted sensor move gamma -
+    psi far beyond it."""
     sigma = math.sqrt(kf.variance + kf.r_var)
     nu = wrap_angle(z - kf.deviation)
-    return {"passed": abs(nu) <= _HEADING_SIGMAS * sigma, "gamma_psi_rad": float(z), "deviation_rad": kf.deviation,
+    return {"passed": abs(nu) <= sigmas * sigma, "gamma_psi_rad": float(z), "deviation_rad": kf.deviation,
             "sigma_rad": sigma}
 
 
@@ -293,18 +256,18 @@ class Engine:
     """One navigation session: feed batches, get positions, events and the next sensor configuration.
 
     Where the gyroscope is on, the ZUPT-KF navigates; where it is off, Gait-DR does. Each ZUPT-KF segment
-    (a run of gyroscope samples) takes over at its first stance from where Gait-DR had put the foot, and
-    Gait-DR restarts from the segment's last stance. The scheduler decides which sensors the device should use
-    (004 Tables 1-3); the engine follows whatever data actually arrive. Both halves are worked through in
-    data-time order, waiting where needed for the step segmentation's look-ahead
+    (a run of gyroscope samples) takes over at its first stance from where Gait-DR had put the foot, turned to
+    the heading estimator's heading there, and Gait-DR restarts from the segment's last stance. The scheduler
+    decides which sensors the device should use; the engine follows whatever data actually arrive. Both halves
+    are worked through in data-time order, waiting where needed for the step segmentation's look-ahead
     (:attr:`energy.gait_dr.GaitPipeline.horizon`), so the output does not depend on how batches are cut.
 
     Parameters
     ----------
     mode : {"zupt", "pdr", "auto"}
         ``zupt``: ZUPT-KF all the time at the full rate. ``pdr``: the 004 scheme, ZUPT-KF for the first L0
-        metres, then calibrated Gait-DR with the gyroscope off at ``pdr_rate_hz``. ``auto``: the full
-        energy-aware scheduler (behaviour gating, examination every T0, re-calibration).
+        metres, then calibrated Gait-DR with the gyroscope off (refused without a magnetometer). ``auto``: the
+        full energy-aware scheduler.
     config : EngineConfig, optional
     profile : dict, optional
         Per-user calibration profile (:mod:`energy.profile`); a calibrated behaviour skips the initialisation.
@@ -312,13 +275,8 @@ class Engine:
         Keep per-sample output in :attr:`trace` (evaluation, plots). Not part of the serialised state.
     """
 
-    def __init__(
-        self,
-        mode: EngineMode = "auto",
-        config: EngineConfig | None = None,
-        profile: dict[str, Any] | None = None,
-        trace: bool = False,
-    ) -> None:
+    def __init__(self, mode: EngineMode = "auto", config: EngineConfig | None = None,
+                 profile: dict[str, Any] | None = None, trace: bool = False) -> None:
         if mode not in _MODES:
             raise ValueError(f"mode: expected one of {_MODES}, got {mode!r}")
         self.mode: EngineMode = mode
@@ -326,24 +284,23 @@ class Engine:
         self.trace = Trace() if trace else None
         self._t0_ns: int | None = None
         self._last_acc_t: int | None = None
-        max_age = int(self.config.max_sample_age_s * 1e9)
+        max_age = int(self.config.rates.max_sample_age_s * 1e9)
         self._acc_t = np.zeros(0, dtype=np.int64)  # accelerometer samples waiting for the other streams
         self._acc_v = np.zeros((0, 3))
         self._gyr = _StreamPairing(max_age)
         self._mag = _StreamPairing(max_age)
         prof = Profile.from_dict(profile) if profile else Profile()
         self._sched = Scheduler(mode, self.config, prof)
-        self._nav = ZuptNavigator()
+        self._nav = ZuptNavigator(self.config.zupt)
         self._behaviour = BehaviourRecognizer()
         self._labels = _LabelHistory()
-        self._gait = GaitPipeline(self.config.pdr_rate_hz, self.config.pdr_conventional) if mode != "zupt" else None
+        self._gait = GaitPipeline(self.config) if mode != "zupt" else None
         if self._gait is not None:
             for b, cal in prof.behaviours.items():
                 if cal.calibrated:
                     self._gait.load_calibration(b, cal.step_model, cal.heading_deviation_rad, cal.heading_deviation_var)
             # only a deviation KF II took from the profile is there to be tested
-            pending = self._sched.deviation_pending
-            self._sched.deviation_pending = {b for b in pending if self._gait.kf2[b].n_updates > 0}
+            self._sched.deviation_pending = {b for b in self._sched.deviation_pending if self._gait.kf2[b].n_updates}
         # ZUPT-KF segments: ingest side
         self._last_gyr_s = -math.inf
         self._gyro_missing = False  # accelerometer rows without gyroscope since the last gyroscope sample
@@ -356,11 +313,13 @@ class Engine:
         self._seg_t = -math.inf  # start of the current segment [s]
         self._seg_first = True  # the segment's first stance (the hand-over stance) is still to come
         self._offset = np.zeros(3)  # ZUPT-KF frame of this segment -> session frame [m] (after _yaw)
-        self._yaw = 0.0  # ... and its turn about the vertical [rad] (a turn the gyroscope missed, _handover_yaw)
+        self._yaw = 0.0  # ... and its turn about the vertical [rad]: estimator heading - ZUPT-KF heading
         self._pos: np.ndarray | None = None  # last output position [m NED]
         self._head = math.nan  # sensor heading at the last output [rad]
+        self._zupt_head = math.nan  # session-frame heading of the last ZUPT-KF stance [rad]
+        self._out_mode = ""  # mode of the last output position ("" before the first)
+        self._north = math.nan  # magnetic north's azimuth in the session frame as last announced [rad]
         self._nav_t = -math.inf  # last sample the ZUPT-KF has output [s]
-        self._warned_no_heading = False
         self._await_rest = False  # a restarting segment waits for a still foot
         self._pre: tuple | None = None  # its candidate still samples (t, acc, gyr, mag)
         self._pre_rot = np.zeros(3)  # sum of gyro rate x interval over the segment's samples before it [rad]
@@ -374,10 +333,6 @@ class Engine:
         self._rest_p = np.zeros(3)  # the ZUPT-KF's position at a segment's still foot (its frame) [m NED]
         self._rest_t = math.nan  # ... its time [s]
         self._rest_head = math.nan  # ... and the heading it restarted with [rad]
-        self._disturbed_run = 0  # consecutive Gait-DR steps on a disturbed field
-        self._clean_run = 0  # consecutive ZUPT-KF stances on a clean field while the gyro assists the heading
-        self._gate_run = 0  # ... that passed the disturbance gate (a weak-field assist's fallback release)
-        self._compass_offsets: list[float] = []  # trusted compass - ZUPT-KF heading at this segment's latest stances
         # behaviour decisions reach the scheduler in data-time order with the stances and steps
         self._labels_pending: list[tuple[float, str]] = []
         # the latest Gait-DR strides: [behaviour, step event row, length [m], unit direction north, east]
@@ -392,21 +347,21 @@ class Engine:
         return self._sched.sensor_config()
 
     def profile_dict(self) -> dict[str, Any]:
-        """The (possibly updated) per-user calibration profile, JSON-serialisable.
-
-        The compass calibration belongs to the sensor, not to a behaviour: every calibrated behaviour hands on
-        the compass as it is now (:meth:`energy.gait_dr.GaitPipeline.compass_state`), not as it was when that
-        behaviour's initialisation ended. A walk calibrated 70 s into the synthetic mixed day stored a compass
-        fitted on its first 20 stances, all heading 0-90 deg; a returning user loading it erred by 3-5 deg on
-        the other headings."""
+        """The (possibly updated) per-user calibration profile, JSON-serialisable. The compass calibration
+        belongs to the sensor, not to a behaviour: every calibrated behaviour hands on the one in use now."""
         d = self._sched.profile.to_dict()
-        gait = self._gait
-        if gait is not None and gait.has_mag and gait.mag.ready:
-            compass = gait.compass_state()
+        compass = self._gait.compass_state() if self._gait is not None else None
+        if compass is not None:
             for cal in d["behaviours"].values():
                 if cal.get("calibrated") and isinstance(cal.get("step_model"), dict):
                     cal["step_model"]["compass"] = compass
         return d
+
+    @property
+    def heading_std_rad(self) -> float:
+        """Standard deviation [rad] of the heading estimator's current heading (NaN in mode ``zupt``)."""
+        gait = self._gait
+        return gait.est.std if gait is not None and gait.est.started else math.nan
 
     def feed(self, batch: SensorBatch) -> Update:
         """Consume one batch; see the module docstring.
@@ -420,11 +375,11 @@ class Engine:
         batch.validate()
         t_acc, acc = batch.acc_t_ns, batch.acc
         # a gyroscope the device woke by itself (wake-on-motion) and still runs at the batch's end: the scheduler
-        # leaves it to the device while the labels it decides on still say "stand" (Scheduler.gyro_wanted)
+        # leaves it to the device while the labels it decides on still say "stand"
         g_t = batch.gyr_t_ns
         self._sched.device_gyro_awake = bool(
             self._sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
-            and int(g_t[-1]) >= int(t_acc[-1]) - _GYRO_OFF_NS)
+            and int(g_t[-1]) >= int(t_acc[-1]) - int(self.config.segments.gyro_off_s * 1e9))
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")
         self._gyr.push(*batch.stream("gyr"))
@@ -436,7 +391,7 @@ class Engine:
         self._last_acc_t = int(t_acc[-1])
         self._acc_t = np.concatenate([self._acc_t, t_acc])
         self._acc_v = np.concatenate([self._acc_v, acc])
-        wait = _STREAM_WAIT_NS
+        wait = int(self.config.rates.stream_wait_s * 1e9)
         limit = min(self._gyr.complete_until(self._last_acc_t, wait), self._mag.complete_until(self._last_acc_t, wait))
         return self._pair_and_process(int(np.searchsorted(self._acc_t, limit, side="right")), final=False)
 
@@ -444,6 +399,7 @@ class Engine:
         """End of the session: process what the detectors' look-ahead still holds."""
         return self._pair_and_process(len(self._acc_t), final=True)
 
+    # ------------------------------------------------------------------ processing
     def _pair_and_process(self, n: int, final: bool) -> Update:
         """Pair and process the first ``n`` waiting accelerometer samples."""
         t_acc, acc = self._acc_t[:n], self._acc_v[:n]
@@ -469,6 +425,7 @@ class Engine:
             self._labels_pending.append((td, label))
         if self._gait is not None and len(t_s):
             self._gait.feed(t_s, acc, mag)
+            self._sched.has_mag = self._gait.has_mag
         if self._gait is not None and final:
             self._gait.flush()
         self._ingest(t_s, acc, gyr, mag, final)
@@ -485,7 +442,7 @@ class Engine:
             ts = t_s[idx]
             # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
             # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
-            # loses the accelerometer too and splits only beyond _GYRO_GAP_S. (np.diff with prepend, written
+            # loses the accelerometer too and splits only beyond gyro_gap_s. (np.diff with prepend, written
             # out: the same differences without its generic machinery)
             off = np.empty(len(idx), dtype=bool)
             off[0] = self._gyro_missing or idx[0] > 0
@@ -493,7 +450,8 @@ class Engine:
             dt = np.empty(len(ts))
             dt[0] = ts[0] - self._last_gyr_s
             np.subtract(ts[1:], ts[:-1], out=dt[1:])
-            gaps = np.flatnonzero((dt > _GYRO_GAP_S) | (off & (dt > _GYRO_OFF_S))).tolist()
+            sc = self.config.segments
+            gaps = np.flatnonzero((dt > sc.gyro_gap_s) | (off & (dt > sc.gyro_off_s))).tolist()
             for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
                     continue
@@ -509,7 +467,7 @@ class Engine:
             self._gyro_missing = bool(idx[-1] < len(t_s) - 1)
         elif len(t_s):
             self._gyro_missing = True
-        if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > _GYRO_GAP_S)):
+        if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > self.config.segments.gyro_gap_s)):
             self._ops.append(("end",))
             self._seg_open = False
         if self.trace is not None and np.any(~has):
@@ -523,87 +481,105 @@ class Engine:
 
     def _drain(self, final: bool, positions: list[Position], events: list[Event]) -> None:
         """Work through the queue as far as the step segmentation's look-ahead allows."""
-        gait, nav = self._gait, self._nav
+        gait = self._gait
         horizon = self._horizon(final)
         while self._ops:
             op = self._ops[0]
             kind = op[0]
-            if kind == "start":
-                t_b = op[1]
-                if gait is not None and gait.active:
-                    if horizon < t_b:
-                        break
-                    self._reckon(t_b, positions, events)
-                    self._head = gait.heading
-                self._apply_labels(t_b, events)
-                self._seg_t = t_b
-                self._await_rest = nav.initialised  # a restart waits for the foot to be still
-                # a segment that starts while the person is (still) known to stand, with no step since the last
-                # segment or none for longer than the device's inactivity time: the device woke the gyroscope on
-                # the first motion (wake-on-motion); the host turns it on only for a behaviour it has recognised,
-                # i.e. mid-walk, where Gait-DR places the first step
-                own = (nav.initialised and self._labels.at(t_b) == "stand"
-                       and (not self._moved or t_b - self._step_s > SLEEP_AFTER_S))
-                empty = np.zeros((0, 3))
-                self._lead = (np.zeros(0), empty, empty) if own else None
-                self._lead_d = None
-                self._pre = None
-                self._pre_rot, self._pre_t = np.zeros(3), math.nan
-                self._in_seg, self._seg_first = True, True
-                self._ops.pop(0)
-            elif kind == "samples" and self._await_rest:
-                rest = self._rest_start(op)
-                self._ops.pop(0)
-                if rest is not None:
-                    i, j = rest
-                    pre = self._pre
-                    assert pre is not None
-                    self._pre = None
-                    self._await_rest = False
-                    acc_rest = pre[1][i : j + 1].mean(axis=0)
-                    self._sum_rotation(pre[0][:i], pre[2][:i])
-                    heading = self._restart_heading(acc_rest)
-                    self._collect_lead(pre[0][: i + 1], pre[1][: i + 1], pre[2][: i + 1])
-                    self._lead_d = self._lead_displacement(acc_rest, heading)
-                    nav.restart(nav.position, heading, acc_rest)
-                    self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
-                    self._ops.insert(0, _samples_op(pre, slice(i, None)))
+            if kind == "start" and not self._op_start(op[1], horizon, positions, events):
+                break
+            if kind == "samples" and self._await_rest:
+                self._op_restart(op)
             elif kind == "samples":
-                rest = None
-                if self._seg_first and len(op[1]) > _FIRST_SLICE:
-                    # until the hand-over stance has set the segment's turn (_set_yaw), the ZUPT-KF advances in
-                    # short slices so that it is set before the drift reduction's dominant-direction snap, three
-                    # strides on, whatever the upload length (the ZUPT-KF is chunk-invariant)
-                    rest = _samples_op(op[1:], slice(_FIRST_SLICE, None))
-                    op = _samples_op(op[1:], slice(None, _FIRST_SLICE))
-                out = nav.process(op[1], op[2], op[3], op[4])
-                self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
-                if len(out.t_s):
-                    self._nav_t = float(out.t_s[-1])
-                self._ops[0:1] = self._nav_ops(out) + ([rest] if rest is not None else [])
+                self._op_samples(op)
             elif kind == "end":
-                self._ops[0:1] = self._nav_ops(nav.flush()) + [("handover",)]
+                self._ops[0:1] = self._nav_ops(self._nav.flush()) + [("handover",)]
             elif kind == "trace":
                 self._trace_nav(op[1], op[2])
                 self._ops.pop(0)
             elif kind == "stance":
-                st: Stance = op[1]
-                if horizon < st.t_start_s + PAIR_TOL_S:
+                if horizon < op[1].t_start_s + PAIR_TOL_S:
                     break
-                self._stance(st, positions, events)
+                self._stance(op[1], positions, events)
                 self._ops.pop(0)
             elif kind == "handover":
-                if gait is not None and not self._seg_first and self._pos is not None:
-                    gait.start(self._pos, self._head)  # Gait-DR continues from the segment's last stance
-                self._moved = self._seg_first  # a segment without a stance placed no foot to start from
-                self._in_seg = False
-                self._ops.pop(0)
+                self._op_handover()
         if gait is not None and not self._in_seg:
             limit = horizon
             if self._ops and self._ops[0][0] == "start":
                 limit = min(limit, self._ops[0][1])
             self._reckon(limit, positions, events)
         self._apply_labels(self._processed_through(horizon), events)
+
+    def _op_start(self, t_b: float, horizon: float, positions: list[Position], events: list[Event]) -> bool:
+        """A segment starts at ``t_b`` [s]: Gait-DR's steps before it first (False: not yet final)."""
+        gait, nav = self._gait, self._nav
+        if gait is not None and gait.active:
+            if horizon < t_b:
+                return False
+            self._reckon(t_b, positions, events)
+            self._head = gait.est.heading
+        self._apply_labels(t_b, events)
+        self._seg_t = t_b
+        self._await_rest = nav.initialised  # a restart waits for the foot to be still
+        # a segment that starts while the person is (still) known to stand, with no step since the last segment or
+        # none for longer than the device's inactivity time: the device woke the gyroscope on the first motion
+        # (wake-on-motion); the host turns it on only for a behaviour it has recognised, i.e. mid-walk, where
+        # Gait-DR places the first step
+        own = (nav.initialised and self._labels.at(t_b) == "stand"
+               and (not self._moved or t_b - self._step_s > self.config.scheduler.sleep_after_s))
+        empty = np.zeros((0, 3))
+        self._lead = (np.zeros(0), empty, empty) if own else None
+        self._lead_d = None
+        self._pre = None
+        self._pre_rot, self._pre_t = np.zeros(3), math.nan
+        self._in_seg, self._seg_first = True, True
+        self._ops.pop(0)
+        return True
+
+    def _op_restart(self, op: tuple) -> None:
+        """Samples of a restarting segment: look for the still foot the ZUPT-KF restarts on."""
+        nav = self._nav
+        rest = self._rest_start(op)
+        self._ops.pop(0)
+        if rest is None:
+            return
+        i, j = rest
+        pre = self._pre
+        assert pre is not None
+        self._pre = None
+        self._await_rest = False
+        acc_rest = pre[1][i : j + 1].mean(axis=0)
+        self._sum_rotation(pre[0][:i], pre[2][:i])
+        heading = self._restart_heading(acc_rest)
+        self._collect_lead(pre[0][: i + 1], pre[1][: i + 1], pre[2][: i + 1])
+        self._lead_d = self._lead_displacement(acc_rest, heading)
+        nav.restart(nav.position, heading, acc_rest)
+        self._rest_p, self._rest_t, self._rest_head = nav.position, float(pre[0][i]), heading
+        self._ops.insert(0, _samples_op(pre, slice(i, None)))
+
+    def _op_samples(self, op: tuple) -> None:
+        """Samples through the ZUPT-KF; its stances join the queue in their place. Until the hand-over stance
+        has set the segment's turn (:meth:`_set_yaw`), the ZUPT-KF advances in short slices so that it is set
+        before the drift reduction's dominant-direction snap, three strides on, whatever the upload length."""
+        nav = self._nav
+        rest = None
+        if self._seg_first and len(op[1]) > _FIRST_SLICE:
+            rest = _samples_op(op[1:], slice(_FIRST_SLICE, None))
+            op = _samples_op(op[1:], slice(None, _FIRST_SLICE))
+        out = nav.process(op[1], op[2], op[3], op[4])
+        self._sched.zupt_aligned = self._sched.zupt_aligned or nav.initialised  # may let the gyro sleep
+        if len(out.t_s):
+            self._nav_t = float(out.t_s[-1])
+        self._ops[0:1] = self._nav_ops(out) + ([rest] if rest is not None else [])
+
+    def _op_handover(self) -> None:
+        """The segment ended: Gait-DR continues from its last stance."""
+        if self._gait is not None and not self._seg_first and self._pos is not None:
+            self._gait.start(self._pos)
+        self._moved = self._seg_first  # a segment without a stance placed no foot to start from
+        self._in_seg = False
+        self._ops.pop(0)
 
     def _processed_through(self, horizon: float) -> float:
         """Data time before which every stance and step has been worked through [s]."""
@@ -645,7 +621,8 @@ class Engine:
             mm = m if m is not None else np.full((len(t), 3), np.nan)
             t, a, g = np.concatenate([p[0], t]), np.concatenate([p[1], a]), np.concatenate([p[2], g])
             m = np.concatenate([pm, mm]) if (p[3] is not None or op[4] is not None) else None
-        start, end = first_still_run(t, a, g, _REST_S, _REST_GYR, _REST_ACC)
+        sc = self.config.segments
+        start, end = first_still_run(t, a, g, sc.rest_s, sc.rest_gyr_rad_s, sc.rest_acc_ms2)
         if end >= 0:
             self._pre = (t, a, g, m)
             return start, end
@@ -655,11 +632,11 @@ class Engine:
         return None
 
     def _collect_lead(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray) -> None:
-        """Keep the samples of a self-started segment before its first still foot (up to ``_LEAD_MAX_S``)."""
+        """Keep the samples of a self-started segment before its first still foot (up to ``SegmentsConfig.lead_max_s``)."""
         if self._lead is None or not len(t):
             return
         lt, la, lg = self._lead
-        if len(lt) and float(t[-1]) - float(lt[0]) > _LEAD_MAX_S:
+        if len(lt) and float(t[-1]) - float(lt[0]) > self.config.segments.lead_max_s:
             self._lead = None  # no still foot soon after the wake: not a first stride, Gait-DR places the steps
             return
         self._lead = (np.concatenate([lt, t]), np.concatenate([la, acc]), np.concatenate([lg, gyr]))
@@ -675,7 +652,7 @@ class Engine:
         (the detector's period plus the turn-on time, about 0.1 s of heel-off) is not seen. A foot still from
         the first sample on (a gentle start, a turn on the spot that begins slowly) has none: zero (gaitmap-mag,
         6.7 s: taken for a host-started segment, Gait-DR had placed the first step 1.7 m off the ZUPT-KF's).
-        None where the segment did not start on its own or found no still foot within ``_LEAD_MAX_S``.
+        None where the segment did not start on its own or found no still foot within ``lead_max_s``.
         """
         lead, self._lead = self._lead, None
         if lead is None or not len(lead[0]):
@@ -683,7 +660,7 @@ class Engine:
         if len(lead[0]) == 1:
             return np.zeros(3)  # the still foot is the segment's first sample: the whole first stride is its own
         t, a, g = lead
-        if float(t[-1]) - float(t[0]) > _LEAD_MAX_S:
+        if float(t[-1]) - float(t[0]) > self.config.segments.lead_max_s:
             return None
         c = align_at_rest(acc_rest)
         rz = euler_to_dcm(0.0, 0.0, heading - float(dcm_heading(c)))  # levelled attitude turned to ``heading``
@@ -700,15 +677,11 @@ class Engine:
             self._pre_t = float(t[-1])
 
     def _restart_heading(self, acc_rest: np.ndarray) -> float:
-        """Sensor heading [rad] for a restarting ZUPT-KF: Gait-DR's last heading turned by what the gyroscope
-        saw from the segment's first sample to the still foot.
-
-        A segment often starts mid-turn. The rotation is projected on the vertical of the still foot (the
-        pitch of the swing, about the body's y axis, does not leak into it). The compass on the still foot
-        was tried instead: better in 11 of 14 synthetic sessions, but a steel disturbance that passed the
-        field test put 35 deg into a whole 80-s segment (mixed-day seed 1, returning user: 46 m mean error).
-        """
-        held = self._head if math.isfinite(self._head) else self._nav.heading
+        """Sensor heading [rad] for a restarting ZUPT-KF: the heading estimator's, turned by what the
+        gyroscope saw from the segment's first sample to the still foot (a segment often starts mid-turn),
+        projected on the still foot's vertical."""
+        gait = self._gait
+        held = gait.est.heading if gait is not None and gait.est.started else self._nav.heading
         down = -np.asarray(acc_rest, dtype=float) / max(float(np.linalg.norm(acc_rest)), 1e-9)  # NED down, body
         return wrap_angle(held + float(self._pre_rot @ down))
 
@@ -760,48 +733,27 @@ class Engine:
         return replace(st, position=self._turn(st.position) + self._offset, heading=wrap_angle(st.heading + self._yaw),
                        delta=self._turn(st.delta))
 
+    def _emit(self, pos: Position, positions: list[Position], events: list[Event]) -> None:
+        """Output a position; where its mode differs from the last one's, a ``mode_switch`` event says so with
+        the scheduler's reason for the sensors that produced it (events follow the positions)."""
+        if self._out_mode and pos.mode != self._out_mode:
+            events.append(Event(pos.t_ns, "mode_switch", {"from": self._out_mode, "to": pos.mode,
+                                                           "reason": self._sched.reason}))
+        self._out_mode = pos.mode
+        positions.append(pos)
+
     def _place_rest(self, p: np.ndarray, d: float, positions: list[Position], events: list[Event]) -> None:
         """Output the still foot a self-started segment restarted on, at ``p`` [m NED], ``d`` [m] from the last
         position, where the ZUPT-KF's detector found no stance of its own."""
         t_ns = self._ns(self._rest_t)
         label = self._labels.at(self._rest_t)
-        positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), self._rest_head, label, "zupt", d, True))
+        self._emit(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), self._rest_head, label, "zupt", d, True),
+                   positions, events)
         events += self._sched.on_zupt_distance(d, t_ns)
         if self.trace is not None:
             self.trace.append(np.array([t_ns], dtype=np.int64), np.array([p]), np.array([label]), np.array(["zupt"]),
                               np.ones(1, dtype=bool))
         self._pos = p
-
-    def _handover_yaw(self, st: Stance) -> float:
-        """Turn [rad] the gyroscope missed before a segment's hand-over stance ``st``, by the compass; else 0.
-
-        The device switches the gyroscope on at an upload boundary, often mid-swing or mid-turn; what the foot
-        turned before its first sample only the compass can tell. Its change from Gait-DR's last stance to
-        this one (:meth:`energy.gait_dr.GaitPipeline.turn_to`: a trusted compass on an established clean
-        field, a rotation of the foot) against the ZUPT-KF's (Gait-DR's last heading, turned by the
-        gyroscope since, :meth:`_restart_heading`): beyond 3 sigma of the compass and ``_MISSED_TURN_MIN`` the
-        segment is turned by the difference (README demo, second walk: 22 deg of a turn before the gyroscope came on, final error
-        9.43 m). Taken at the stance, not at the restart's first still samples, whose tilt (40 ms at heel
-        strike) moved the dip beyond the same-field test or the compass by 15 deg. Not where the gyroscope watched
-        the stride's swing and saw too little of such a turn (``_MISSED_WATCHED``, ``_MISSED_ALONG``): a field
-        drifting into steel turns the compass between two stances as a foot does.
-        """
-        gait = self._gait
-        if gait is None or not gait.active or not math.isfinite(self._head):
-            return 0.0
-        seen = gait.turn_to(st.t_start_s)
-        if seen is None:
-            return 0.0
-        missed = wrap_angle(self._head + seen[0] - float(st.heading))
-        if not abs(missed) > max(_HEADING_SIGMAS * seen[1], _MISSED_TURN_MIN):
-            return 0.0
-        stride = st.t_start_s - self._step_s
-        watched = (st.t_start_s - self._seg_t) / stride if stride > 0.0 else 0.0
-        along = math.copysign(wrap_angle(float(st.heading) - self._head), missed)
-        if watched >= _MISSED_WATCHED and along < _MISSED_ALONG * abs(missed):
-            # the gyroscope watched the swing of the hand-over stride and saw no such turn: the field changed
-            return 0.0
-        return missed
 
     def _stance(self, st: Stance, positions: list[Position], events: list[Event]) -> None:
         """One ZUPT-KF stance, in data-time order."""
@@ -810,106 +762,132 @@ class Engine:
         label = self._labels.at(st.t_end_s)
         t_ns = self._ns(st.t_end_s)
         if self._seg_first:
-            # hand-over stance: Gait-DR walks the foot up to here, the ZUPT-KF continues from it
             self._seg_first = False
-            self._compass_offsets = []  # a new segment: its own offsets
-            dr_steps = []
-            lead, self._lead_d = self._lead_d, None
-            if lead is not None and self._pos is not None:
-                # a self-started segment: the first stride comes from its own samples, not from Gait-DR
-                if gait is not None:
-                    gait.reckon(st.t_start_s + PAIR_TOL_S, self._labels.at)  # consumed, not placed
-                    events += self._take_missed_turn(t_ns)  # ... but its stance may tell of a turn missed before
-                    gait.take_pair(st.t_start_s)
-                p = self._pos + lead
-                self._set_yaw(0.0)  # placed from its own samples from a still foot: no turn went unseen
-                if st.t_start_s > self._rest_t + PAIR_TOL_S:
-                    # the detector found no stance at that still foot (a slow, rolling first step: gdin exp37
-                    # 6.0-6.4 s): it is placed by itself, and the ZUPT-KF's way from it to this stance is added
-                    self._place_rest(p, float(math.hypot(lead[0], lead[1])), positions, events)
-                    p = p + (st.position - self._rest_p)
-                self._offset = p - st.position
-                d = float(math.hypot(p[0] - self._pos[0], p[1] - self._pos[1]))
-                self._pos, self._head = p, float(st.heading)
-                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
-                events += sched.on_zupt_distance(d, t_ns)
-                return
-            self._set_yaw(0.0)
-            if gait is not None:
-                self._set_yaw(self._handover_yaw(st))
-                dr_steps = self._reckon(st.t_start_s + PAIR_TOL_S, positions, events) if gait.active else []
-                gait.take_pair(st.t_start_s)
-            if self._pos is not None:
-                self._offset = self._pos - self._turn(st.position)
-            st = self._session_stance(st)
-            self._head = st.heading
-            if not dr_steps:
-                p = st.position
-                self._pos = p
-                positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", 0.0, True))
+            self._handover(st, label, t_ns, positions, events)
             return
         st = self._session_stance(st)
-        p = st.position
-        d = st.step_length
+        p, d = st.position, st.step_length
         self._pos, self._head = p, float(st.heading)
-        positions.append(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True))
+        self._emit(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), float(st.heading), label, "zupt", d, True),
+                   positions, events)
         events += sched.on_zupt_distance(d, t_ns)
         if gait is None:
             sched.nav_ready = True
             return
         e = gait.take_pair(st.t_start_s)
-        if e is None:
-            self._compass_offsets = []
+        gait.track(e, wrap_angle(float(st.heading) - self._zupt_head), 0.0)
+        self._zupt_head = float(st.heading)
+        events += sched.on_compass(gait.compass() is not None, t_ns)
+        events += self._north_event(t_ns)
+        ref = self._nav.dominant_ref
+        gait.dominant = None if ref is None else wrap_angle(ref + self._yaw)
+        if e is not None:
+            self._learn_stride(st, e, label, t_ns, events)
+        events += sched.on_heading(gait.forecast_drift_pct(label), True, t_ns)
+
+    def _handover(self, st: Stance, label: str, t_ns: int, positions: list[Position], events: list[Event]) -> None:
+        """A segment's first stance: the ZUPT-KF takes over where Gait-DR (or the lead of a self-started
+        segment) put the foot, turned so that its heading is the heading estimator's there.
+
+        The hand-over stride goes through the estimator with the turn the gyroscope saw (the ZUPT-KF restarted
+        from the estimator's heading, so its heading here is that plus what it saw) and, for the part of the
+        stride before the gyroscope's first sample, the gyroscope-off motion models; then the stance compass.
+        A turn made before the gyroscope came on is thus taken from the compass as far as its noise allows.
+        """
+        gait = self._gait
+        lead, self._lead_d = self._lead_d, None
+        placed = False
+        yaw = 0.0
+        if gait is not None and not gait.est.started:
+            gait.take_pair(st.t_start_s)
+            gait.start_frame(float(st.heading))  # the session's first stance defines the navigation frame
+        elif gait is not None:
+            host_started = gait.active and lead is None
+            if host_started:
+                self._reckon(st.t_start_s - PAIR_TOL_S, positions, events)  # Gait-DR's strides before this stance
+            e = gait.take_pair(st.t_start_s)
+            before = gait.est.heading
+            span = st.t_start_s - gait.step_s
+            unseen = (self._seg_t - gait.step_s) / span if host_started and 0.0 < span < math.inf else 0.0
+            yaw = wrap_angle(gait.track(e, wrap_angle(float(st.heading) - before), unseen) - float(st.heading))
+            if host_started and e is not None:
+                self._emit_step(gait.place(e, label, before), e, gait.forecast_drift_pct(label), positions, events)
+                placed = True
+        self._set_yaw(yaw)
+        self._zupt_head = wrap_angle(float(st.heading) + yaw)
+        if lead is not None and self._pos is not None:
+            p = self._pos + lead
+            if st.t_start_s > self._rest_t + PAIR_TOL_S:
+                # the detector found no stance at that still foot (a slow, rolling first step): it is placed by
+                # itself, and the ZUPT-KF's way from it to this stance is added
+                self._place_rest(p, float(math.hypot(lead[0], lead[1])), positions, events)
+                p = p + self._turn(st.position - self._rest_p)
+            self._offset = p - self._turn(st.position)
+            d = float(math.hypot(p[0] - self._pos[0], p[1] - self._pos[1]))
+            self._pos, self._head = p, self._zupt_head
+            self._emit(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), self._head, label, "zupt", d, True),
+                       positions, events)
+            events += self._sched.on_zupt_distance(d, t_ns)
             return
-        st = self._compass_reanchor(st, e)
-        if sched.assist_active:
-            # a weak-field assist ends on the Earth's field as the compass re-anchoring sees it, so that a turn
-            # made before the gyroscope came is first taken back (random-day seed 2, returning user: released
-            # on a clean but unsettled field, the segment stayed 68 deg off)
-            clean = gait.field_clean(e)
-            ok = gait.earth_compass(e) is not None if sched.assist_weak else clean
-            self._clean_run = self._clean_run + 1 if ok else 0
-            # ... or after a longer clean run where the field passes the gate but never settles on m_n's shape
-            # (a building whose field is a few percent off: the gyroscope would stay on for good)
-            self._gate_run = self._gate_run + 1 if clean else 0
-            if self._clean_run >= _ASSIST_RELEASE_STEPS or self._gate_run >= _WEAK_RELEASE_GATE_STEPS:
-                events += sched.release_heading_assist(
-                    t_ns, None if self._clean_run >= _ASSIST_RELEASE_STEPS else "magnetic field clean")
-                self._clean_run = self._gate_run = 0
+        if self._pos is not None:
+            self._offset = self._pos - self._turn(st.position)
+        self._head = self._zupt_head
+        if not placed:
+            p = self._turn(st.position) + self._offset
+            self._pos = p
+            self._emit(Position(t_ns, float(p[0]), float(p[1]), float(p[2]), self._head, label, "zupt", 0.0, True),
+                       positions, events)
+
+    def _north_event(self, t_ns: int) -> list[Event]:
+        """``north_reference`` when magnetic north's azimuth in the session frame is first known or has moved by
+        more than ``_NORTH_STEP`` since announced: the session frame's heading 0 is where the sensor pointed at the
+        first stance; geo-referencing (:func:`models.geo.georeference`) turns the track by it to magnetic north."""
+        gait = self._gait
+        north = gait.magnetic_north() if gait is not None else None
+        if north is None or (math.isfinite(self._north) and abs(wrap_angle(north[0] - self._north)) <= _NORTH_STEP):
+            return []
+        self._north = north[0]
+        return [Event(t_ns, "north_reference", {"magnetic_north_rad": north[0], "std_rad": north[1]})]
+
+    def _learn_stride(self, st: Stance, e: StepEvent, label: str, t_ns: int, events: list[Event]) -> None:
+        """A ZUPT-KF stride with its step event: calibration pairs, KF II, examinations (004 Table 3 and the
+        direction examination), and the hand-over to Gait-DR once the initialisation is complete."""
+        gait, sched = self._gait, self._sched
+        assert gait is not None
+        c = self.config.scheduler
         exam = sched.exam_active and st.t_start_s >= sched.exam_started_s and not e.after_rest
         fitted = None
         if exam:
             b = model_behaviour(label)
             d_sl, _ = gait.step_length(e, b)
-            passed = gait.cal.examine(d, d_sl, b, e.f_s)  # 004 Table 3
+            passed = gait.cal.examine(st.step_length, d_sl, b, e.f_s)  # 004 Table 3
             fitted = gait.cal.cadence_ranges(b, 1.0 / gait.rate_hz)
             new_pattern = fitted is not None and not any(lo <= e.f_s <= hi for lo, hi in fitted)
-        # a deviation from the profile, not yet confirmed in this session: tested before KF II takes the stride
+        # the direction examination: KF II's innovation before it takes the stride (a stored deviation not yet
+        # confirmed in this session, and every examination stride)
+        tested = (label in sched.deviation_pending or exam) and label == sched.behaviour
+        prior = HeadingDeviationKF.from_state(gait.kf2[model_behaviour(label)].get_state()) if tested else None
         pending = sorted(sched.deviation_pending)
-        tested = label in pending and label == sched.behaviour
-        prior = HeadingDeviationKF.from_state(gait.kf2[label].get_state()) if tested else None
-        z = gait.learn(st, e, label)
-        heading = None if prior is None or z is None else _heading_test(z, prior)
+        z = gait.learn(st, e, label, step_model=sched.working == "zupt" or exam)
+        heading = None if prior is None or z is None or not prior.n_updates else _heading_test(z, prior, c.exam_sigmas)
         verdict: list[Event] = []
         if exam:
-            verdict = sched.on_exam_result(passed, d, d_sl, st.t_end_s, t_ns, heading, new_pattern)
+            verdict = sched.on_exam_result(passed, st.step_length, d_sl, st.t_end_s, t_ns, heading, new_pattern)
         elif heading is not None:
             verdict = sched.on_heading_check(heading, st.t_end_s, t_ns)
         events += verdict
-        if any(ev.kind == "examination_failed" and ev.detail.get("cause") == "walking_pattern" for ev in verdict):
+        causes = {ev.detail.get("cause") for ev in verdict if ev.kind == "examination_failed"}
+        if "walking_pattern" in causes:
             self._note_pattern(sched.behaviour, fitted)
-        if any(ev.kind == "examination_failed" and ev.detail.get("cause") == "heading_deviation" for ev in verdict):
+        if "heading_deviation" in causes:
             gait.forget_mount(pending)  # the sensor was re-mounted: its stored deviations and compass are stale
-        sched.compass_ready = gait.heading_source()
         sched.nav_ready = gait.bootstrapped()
         sched.run_wake_ms2 = gait.run_wake_threshold()
-        sched.weak_wake = (gait.weak_wake(self.config.weak_field_h) if self.mode == "auto" and self.config.weak_field_wake
-                           else None)
         if sched.ready_for_pdr() and gait.ready(label):
             fits = gait.fit(label)
             cal = self._store_calibration(label, fits)
             pattern, self._pattern = self._pattern, None
-            if pattern is not None and sched.pattern_left is not None and pattern[0] == model_behaviour(label):
+            if pattern is not None and pattern[0] == model_behaviour(label):
                 events += self._correct_pattern(pattern, t_ns)
             events += sched.on_calibrated(st.t_end_s, t_ns, {
                 "heading_deviation_rad": cal.heading_deviation_rad,
@@ -917,125 +895,64 @@ class Engine:
                 "sigma_d_m": cal.sigma_d_m,
                 "n_steps": cal.n_steps,
             })
-        if sched.working == "pdr" and gait.field_weak(e, _WEAK_HANDOVER * self.config.weak_field_h):
-            # an initialisation or examination ending on a field too weak for the compass: the gyroscope stays
-            # (held-out random day, seed 11, 172 s: a run's initialisation ended in steel, Gait-DR held its heading
-            # through a 45-deg turn before the gyroscope it then asked for came, and the ZUPT-KF ran 35 deg off)
-            events += sched.request_heading_assist(t_ns, weak_field=True)
 
-    def _compass_reanchor(self, st: Stance, e: Any) -> Stance:
-        """Turn this ZUPT-KF segment to a trusted compass that disagrees with it, consistently, on the Earth's
-        field; returns the stance ``st`` (session frame) as turned.
-
-        A segment's heading starts from Gait-DR's, and a turn Gait-DR missed inside steel stays in it: the
-        ZUPT-KF cannot see it (held-out synthetic day, seed 2, 244 s: a 180-deg turn whose first stride changed
-        the field's dip by 3.2 deg was taken as 134 deg, and the ZUPT-KF segment after it ran 47 deg off; its
-        stances joined the compass fit with that heading). Where ``_REANCHOR_STANCES`` consecutive stances have
-        a trusted compass on the Earth's field (:meth:`energy.gait_dr.GaitPipeline.earth_compass`) whose offsets
-        from the ZUPT-KF heading agree within half the compass tolerance and whose mean is beyond it
-        (:meth:`models.compass.CompassFollower._tol`, 3 x sqrt(2) x its noise, at least 10 deg), the segment is
-        turned by that mean about this stance (the positions already out stay) and the follower's gyroscope
-        test starts again from here.
-        """
-        gait = self._gait
-        assert gait is not None
-        c = gait.earth_compass(e)
-        if c is None:
-            self._compass_offsets = []
-            return st
-        self._compass_offsets = (self._compass_offsets + [wrap_angle(c - float(st.heading))])[-_REANCHOR_STANCES:]
-        if len(self._compass_offsets) < _REANCHOR_STANCES:
-            return st
-        offs = np.asarray(self._compass_offsets)
-        mean = math.atan2(float(np.mean(np.sin(offs))), float(np.mean(np.cos(offs))))
-        tol = gait.follower._tol(gait._compass_sigma())
-        if not abs(mean) > tol or max(abs(wrap_angle(float(o) - mean)) for o in offs) > 0.5 * tol:
-            return st
-        self._compass_offsets = []
-        p_seg = self._turn(st.position - self._offset, -self._yaw)
-        self._set_yaw(wrap_angle(self._yaw + mean))
-        self._offset = st.position - self._turn(p_seg)
-        self._head = wrap_angle(float(st.heading) + mean)
-        gait.follower.gyro_ref = None  # the heading it was tested against jumped
-        log.info("ZUPT-KF segment turned by %.1f deg to the compass at %.1f s", math.degrees(mean), st.t_end_s)
-        return replace(st, heading=self._head, delta=self._turn(np.asarray(st.delta, dtype=float), mean))
-
-    def _reckon(self, before_s: float, positions: list[Position], events: list[Event]) -> list:
+    def _reckon(self, before_s: float, positions: list[Position], events: list[Event]) -> None:
         """Gait-DR steps with onset before ``before_s`` [s]."""
         gait = self._gait
         assert gait is not None
         if not gait.queue:  # nothing to reckon (standing, or every step taken): nothing changes
-            return []
-        steps = gait.reckon(before_s, self._labels.at, self.config.weak_field_h if self.mode == "auto" else 0.0)
-        if steps and not gait.has_mag and not self._warned_no_heading:
-            self._warned_no_heading = True  # logging only: not part of the state
-            log.warning("Gait-DR steps from %.1f s with the gyroscope off and no magnetometer: they keep the heading "
-                        "of the last ZUPT-KF stance and cannot see turns", steps[0][0].t_s)
-        self._moved = self._moved or bool(steps)
-        if steps:
-            self._step_s = float(steps[-1][0].t_s)
-        prev = self._pos
-        for step, e, source in steps:
-            self._apply_labels(step.t_s, events)
-            t_ns = self._ns(step.t_s)
-            pos = step.position
-            positions.append(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False))
-            self._log_stride(step, e, prev)
-            prev = np.asarray(pos, dtype=float)
-            events += self._sched.tick(step.t_s, t_ns)
-            if not e.after_rest:  # 004 Table 2 (ii): a walking pattern the step-length model has not seen
-                fitted = gait.cal.cadence_ranges(self._sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
-                found = self._sched.on_cadence(e.f_s, fitted, t_ns)
-                if any(ev.kind == "walking_pattern_changed" for ev in found):
-                    self._note_pattern(self._sched.behaviour, fitted)
-                events += found
-            self._disturbed_run = self._disturbed_run + 1 if source == "disturbed" else 0
-            if self._disturbed_run >= _ASSIST_AFTER_STEPS:
-                events += self._sched.request_heading_assist(t_ns)
-            if source == "disturbed" and gait.field_weak(e, self.config.weak_field_h):
-                events += self._sched.request_heading_assist(t_ns, weak_field=True)
-            if self.trace is not None:
-                self.trace.append(np.array([t_ns], dtype=np.int64), np.array([pos]), np.array([step.behaviour]),
-                                  np.array(["pdr"]), np.zeros(1, dtype=bool))
-        if steps:
-            self._pos = np.asarray(steps[-1][0].position, dtype=float)
-            self._head = gait.heading
-        events += self._take_missed_turn(self._ns(steps[-1][0].t_s) if steps else self._ns(before_s))
-        return steps
+            return
+        for step, e, drift in gait.reckon(before_s, self._labels.at):
+            self._emit_step(step, e, drift, positions, events)
 
-    def _take_missed_turn(self, t_ns: int) -> list[Event]:
-        """After every Gait-DR reckoning: correct a turn it found missed (:meth:`_correct_turn`)."""
-        gait = self._gait
-        if gait is None or gait.missed_turn is None:
-            return []
-        fix, gait.missed_turn = gait.missed_turn, None
-        return self._correct_turn(*fix, t_ns)
+    def _emit_step(self, step: Any, e: StepEvent, drift: float, positions: list[Position], events: list[Event]) -> None:
+        """Output one Gait-DR step and tell the scheduler (T0, walking pattern, the heading's drift forecast)."""
+        gait, sched = self._gait, self._sched
+        assert gait is not None
+        self._apply_labels(step.t_s, events)
+        t_ns = self._ns(step.t_s)
+        pos = step.position
+        self._emit(Position(t_ns, pos[0], pos[1], pos[2], step.direction, step.behaviour, "pdr", step.length, False),
+                   positions, events)
+        self._log_stride(step, e, self._pos)
+        self._moved = True
+        self._step_s = float(step.t_s)
+        self._pos = np.asarray(pos, dtype=float)
+        self._head = gait.est.heading
+        events += sched.tick(step.t_s, t_ns)
+        if not e.after_rest:  # 004 Table 2 (ii): a walking pattern the step-length model has not seen
+            fitted = gait.cal.cadence_ranges(sched.behaviour, 1.0 / gait.rate_hz)  # step periods in samples
+            found = sched.on_cadence(e.f_s, fitted, t_ns)
+            if any(ev.kind == "walking_pattern_changed" for ev in found):
+                self._note_pattern(sched.behaviour, fitted)
+            events += found
+        events += sched.on_heading(drift, False, t_ns)
+        if self.trace is not None:
+            self.trace.append(np.array([t_ns], dtype=np.int64), np.array([pos]), np.array([step.behaviour]),
+                              np.array(["pdr"]), np.zeros(1, dtype=bool))
 
-    def _correct_turn(self, t_from: float, turn: float, t_ns: int) -> list[Event]:
-        """Gait-DR found a turn it had missed inside a disturbance (:meth:`energy.gait_dr.GaitPipeline.
-        _missed_turn`: by ``turn`` [rad] from the stride at ``t_from`` [s]): turn the strides placed since by it,
-        moving the position by the sum of their changes (as :meth:`_correct_pattern` does for step lengths)."""
+    def _store_calibration(self, behaviour: str, fits: dict) -> BehaviourCalibration:
+        """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
+        b = model_behaviour(behaviour)
         gait = self._gait
         assert gait is not None
-        rows = [r for r in self._dr_log if StepEvent.from_row(r[1]).t_s >= t_from]
-        if not rows or self._pos is None or gait.dr is None:
-            return []
-        c, s = math.cos(turn), math.sin(turn)
-        delta = np.zeros(3)
-        for r in rows:  # each stride's direction turned (kept so for a later step-length correction)
-            un, ue = r[3], r[4]
-            r[3], r[4] = c * un - s * ue, s * un + c * ue
-            delta[0] += r[2] * (r[3] - un)
-            delta[1] += r[2] * (r[4] - ue)
-        if not np.all(np.isfinite(delta)):
-            return []
-        self._pos = self._pos + delta
-        gait.dr.position = gait.dr.position + delta
-        log.info("Gait-DR strides from %.1f s turned by %.1f deg: a turn missed inside a disturbance", t_from,
-                 math.degrees(turn))
-        return [Event(t_ns, "strides_corrected", {"behaviour": rows[-1][0], "cause": "missed_turn",
-                                                   "n_strides": len(rows), "from_s": float(t_from),
-                                                   "turn_rad": float(turn), "moved_m": [float(delta[0]), float(delta[1])]})]
+        pooled = fits.get(b, {})
+        kf = gait.kf2[b]
+        cal = BehaviourCalibration(
+            step_model=gait.calibration_state(),
+            sigma_d_m=float(pooled.get("sigma_d", float("nan"))),
+            heading_deviation_rad=kf.deviation,
+            heading_deviation_var=kf.variance,
+            n_steps=int(pooled.get("n", 0)),
+            calibrated=True,
+        )
+        self._sched.profile.behaviours[b] = cal
+        return cal
+
+    def _update(self, positions: list[Position], events: list[Event]) -> Update:
+        sched = self._sched
+        config, idle = sched.config_and_idle()
+        return Update(positions, events, config, sched.behaviour, "idle" if idle else sched.working)
 
     def _log_stride(self, step: Any, e: Any, prev: np.ndarray | None) -> None:
         """Keep a placed Gait-DR stride (its event, length and direction) for :meth:`_correct_pattern`."""
@@ -1054,7 +971,7 @@ class Engine:
         whose cadence lies outside the ``fitted`` ranges."""
         b = model_behaviour(behaviour)
         events = [StepEvent.from_row(r[1]) for r in self._dr_log if r[0] == b]
-        window = [e for e in events if not e.after_rest][-PATTERN_STRIDES:]
+        window = [e for e in events if not e.after_rest][-self.config.scheduler.pattern_strides:]
         out = [e.t_s for e in window if fitted and not any(lo <= e.f_s <= hi for lo, hi in fitted)]
         self._pattern = (b, float(out[0]) if out else math.inf)
 
@@ -1077,13 +994,13 @@ class Engine:
         d_new = [max(gait.step_length(e, b)[0], 0.0) for e in strides]
         periods = [e.period_s for e in strides]
         per = float(np.median(periods))
-        paced = [d for d, q in zip(d_new, periods) if q <= _PAUSE_PERIOD * per]
+        paced = [d for d, q in zip(d_new, periods) if q <= self.config.step_length.pause_period * per]
         if paced:
             # a stride far longer than its pattern's holds a pause (the segmenter takes one as such only when the
             # stance before lasted most of a stride): its cadence and mean force describe the pause, not the
             # stride, the first of the new pace (mixed day seed 12: 1.48 s among 1.00-s strides, placed 1.25 m,
             # re-placed at its own cadence 1.13 m, for 1.66 m); it gets the pattern's median stride
-            d_new = [d if q <= _PAUSE_PERIOD * per else float(np.median(paced)) for d, q in zip(d_new, periods)]
+            d_new = [d if q <= self.config.step_length.pause_period * per else float(np.median(paced)) for d, q in zip(d_new, periods)]
         delta = np.zeros(3)
         for (_, _, d_old, un, ue), d in zip(rows, d_new):
             delta[0] += (d - d_old) * un
@@ -1100,29 +1017,6 @@ class Engine:
                                                    "from_s": t_from, "start_s": float(start), "to_s": float(strides[-1].t_s),
                                                    "placed_m": float(math.fsum(d_new)),
                                                    "moved_m": [float(delta[0]), float(delta[1])]})]
-
-    def _store_calibration(self, behaviour: str, fits: dict) -> BehaviourCalibration:
-        """Put what the initialisation learned into the per-user profile (handed out by profile_dict)."""
-        b = model_behaviour(behaviour)
-        gait = self._gait
-        assert gait is not None
-        pooled = fits.get(b, {})
-        kf = gait.kf2[b]
-        cal = BehaviourCalibration(
-            step_model=gait.calibration_state(),
-            sigma_d_m=float(pooled.get("sigma_d", float("nan"))),
-            heading_deviation_rad=kf.deviation,
-            heading_deviation_var=kf.variance,
-            n_steps=int(pooled.get("n", 0)),
-            calibrated=True,
-        )
-        self._sched.profile.behaviours[b] = cal
-        return cal
-
-    def _update(self, positions: list[Position], events: list[Event]) -> Update:
-        sched = self._sched
-        config, idle = sched.config_and_idle()  # sensor_config and idle() at once
-        return Update(positions, events, config, sched.behaviour, "idle" if idle else sched.working)
 
     # ------------------------------------------------------------------ state
     def _ops_state(self) -> list[list[Any]]:
@@ -1141,6 +1035,7 @@ class Engine:
         return out
 
     @staticmethod
+    @staticmethod
     def _ops_from_state(rows: list[list[Any]]) -> list[tuple]:
         ops: list[tuple] = []
         for r in rows:
@@ -1156,13 +1051,16 @@ class Engine:
                 ops.append((k,))
         return ops
 
+    _SCALARS = ("t0_ns", "last_acc_t", "last_gyr_s", "gyro_missing", "seg_open", "in_seg", "seg_t", "seg_first",
+                "yaw", "head", "zupt_head", "out_mode", "north", "nav_t", "await_rest", "pre_t", "moved", "step_s",
+                "rest_t", "rest_head")
+
     def get_state(self) -> dict[str, Any]:
-        return {
+        d: dict[str, Any] = {k: getattr(self, "_" + k) for k in self._SCALARS}
+        d.update({
             "version": _STATE_VERSION,
             "mode": self.mode,
-            "config": self.config.to_dict(),
-            "t0_ns": self._t0_ns,
-            "last_acc_t": self._last_acc_t,
+            "config": self.config.changes(),
             "acc_t": self._acc_t,
             "acc_v": self._acc_v,
             "gyr": self._gyr.get_state(),
@@ -1172,90 +1070,53 @@ class Engine:
             "behaviour": self._behaviour.get_state(),
             "labels": self._labels.get_state(),
             "gait": None if self._gait is None else self._gait.get_state(),
-            "last_gyr_s": self._last_gyr_s,
-            "gyro_missing": self._gyro_missing,
-            "seg_open": self._seg_open,
             "ops": self._ops_state(),
-            "in_seg": self._in_seg,
-            "seg_first": self._seg_first,
             "offset": self._offset,
-            "yaw": self._yaw,
             "pos": self._pos,
-            "head": self._head,
-            "seg_t": self._seg_t,
-            "await_rest": self._await_rest,
             "pre": None if self._pre is None else list(self._pre),
             "pre_rot": self._pre_rot,
-            "pre_t": self._pre_t,
-            "moved": self._moved,
-            "step_s": self._step_s,
             "lead": None if self._lead is None else list(self._lead),
             "lead_d": self._lead_d,
             "rest_p": self._rest_p,
-            "rest_t": self._rest_t,
-            "rest_head": self._rest_head,
-            "disturbed_run": self._disturbed_run,
-            "clean_run": self._clean_run,
-            "gate_run": self._gate_run,
-            "compass_offsets": list(self._compass_offsets),
-            "nav_t": self._nav_t,
             "labels_pending": [[t, lab] for t, lab in self._labels_pending],
             "dr_log": [list(r) for r in self._dr_log],
             "pattern": None if self._pattern is None else list(self._pattern),
-        }
+        })
+        return d
 
     @classmethod
     def from_state(cls, d: dict[str, Any], trace: bool = False) -> Engine:
         if d.get("version") != _STATE_VERSION:
             raise ValueError(f"engine state version {d.get('version')!r} is not {_STATE_VERSION}")
-        obj = cls(mode=d["mode"], config=EngineConfig.from_dict(d["config"]), trace=trace)
-        obj._t0_ns = d["t0_ns"]
-        obj._last_acc_t = d["last_acc_t"]
+        config = EngineConfig().override(d["config"])
+        obj = cls(mode=d["mode"], config=config, trace=trace)
+        for k in cls._SCALARS:
+            setattr(obj, "_" + k, d[k])
         obj._acc_t = np.asarray(d["acc_t"], dtype=np.int64)
         obj._acc_v = np.asarray(d["acc_v"], dtype=np.float64).reshape(-1, 3)
         obj._gyr = _StreamPairing.from_state(d["gyr"])
         obj._mag = _StreamPairing.from_state(d["mag"])
-        obj._sched = Scheduler.from_state(d["sched"])
+        obj._sched = Scheduler.from_state(config, d["sched"])
         obj._nav = ZuptNavigator.from_state(d["nav"])
         obj._behaviour = BehaviourRecognizer.from_state(d["behaviour"])
         obj._labels = _LabelHistory.from_state(d["labels"])
-        obj._gait = None if d["gait"] is None else GaitPipeline.from_state(d["gait"])
-        obj._last_gyr_s = float(d["last_gyr_s"])
-        obj._gyro_missing = bool(d.get("gyro_missing", False))  # absent in states stored before wake-on-motion
-        obj._seg_open = bool(d["seg_open"])
+        obj._gait = None if d["gait"] is None else GaitPipeline.from_state(config, d["gait"])
         obj._ops = cls._ops_from_state(d["ops"])
-        obj._in_seg = bool(d["in_seg"])
-        obj._seg_first = bool(d["seg_first"])
         obj._offset = np.asarray(d["offset"], dtype=float).reshape(3)
-        obj._yaw = float(d.get("yaw", 0.0))  # absent in states stored before segments could turn
         obj._pos = None if d["pos"] is None else np.asarray(d["pos"], dtype=float).reshape(3)
-        obj._head = float(d["head"])
-        obj._seg_t = float(d["seg_t"])
-        obj._await_rest = bool(d["await_rest"])
         pre = d["pre"]
         obj._pre = None if pre is None else (
             np.asarray(pre[0], dtype=float), np.asarray(pre[1], dtype=float).reshape(-1, 3),
             np.asarray(pre[2], dtype=float).reshape(-1, 3), None if pre[3] is None else np.asarray(pre[3], dtype=float).reshape(-1, 3))
-        obj._pre_rot = np.asarray(d.get("pre_rot", np.zeros(3)), dtype=float).reshape(3)  # absent in older states
-        obj._pre_t = float(d.get("pre_t", math.nan))
-        obj._moved = bool(d.get("moved", False))  # absent in states stored before wake-on-motion
-        obj._step_s = float(d.get("step_s", -math.inf))  # absent in states stored before stands within Gait-DR woke it
-        lead = d.get("lead")
+        obj._pre_rot = np.asarray(d["pre_rot"], dtype=float).reshape(3)
+        lead = d["lead"]
         obj._lead = None if lead is None else (np.asarray(lead[0], dtype=float), np.asarray(lead[1], dtype=float).reshape(-1, 3),
                                                np.asarray(lead[2], dtype=float).reshape(-1, 3))
-        obj._lead_d = None if d.get("lead_d") is None else np.asarray(d["lead_d"], dtype=float).reshape(3)
-        obj._rest_p = np.asarray(d.get("rest_p", np.zeros(3)), dtype=float).reshape(3)  # absent in older states
-        obj._rest_t = float(d.get("rest_t", math.nan))
-        obj._rest_head = float(d.get("rest_head", math.nan))
-        obj._disturbed_run = int(d["disturbed_run"])
-        obj._clean_run = int(d["clean_run"])
-        obj._gate_run = int(d.get("gate_run", 0))  # absent in states stored before it existed
-        obj._compass_offsets = [float(x) for x in d.get("compass_offsets", [])]  # absent in older states
-        obj._nav_t = float(d["nav_t"])
+        obj._lead_d = None if d["lead_d"] is None else np.asarray(d["lead_d"], dtype=float).reshape(3)
+        obj._rest_p = np.asarray(d["rest_p"], dtype=float).reshape(3)
         obj._labels_pending = [(float(t), str(lab)) for t, lab in d["labels_pending"]]
-        obj._dr_log = [[str(r[0]), [float(v) for v in r[1]], float(r[2]), float(r[3]), float(r[4])]
-                       for r in d.get("dr_log", [])]  # absent in older states
-        pat = d.get("pattern")
+        obj._dr_log = [[str(r[0]), [float(v) for v in r[1]], float(r[2]), float(r[3]), float(r[4])] for r in d["dr_log"]]
+        pat = d["pattern"]
         obj._pattern = None if pat is None else (str(pat[0]), float(pat[1]))
         return obj
 

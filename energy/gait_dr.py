@@ -1,14 +1,13 @@
 """The Gait-DR half of the engine: low-rate step stream, online calibration against the ZUPT-KF, dead reckoning.
 
-Runs on a low-rate copy of the accelerometer/magnetometer streams (anti-aliased to ``pdr_rate_hz`` whatever
+Runs on a low-rate copy of the accelerometer/magnetometer streams (anti-aliased to the Gait-DR rate whatever
 the device sends), so its step events do not change when the device is de-sampled (004 Section 4.3). Step
 events wait in a queue; the engine (:mod:`energy.engine`) hands each one either to a ZUPT-KF stance of the
 same stance (step-length calibration 004 eq. 15 and Table 3, KF II 004 eq. 17-20, magnetometer calibration,
-examination) or to dead reckoning (004 eq. 14, 16) with the heading following the stance compass
-(:class:`models.compass.CompassFollower`: on a clean field small disagreements averaged and turns taken whole;
-through a magnetic disturbance the heading held and only turns taken, from the compass change between stances),
-or the last heading where no calibrated field is there. :attr:`GaitPipeline.horizon` bounds how late an event can
-still appear.
+examination) or to dead reckoning (004 eq. 14, 16). Every stride, whichever navigates, also goes through the
+heading estimator (:class:`models.heading.HeadingEstimator`): with the ZUPT-KF's heading change where the
+gyroscope ran, without one where it did not, then the stance compass with its estimated noise.
+:attr:`GaitPipeline.horizon` bounds how late an event can still appear.
 """
 
 from __future__ import annotations
@@ -20,9 +19,11 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from models.compass import CompassFollower, MagCalibrator
+from energy.config import EngineConfig
+from models.compass import MagCalibrator
 from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
+from models.heading import CompassNoise, HeadingEstimator
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
 from models.stats import median
 from models.step_length import FORM, StepFeatures, StepLengthCalibrator
@@ -38,22 +39,10 @@ _MAG_KEEP_S = 4.0  # low-rate field samples kept [s]: a swing (<= _SWING_MAX_S) 
 _SWING_MAX_S = 2.0  # swing field samples are taken from at most this long before a stance onset [s]
 _SWING_SAMPLES = 8  # field samples kept per swing for the magnetometer calibration (evenly spread)
 _G0 = 9.80665  # standard gravity [m/s^2] (the step segmentation's quietness statistic)
-_HANDON_WORSE, _HANDON_SLACK_RAD = 1.5, math.radians(0.5)  # compass_state: a refit worse than both is not handed on
-_MIN_CAL_STEP_M = 0.3  # shorter ZUPT-KF displacements are shuffles, not calibration steps
 _BEHAVIOURS = ("walk", "run")
-_RECENT_STEPS = 8  # ZUPT-KF strides whose median stands in for an unfitted step model
 _RECENT_CADENCES = 5  # measured strides of a behaviour whose median cadence a paused stride of it takes
-_BOOT_STEPS = 3  # KF II updates before Gait-DR may place steps
-_KF2_TURN_RAD = math.radians(10.0)  # strides whose ZUPT-KF heading turned more than this do not update KF II
-_ANCHOR_STANCES = 3  # clean stances whose offset is averaged to re-anchor a compass loaded from a profile
-_HELD_MAX = 48  # Gait-DR stances kept while the compass does not lead (GaitPipeline._missed_turn)
-# Run wake (energy.scheduler): the device's high-g interrupt wakes the gyroscope when its accelerometer exceeds
-# this factor times the largest absolute specific force on an axis (25-Hz samples) of this person's latest
-# walking strides. Largest |a| on an axis over 2-s windows of 40-ms means (synthetic, 6 seeds each): walks
-# <= 30.8 m/s^2, fast walks <= 39.3, runs >= 43.4 (median 47.1); with 1.25 the fast walks woke it (mixed day
-# energy_ratio up to 0.253). VICON walk trials <= 36.1, run trials median 41.0: a slow jog may not wake (the
-# behaviour recognition still catches it).
-RUN_WAKE_MARGIN = 1.4
+_SCALE_TIE = 1.25  # an own compass fit is as good as a profile's within this factor of its robust scale
+_REF_STANCES = 30  # this session's stance fields whose median is a loaded compass's reference field
 _PEAK_STRIDES = 16  # walking strides whose largest peak sets the run-wake threshold
 _PEAK_MIN_STRIDES = 8  # ... and at least this many before there is a threshold
 
@@ -164,7 +153,7 @@ class _LowRate:
 
 
 class GaitPipeline:
-    """Step events, calibration and dead reckoning for one session.
+    """Step events, calibration, the heading estimator and dead reckoning for one session.
 
     The engine drives it in data-time order: step events wait in :attr:`queue` until either a ZUPT-KF stance
     claims them (:meth:`take_pair`: calibration, examination) or Gait-DR reckons them (:meth:`reckon`).
@@ -173,31 +162,29 @@ class GaitPipeline:
 
     Parameters
     ----------
-    rate_hz : float
-        Rate of the low-rate stream the step segmentation runs on [Hz].
-    conventional : bool
-        "Conventional PDR" of 004 Table 6, the baseline that shows what the online calibration buys: the
-        generic step model (:func:`models.step_length.default_prior`, never fitted to this person) and no
-        heading-deviation compensation (KF II still runs, its estimate is not applied). Same hand-over and
-        heading as Gait-PDR.
+    config : EngineConfig
+        ``rates.pdr_rate_hz`` is the rate of the low-rate stream; ``pdr_conventional`` the "conventional
+        PDR" of 004 Table 6 (generic step model, no heading deviation), the baseline that shows what the
+        online calibration buys.
     """
 
-    def __init__(self, rate_hz: float, conventional: bool = False) -> None:
-        self.rate_hz = float(rate_hz)
-        self.conventional = bool(conventional)
-        self._low = _LowRate(rate_hz)
-        self._seg = StepSegmenter(rate_hz)
-        self.cal = StepLengthCalibrator()
-        self._generic = StepLengthCalibrator(self.cal.model)  # the generic prior model, never fitted
-        self.kf2 = {b: HeadingDeviationKF() for b in _BEHAVIOURS}
-        self.mag = MagCalibrator()  # the compass in use: this session's own fit, or one loaded from a profile
-        self.mag_anchored = True  # compass in this session's frame (False: loaded from a profile, not re-anchored yet)
-        # clean stances that anchor a loaded compass in this session's frame: [heading (rad), acc (3), mag (3)]
-        self._anchor_rows: list[list[float]] = []
-        self.own_mag: MagCalibrator | None = None  # this session's own fit while a loaded compass is in use
-        self.mag_placed = True  # gate reference checked against this place's field (False: loaded, not yet)
-        self._place: list[tuple[float, float]] = []  # (|m| uT, dip rad) of this session's stances, loaded compass
-        self.follower = CompassFollower()
+    def __init__(self, config: EngineConfig) -> None:
+        self.config = config
+        self.rate_hz = float(config.rates.pdr_rate_hz)
+        self.conventional = bool(config.pdr_conventional)
+        self._low = _LowRate(self.rate_hz)
+        self._seg = self._new_segmenter()
+        self.cal = self._new_calibrator()
+        self._generic = self._new_calibrator()  # the generic prior model, never fitted
+        self.kf2 = {b: self._new_kf2() for b in _BEHAVIOURS}
+        self.mag = self._new_compass()  # this session's own compass fit
+        self.loaded: MagCalibrator | None = None  # a profile's compass, used until the own fit is as good
+        self.in_use = ""  # which compass the estimator's offset refers to: "", "own" or "loaded"
+        self.est = HeadingEstimator(config.heading)
+        # the latest compass reading's variance [rad^2], field anomaly and change [rad] (None: no reading)
+        self.last_reading: tuple[float, float, float] | None = None
+        self._prev_field: tuple[float, float] | None = None  # vertical, horizontal field of that reading [uT]
+        self._fields: list[list[float]] = []  # [vertical, horizontal] field [uT] of this session's stances
         self.dr: GaitDeadReckoner | None = None
         self.queue: list[StepEvent] = []
         self._mag_t = np.zeros(0)
@@ -209,22 +196,40 @@ class GaitPipeline:
         self.stride_peak: dict[int, float] = {}  # largest |specific force| on an axis over each stride [m/s^2]
         self.walk_peaks: list[float] = []  # the same for the latest walking ZUPT-KF strides [m/s^2]
         self._window_end = -math.inf  # last sample time of the previous stance's field window [s]
-        self._cal_last = -1  # index of the last step event whose stance joined a compass calibration
-        self.heading = float("nan")  # last good heading of the sensor x axis [rad]
+        self._cal_last = -1  # index of the last step event whose stance joined the compass calibration
         self.t_in = -math.inf  # newest input sample time [s]
         self.has_mag = False  # the device has sent magnetometer samples in this session
-        self._mag_fit_n = -1  # magnetometer stances at the last calibration fit
+        self._mag_fit_n = -1  # compass stances at the last calibration fit
         self.recent_d: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # last ZUPT-KF strides [m]
         self.recent_scale: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # the same / generic model's
         self.recent_f: dict[str, list[float]] = {b: [] for b in _BEHAVIOURS}  # cadences of measured strides [Hz]
-        self.compass_steps = 0
-        self.held_steps = 0
-        # Gait-DR stances since the absolute compass last led: (onset [s], compass - heading [rad]) (_missed_turn)
-        self._held: list[tuple[float, float]] = []
-        # set by reckon, taken by the engine after every reckon: a turn missed inside a disturbance, (from onset [s],
-        # turn [rad])
-        self.missed_turn: tuple[float, float] | None = None
         self._prev_stance = (-math.inf, math.nan)  # (onset [s], heading [rad]) of the last calibration stance
+        self.step_s = -math.inf  # onset of the latest stride the estimator took [s]
+        self.dominant: float | None = None  # the building's dominant direction in the session frame [rad]
+
+    def _new_kf2(self) -> HeadingDeviationKF:
+        d = self.config.deviation
+        return HeadingDeviationKF(q_rate=d.q_rate, q_dev=d.q_dev, r_obs=d.r_obs_rad, p0_rate=d.p0_rate_rad_s,
+                                  gate_sigma=d.gate_sigma)
+
+    def _new_segmenter(self) -> StepSegmenter:
+        s = self.config.steps
+        return StepSegmenter(self.rate_hz, s.window_s, s.stance_threshold, s.swing_min, s.refractory_frac,
+                             s.min_period_s, s.max_period_s, s.fir_cutoff_hz, s.fir_length_s, s.swing_frac,
+                             s.min_swing_s, s.context_s, s.level_s, s.rel_threshold, s.k_duration, s.duration_cap_s,
+                             s.k_quiet, s.period_min_s, s.period_max_s, s.default_period_s, s.long_stance_s,
+                             s.max_latency_s)
+
+    def _new_calibrator(self) -> StepLengthCalibrator:
+        s = self.config.step_length
+        return StepLengthCalibrator(s.model, s.band_hz, s.min_pairs, s.height_m, s.sigma_floor_m, s.band_prior_scale,
+                                    s.run_model)
+
+    def _new_compass(self) -> MagCalibrator:
+        c = self.config.compass
+        return MagCalibrator(c.soft_iron, c.min_stances, c.min_heading_spread_rad, c.mag_tol, c.dip_tol_rad,
+                             c.soft_iron_std, c.hard_iron_std_ut, c.vertical_hard_iron_std_ut, c.max_heading_rms_rad,
+                             c.min_swing, c.alignment_std_rad)
 
     # ------------------------------------------------------------------ streams
     def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
@@ -386,240 +391,207 @@ class GaitPipeline:
         self.queue = [q for q in self.queue if q.t_s > t_start_s + PAIR_TOL_S]
         return min(near, key=lambda q: abs(q.t_s - t_start_s)) if near else None
 
-    def learn(self, st: Stance, e: StepEvent, behaviour: str) -> float | None:
-        """Calibration pair: ZUPT-KF stride ``st`` and its step event ``e`` (004 eq. 15, 19, 20, Table 3).
+    # ------------------------------------------------------------------ compass
+    def compass(self) -> MagCalibrator | None:
+        """The compass calibration in use: this session's own fit once it is ready and, against a profile's,
+        trusted and as consistent with the ZUPT-KF (its robust scale within ``_SCALE_TIE`` of the profile's:
+        either scale, from a few tens of stances, is known to ~15 %); else the profile's; None before either."""
+        own, loaded = self.mag, self.loaded
+        if loaded is None or not loaded.ready:
+            return own if own.ready else None
+        if own.ready and (not loaded.trusted or (own.trusted and own.heading_scale <= _SCALE_TIE * loaded.heading_scale)):
+            return own
+        return loaded
 
-        KF II skips strides over which the ZUPT-KF heading turned by more than 10 deg (eq. 20's chord mixes
-        the directions before and after the turn), and observes the others against the heading half-way through
-        the swing (the mean of the stance headings before and after it): the chord lies between them. Against
-        the heading at heel strike, gamma - psi followed the stride's heading change (spread per recording 2.8
-        deg median on gdin; 2.5 deg against the mid-swing heading, lower on 25 of 26 recordings). Measured over
-        whole gdin walks (ZUPT-KF throughout, tests/energy/test_gait_dr.py): 10 of 26 recordings reach the
-        filter's convergence (std < 1 deg), 1 then moves by more than 2 deg (exp23, 3.0 deg; 3.2 against the
-        heel-strike heading), whose legs themselves differ (see that test); without the turn gate 12 converge
-        and 2 move by more (exp23 2.4, exp37 5.6 deg).
+    def _refresh_compass(self) -> None:
+        """Refit the own calibration when its stances grew by a tenth (a quarter once trusted: a fit costs
+        time linear in the stances, so refitting every stance would cost quadratic time), and tell the heading
+        estimator when the compass in use changed: the own fit reads in the session frame (offset 0 to its
+        prior), a profile's in its own session's frame (offset unknown until the next reading)."""
+        n = self.mag.n_added
+        if n >= self._mag_fit_n + max(1, n // (4 if self.mag.ready and self.mag.trusted else 10)):
+            self.mag.refit()
+            self._mag_fit_n = n
+        cal = self.compass()
+        which = "" if cal is None else ("own" if cal is self.mag else "loaded")
+        if which != self.in_use:
+            self.in_use = which
+            self._prev_field = self.last_reading = None
+            if which == "own":
+                self.est.set_offset_prior(0.0, self.config.heading.offset_prior_rad)
+            else:
+                self.est.forget_offset()
 
-        Returns the KF II observation ``gamma - psi`` [rad] of the stride (None when it gave none), so that the
-        engine can test a stored deviation against it (:meth:`energy.engine.Engine`, sensor re-mounted).
+    def _reference_field(self, cal: MagCalibrator) -> tuple[float, float] | None:
+        """Vertical and horizontal magnitude [uT] of the Earth's field a reading is compared with: the own
+        fit's m_n (fitted here), or for a profile's compass the median of this session's stance fields (it
+        was fitted at another place)."""
+        if cal is self.mag:
+            norm, dip = cal.field_reference()
+            return norm * math.sin(dip), norm * math.cos(dip)
+        if len(self._fields) < 3:
+            return None
+        a = np.asarray(self._fields)
+        return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
+
+    def compass_reading(self, e: StepEvent) -> tuple[float, float, float, float] | None:
+        """At the stance of ``e``: compass heading [rad], its variance [rad^2] without the place term, and the
+        heading [rad] the field's anomaly against the Earth's and its change since the last reading could cause
+        (:class:`models.heading.CompassNoise`); None without a calibrated compass or a field there."""
+        cal = self.compass()
+        m = self.mag_at(e)
+        if cal is None or m is None:
+            return None
+        acc = self.acc_at(e)
+        norm, dip = cal.field_shape(acc, m)
+        b_v, b_h = norm * math.sin(dip), norm * math.cos(dip)
+        if cal is self.loaded:
+            self._fields = (self._fields + [[b_v, b_h]])[-_REF_STANCES:]
+            if cal.session_on and not cal.disturbed(acc, m):
+                cal.observe_dip(acc, m)  # this power-on's accelerometer tilt offset (MagCalibrator.observe_dip)
+        ref = self._reference_field(cal)
+        if ref is None:
+            return None
+        prev, self._prev_field = self._prev_field, (b_v, b_h)
+        anomaly = CompassNoise.field_sigma(b_v, b_h, *ref)
+        change = anomaly if prev is None else CompassNoise.field_sigma(b_v, b_h, *prev)
+        s_cal = next((s for s in (cal.heading_scale, cal.heading_rms) if math.isfinite(s)), cal.max_heading_rms)
+        return cal.heading(acc, m), self.est.noise.reading_variance(s_cal), anomaly, change
+
+    # ------------------------------------------------------------------ heading
+    def start_frame(self, heading: float) -> None:
+        """The session's first ZUPT-KF stance: its heading [rad] defines the navigation frame."""
+        self.est.start(heading)
+
+    def track(self, e: StepEvent | None, delta: float, unseen: float) -> float:
+        """One stride through the heading estimator: the gyroscope saw the heading change ``delta`` [rad]
+        over all but ``unseen`` (0..1) of it; then the stance compass of ``e`` and, without the gyroscope, the
+        building's dominant directions. Returns the heading [rad]."""
+        est = self.est
+        self._refresh_compass()
+        reading = self.compass_reading(e) if e is not None and self.has_mag else None
+        change = 0.0 if reading is None else reading[3]
+        if unseen <= 0.0:
+            est.predict_gyro(delta, change)
+        else:
+            est.predict_free(delta, unseen, change)
+        if reading is not None:
+            self.last_reading = reading[1:]
+        if reading is not None:
+            est.update_compass(reading[0], reading[1], reading[2], learn=unseen <= 0.0)
+        h = self.config.heading
+        if unseen > 0.0 and self.dominant is not None and h.dominant_on:
+            est.update_dominant(self.dominant, h.straight_sigma_rad, self.config.zupt.dom_delta)
+        if e is not None:
+            self.step_s = e.t_s
+        return est.heading
+
+    def magnetic_north(self) -> tuple[float, float] | None:
+        """Azimuth [rad] of magnetic north in the session frame and its standard deviation [rad]: the horizontal
+        direction of the compass's fitted field, less the compass's frame offset the heading estimator holds;
+        None before a compass has read."""
+        cal = self.compass()
+        if cal is None or not self.est.offset_known:
+            return None
+        x, p = self.est.combined()
+        az = math.atan2(float(cal.m_n[1]), float(cal.m_n[0]))
+        return wrap_angle(az - float(x[1])), math.sqrt(max(float(p[1, 1]), 0.0))
+
+    def forecast_drift_pct(self, behaviour: str) -> float:
+        """Cross-track drift [% of distance] over the next 100 m if the gyroscope went off now.
+
+        Infinite without a calibrated compass (no magnetometer, or its fit not ready): nothing would observe the
+        heading. Otherwise from the heading estimator's forecast one gyroscope-off stride ahead (with a compass
+        reading as noisy as the latest): a persistent heading error ``s_p`` (the compass's offsets, KF II's
+        deviation, 004 eq. 16) moves the path aside by ``100 s_p`` metres per 100 m; an error ``s_w`` that
+        changes from stride to stride (the compass's own noise) by ``s_w sqrt(100 L)`` (a random walk of
+        ``100 / L`` strides of length ``L``: the latest ZUPT-KF strides' median, 1.4 m before there is one).
+        """
+        if not self.est.started or self.last_reading is None or self.compass() is None:
+            return math.inf
+        kf = self.kf2[model_behaviour(behaviour)]
+        dev_var = kf.variance if kf.n_updates else math.pi**2
+        total, persistent = self.est.forecast(*self.last_reading)
+        white = max(total**2 - persistent**2, 0.0)
+        recent = self.recent_d[model_behaviour(behaviour)]
+        stride = max(float(np.median(recent)), 0.5) if recent else 1.4
+        return 100.0 * math.sqrt(persistent**2 + dev_var + white * stride / 100.0)
+
+    # ------------------------------------------------------------------ calibration
+    def learn(self, st: Stance, e: StepEvent, behaviour: str, step_model: bool = True) -> float | None:
+        """Calibration pair: ZUPT-KF stride ``st`` (session frame) and its step event ``e`` (004 eq. 15, 19, 20,
+        Table 3), and the stance for this session's compass fit.
+
+        KF II skips strides over which the ZUPT-KF heading turned by more than ``turn_gate_rad`` (eq. 20's chord
+        mixes the directions before and after the turn) and observes the others against the heading half-way
+        through the swing (the chord lies between the stance headings before and after it).
+
+        ``step_model``: the stride joins the step-length calibration (an initialisation's or an examination's:
+        004 calibrates in the initialisation; the strides the gyroscope runs for the heading alone, in disturbed
+        fields and their odd gaits, stay out). Returns the KF II observation ``gamma - psi`` [rad] of the stride
+        (None when it gave none), so that the engine can test a stored deviation against it (sensor re-mounted).
         """
         m = self.mag_at(e)
         if m is not None:
             acc_st = self.acc_at(e)
-            if self.mag.ready and not self.mag_placed:
-                self._check_place(acc_st, m)
-            clean = self.mag.ready and not self.mag.disturbed(acc_st, m)
-            if clean and self.mag_placed and self._observe_dip(acc_st, m):
-                self._reanchor()
-            if self.mag.ready and not self.mag_anchored and clean:
-                self._anchor_compass(float(st.heading), acc_st, m)
-            # the swing before this stance joins with it when the previous stance joined too (its field is then
-            # the Earth's at both ends, as far as the gate can tell)
-            swing = self.stance_swing.get(e.index) if self._cal_last == e.index - 1 else None
-            if self.own_mag is not None:
-                # a loaded compass is not refitted with this session's stances (its stances' headings are in the
-                # frame of the session that fitted them, and its field may be another place's): they go to this
-                # session's own fit, which supersedes it once ready (_fit_compass)
-                self.own_mag.add(acc_st, m, float(st.heading), swing)
-                self._cal_last = e.index
-            elif not self.mag.trusted or (clean and self._settled(self.mag.field_shape(acc_st, m))):
-                # once the compass is trusted, only stances whose field is the Earth's (settled: magnitude and dip
-                # within their noise, tighter than the disturbance gate) join: a steel edge that passed the gate
-                # pulls m_n and the hard iron (and the compass's agreement measure) towards the steel (synthetic
-                # mixed day, seeds 16 and 18: |m_n| 7.7 and 8.5 % low, hard iron 4.9 and 6.1 uT, against at most
-                # 1.9 % and 1.7 uT on the other 30 days; all within that with this test). An untrusted calibration
-                # (indoors) cannot tell; it keeps averaging every stance.
+            # once trusted, only stances whose field is settled on its reference join (steel edges that pass the
+            # disturbance gate pull m_n and the hard iron towards the steel); an untrusted calibration (indoors)
+            # cannot tell and averages every stance. The swing before a stance joins when the stance before did.
+            cc = self.config.compass
+            if not (self.mag.ready and self.mag.trusted) or self.mag.settled(
+                    *self.mag.field_shape(acc_st, m), cc.settled_mag_tol, cc.settled_dip_tol_rad):
+                swing = self.stance_swing.get(e.index) if self._cal_last == e.index - 1 else None
                 self.mag.add(acc_st, m, float(st.heading), swing)
                 self._cal_last = e.index
-            if self.mag.ready:
-                # a trusted compass's change between the segment's stances is tested against the gyroscope's
-                # (CompassFollower.observe: a disturbance the gate let through turns the compass, not the foot)
-                sigma = self._compass_sigma() if self.mag.trusted else math.nan
-                self.follower.observe(self.mag.heading(acc_st, m), clean, *self.mag.field_shape(acc_st, m),
-                                      psi=float(st.heading), sigma=sigma)
+            self._refresh_compass()
         prev, self._prev_stance = self._prev_stance, (float(st.t_start_s), float(st.heading))
-        if behaviour not in _BEHAVIOURS or st.step_length < _MIN_CAL_STEP_M or e.after_rest:
+        sl = self.config.step_length
+        if behaviour not in _BEHAVIOURS or st.step_length < sl.min_stride_m or e.after_rest:
             return None
         features = self.features(e, behaviour)
-        self.cal.add(behaviour, features, st.step_length)
+        if step_model:
+            self.cal.add(behaviour, features, st.step_length)
         self._note_cadence(e, behaviour)
         peak = self.stride_peak.get(e.index)
         if behaviour == "walk" and peak is not None and math.isfinite(peak):
             self.walk_peaks = (self.walk_peaks + [peak])[-_PEAK_STRIDES:]
-        self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-_RECENT_STEPS:]
+        self.recent_d[behaviour] = (self.recent_d[behaviour] + [st.step_length])[-sl.recent_strides:]
         generic = self._generic.predict(behaviour, features)[0]
         if generic > 0.0:
-            self.recent_scale[behaviour] = (self.recent_scale[behaviour] + [st.step_length / generic])[-_RECENT_STEPS:]
+            self.recent_scale[behaviour] = (self.recent_scale[behaviour] + [st.step_length / generic])[-sl.recent_strides:]
         gamma = gamma_from_increment(float(st.delta[0]), float(st.delta[1]))  # 004 eq. (20)
         psi = float(st.heading)
         if math.isfinite(prev[0]) and st.t_start_s - prev[0] <= 2.0 * e.period_s:
             turned = wrap_angle(psi - prev[1])
-            if abs(turned) > _KF2_TURN_RAD:
+            if abs(turned) > self.config.deviation.turn_gate_rad:
                 return None  # a turning stride: eq. (20) mixes two walking directions
             psi -= 0.5 * turned  # the heading half-way through the swing, whose chord eq. (20) measures
         z = wrap_angle(gamma - psi)
         self.kf2[behaviour].update(z, dt=e.period_s)  # 004 eq. (19)
         return z
 
-    def _observe_dip(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> bool:
-        """A loaded compass's tilt offset in this session (:meth:`~models.compass.MagCalibrator.observe_dip`) from
-        a stance whose field is the Earth's as far as its magnitude and dip tell
-        (:meth:`~models.compass.MagCalibrator.settled`), not merely within the disturbance gate: the edges of steel
-        that passed the gate moved the fitted tilt offset by 1.1 deg and the compass by 5 deg at one heading for
-        100 s (synthetic mixed day, returning seed 8: mean error 4.39 -> 2.51 m with this test). True when the
-        offset was refitted."""
-        if not self.mag.session_on:
-            return False
-        return self._settled(self.mag.field_shape(acc_stance, mag_stance)) and self.mag.observe_dip(acc_stance,
-                                                                                                    mag_stance)
-
-    def _settled(self, shape: tuple[float, float]) -> bool:
-        """The field's magnitude [uT] and dip [rad] (:meth:`~models.compass.MagCalibrator.field_shape`) are the
-        Earth's within the tolerances by which the compass may lead (:class:`~models.compass.CompassFollower`)."""
-        return self.mag.settled(*shape, self.follower.lead_mag_tol, self.follower.rot_dip_tol)
-
-    def _anchor_compass(self, heading: float, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
-        """Turn a compass calibration loaded from a profile into this session's navigation frame.
-
-        The stored field m_n is expressed in the frame of the session that fitted it, whose heading 0 was the
-        sensor's x axis at that session's first stance; this session's frame began wherever the foot pointed
-        this time. The hard/soft iron belongs to the sensor and is kept; the field's azimuth is re-found from
-        this session's first ``_ANCHOR_STANCES`` clean stances (``heading`` [rad], this session's) by
-        :meth:`_reanchor`, and found again whenever the compass's tilt offset for this session is refitted.
-        """
-        self._anchor_rows.append([float(heading), *np.asarray(acc_stance, dtype=float).reshape(3).tolist(),
-                                  *np.asarray(mag_stance, dtype=float).reshape(3).tolist()])
-        if len(self._anchor_rows) >= _ANCHOR_STANCES:
-            self.mag_anchored = True
-            self._reanchor()
-
-    def _reanchor(self) -> None:
-        """Turn the loaded compass's frame by the circular mean of (this session's heading - compass) over the
-        anchor stances. Found once, it was in error by the tilt offset's heading error (``tan(dip)`` times the
-        change of the accelerometer's offset between the two power-ons, which differs by heading): on the
-        mixed day's returning users (seeds 2, 10, 12, 15, 18, 21) the compass was then 1.4-3.6 deg off (median
-        over the day's Gait-DR stances). The anchor stances are therefore read again with the compass whenever
-        :meth:`MagCalibrator.observe_dip` refits its tilt offset, and the frame is turned whatever the size of
-        the offset (the synthetic returning days start facing their earlier day's way, so the offsets found once
-        had been left unapplied under the compass's 5-deg accuracy: 2.44 / 2.23 m mean error, seeds 0-15 /
-        16-31; applied once, 3.16 / 2.64 m; read again, 2.06 / 1.98 m)."""
-        if not (self.mag_anchored and self._anchor_rows):
-            return
-        a = np.asarray(self._anchor_rows, dtype=float)
-        off = [wrap_angle(r[0] - self.mag.heading(r[1:4], r[4:7])) for r in a]
-        delta = math.atan2(float(np.mean(np.sin(off))), float(np.mean(np.cos(off))))
-        self.mag.rotate_frame(delta)
-
-    def _check_place(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> None:
-        """Test a loaded compass's field against this place's: the median magnitude [uT] and dip [rad] of its
-        calibrated field over this session's first ``_ANCHOR_STANCES`` stances. When that median fails the
-        loaded compass's own disturbance gate, the compass was fitted where the field differs (another
-        building; on gdin a profile session's compass fitted in 84 stances): its gate is moved to this place's
-        field (:meth:`~models.compass.MagCalibrator.relocate`) so that the stances here can re-anchor it, rather
-        than every stance counting as disturbed and the heading being held for the whole session."""
-        self._place.append(self.mag.field_shape(acc_stance, mag_stance))
-        if len(self._place) >= _ANCHOR_STANCES:
-            a = np.asarray(self._place)
-            norm, dip = float(np.median(a[:, 0])), float(np.median(a[:, 1]))
-            if self.mag.shape_disturbed(norm, dip):
-                self.mag.relocate(norm, dip)
-            self.mag_placed = True
-            self._place = []
-
-    def _adopt_own(self) -> None:
-        """This session's own compass fit is ready (and trusted, or the loaded one is not): it supersedes the
-        loaded one (same frame once anchored, and this place's field and this mount's hard iron)."""
-        assert self.own_mag is not None
-        own, self.own_mag = self.own_mag, None
-        self._use_compass(own, loaded=False)
-        self.follower.forget()  # the compass changed: no stance-to-stance change across the two
-        self.follower.clean_run = 0  # nor a clean run counted by the other calibration's gate
-
-    def _use_compass(self, cal: MagCalibrator, loaded: bool) -> None:
-        """Make ``cal`` the compass in use; a ``loaded`` one (from a profile) still has to be checked against
-        this place's field and re-anchored to this session's frame."""
-        self.mag = cal
-        self.mag_anchored = self.mag_placed = not loaded
-        self._anchor_rows, self._place = [], []
-
     def ready(self, behaviour: str) -> bool:
-        """Enough calibration steps, and a calibrated compass when a magnetometer is there.
-
-        With a magnetometer the hand-over waits until the stances span enough headings for the
-        hard-iron fit (otherwise Gait-DR would have to hold one heading through every turn).
-        """
-        if self.cal.n_pairs(model_behaviour(behaviour)) < self.cal.min_pairs:
-            return False
-        return self.compass_ready()
-
-    def compass_ready(self) -> bool:
-        """True without a magnetometer, or once its hard-iron calibration is fitted."""
-        return self._fit_compass() if self.has_mag else True
-
-    def _fit_compass(self) -> bool:
-        """Refit the magnetometer calibration when the stances grew by a tenth since the last fit, by a quarter
-        once it is trusted.
-
-        A fit costs time linear in the stances, so refitting at every stance would cost quadratic time over a
-        session; growth by a fraction keeps the total linear. A trusted fit is only replaced by a trusted refit
-        (:meth:`models.compass.MagCalibrator.refit`) and changes little with a tenth more stances; its joint
-        stance/swing refits (4-9 ms each) were a third of the scheduler's computation of a synthetic mixed day
-        at a tenth (seed 0: 18 fits, 93 ms).
-        """
-        cal = self.mag if self.own_mag is None else self.own_mag
-        n = cal.n_added
-        if n >= self._mag_fit_n + max(1, n // (4 if cal.ready and cal.trusted else 10)):
-            was_trusted = cal.ready and cal.trusted
-            cal.refit()
-            self._mag_fit_n = n
-            if cal is self.mag and cal.trusted and not was_trusted:
-                self.follower.forget()  # readings of the untrusted fit are no previous compass of this one
-        own = self.own_mag
-        if own is not None and own.ready and (
-                not self.mag.trusted or (own.trusted and own.heading_scale <= self.mag.heading_scale)):
-            # a trusted loaded compass stays until the own fit is trusted too and agrees with the ZUPT-KF at least as
-            # well: an early own fit, from the few stances of a returning user's examinations, is often not trusted
-            # (auto would then keep the gyroscope on), or noisier (returning seed 26: 3.8 deg from 15 stances, some
-            # running; the compass was 8-10 deg off through the run that followed)
-            self._adopt_own()
-        return self.mag.ready
-
-    def heading_source(self) -> bool:
-        """Gait-DR can follow turns with the gyroscope off: a magnetometer with a fitted calibration that agrees
-        with the ZUPT-KF heading (:attr:`models.compass.MagCalibrator.trusted`)."""
-        return self.has_mag and self.compass_ready() and self.mag.trusted
+        """Enough calibration strides for the behaviour's step model."""
+        return self.cal.n_pairs(model_behaviour(behaviour)) >= self.cal.min_pairs
 
     def fit(self, behaviour: str) -> dict:
-        self._fit_compass()
         return self.cal.fit(model_behaviour(behaviour))
 
     def calibration_state(self) -> dict[str, Any]:
-        """What a profile keeps of this session's step-length calibration (opaque ``step_model`` of the
-        profile). The compass is the sensor's, not the behaviour's: :meth:`energy.engine.Engine.profile_dict`
-        adds the one in use when the profile is handed out (:meth:`compass_state`), so the engine state does
-        not carry a copy of it per calibrated behaviour (10.7 of 42.6 kB after a stand of one minute)."""
+        """What a profile keeps of this session's step-length calibration (opaque ``step_model``); the compass
+        is the sensor's and joins when the profile is handed out (:meth:`compass_state`)."""
         return {"calibrator": self.cal.get_state()}
 
-    def compass_state(self) -> dict[str, Any]:
-        """The compass calibration to hand on in a profile: the one in use, fitted on every stance it holds.
-
-        The compass in use is refitted only when its stances have grown by a tenth (:meth:`_fit_compass`), so its
-        last fit can leave out the latest stances; a copy is refitted here, so what the engine does in this
-        session does not depend on when a profile is asked for. A compass loaded from a profile is handed on as
-        it came (this session's stances are in its own fit)."""
-        if self.own_mag is not None or not self.mag.ready or self.mag.n_added <= self._mag_fit_n:
-            return self.mag.get_state()
-        cal = MagCalibrator.from_state(self.mag.get_state())
-        cal.refit()  # never an untrusted one where the one in use is trusted
-        if self.mag.trusted:
-            # nor one the latest stances pulled off the stances of the fit in use: three stances 21-30 deg off the
-            # ZUPT-KF heading (a later segment restarted from a held heading) put a refit's hard iron 4.5 uT off
-            # (synthetic mixed day seed 1023: 1.10 deg in use, 2.31 refitted on the 57 stances of the fit in use;
-            # 0.56-1.83 times on the other 31 days), and the next day's compass was 0-5 deg off by heading (seed
-            # 23, returning: mean error 9.2 m)
-            used = self.mag.heading_scale_on(0, self._mag_fit_n)
-            refit = cal.heading_scale_on(0, self._mag_fit_n)
-            if refit > max(_HANDON_WORSE * used, used + _HANDON_SLACK_RAD):
-                return self.mag.get_state()
+    def compass_state(self) -> dict[str, Any] | None:
+        """The compass calibration to hand on in a profile: the one in use (the own fit refitted on every
+        stance it holds, unless that makes it untrusted), None before there is one."""
+        cal = self.compass()
+        if cal is None:
+            return None
+        if cal is self.mag and self.mag.n_added > self._mag_fit_n:
+            fresh = MagCalibrator.from_state(self.mag.get_state())
+            fresh.refit()
+            return fresh.get_state()
         return cal.get_state()
 
     def _note_cadence(self, e: StepEvent, behaviour: str) -> None:
@@ -629,74 +601,53 @@ class GaitPipeline:
             self.recent_f[b] = (self.recent_f[b] + [float(e.f_s)])[-_RECENT_CADENCES:]
 
     def features(self, e: StepEvent, behaviour: str) -> StepFeatures:
-        """Step-model features of ``e`` as a stride of ``behaviour`` (004 eq. 15).
-
-        A stride after a short pause or a rest has no period of its own: the segmentation gives it the running
-        estimate (the pace before the pause) or a nominal one (its swing plus a nominal stance). Where the pause
-        parted two behaviours that pace is the other one's (the first walking stride after a run and a 1.2-s stop
-        took the run's 1.35 Hz, and the walking model placed it 1.98 m for 1.37 m: synthetic mixed day, seed 0,
-        246 s); the nominal period after a rest was 1.21 Hz for a 0.87-Hz walk (the same day, 336 s: 1.63 m for
-        1.35 m). Such a stride takes the median cadence of its own behaviour's latest measured strides instead.
-        """
+        """Step-model features of ``e`` as a stride of ``behaviour`` (004 eq. 15): a stride after a short pause or
+        a rest has no period of its own (the segmentation gives it the pace before the pause or a nominal one)
+        and takes the median cadence of its own behaviour's latest measured strides."""
         b = model_behaviour(behaviour)
         if (e.paused or e.after_rest) and self.recent_f[b]:
             return StepFeatures(float(np.median(self.recent_f[b])), e.acc_mean, e.acc_max, e.acc_min)
         return _features(e)
 
     def step_length(self, e: StepEvent, behaviour: str) -> tuple[float, float]:
-        """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15).
-
-        Before the behaviour's model is fitted, the median of the latest ZUPT-KF strides stands in for it
-        (a person's stride is far better known from their own last strides than from a generic prior).
-        """
+        """Model step length [m] and its sigma_d [m] for a step event (004 eq. 15). Before the behaviour's model
+        is fitted, the generic model at this person's scale (median ratio of the latest ZUPT-KF strides to it)
+        stands in for it."""
         b = model_behaviour(behaviour)
         f = self.features(e, b)
         if self.conventional:
             return self._generic.predict(b, f)  # generic model (never fitted)
         if not self.cal.calibrated(b) and self.recent_scale[b]:
-            # the generic model's cadence dependence at this person's scale (median ratio of the latest ZUPT-KF
-            # strides to it): a walk that speeds up before its model is fitted gets longer strides
             return self._generic.predict(b, f)[0] * float(np.median(self.recent_scale[b])), float("nan")
         if not self.cal.calibrated(b) and self.recent_d[b]:
             return float(np.median(self.recent_d[b])), float("nan")
         return self.cal.predict(b, f)
 
-    def deviation(self, behaviour: str) -> float:
-        """Heading deviation [rad] Gait-DR applies to a behaviour's steps (004 eq. 16).
-
-        The deviation is mostly the sensor-to-foot mount, plus gait: a behaviour without an estimate of its own
-        (no KF II update, e.g. ``run`` steps in a walk before a run was calibrated) borrows the one with the most
-        updates instead of 0 (gdin leave-one-out exp35: run-labelled steps placed 180 deg off).
-        """
+    def deviation_kf(self, behaviour: str) -> HeadingDeviationKF:
+        """KF II serving a behaviour's steps: its own, or the best-estimated one where it has no update (the
+        deviation is mostly the sensor-to-foot mount)."""
         kf = self.kf2[model_behaviour(behaviour)]
-        if kf.n_updates == 0:
-            kf = max(self.kf2.values(), key=lambda k: k.n_updates)
-        return kf.deviation
+        return kf if kf.n_updates else max(self.kf2.values(), key=lambda k: k.n_updates)
 
     def forget_mount(self, behaviours: list[str]) -> None:
         """The sensor was re-mounted (a stored heading deviation failed its test): drop the KF II estimates of
-        ``behaviours`` (loaded from the profile) and the compass calibration (the hard/soft iron includes the
-        shoe the sensor sat on); both are learned again from this session's ZUPT-KF strides."""
+        ``behaviours`` and the profile's compass (its hard/soft iron includes the shoe)."""
         for b in behaviours:
-            self.kf2[model_behaviour(b)] = HeadingDeviationKF()
-        self.own_mag = None
-        self._use_compass(MagCalibrator(), loaded=False)
-        self._mag_fit_n = -1
-        self.follower.forget()
+            self.kf2[model_behaviour(b)] = self._new_kf2()
+        self.loaded = None
+        self._refresh_compass()
 
     def run_wake_threshold(self) -> float | None:
-        """High-g threshold [m/s^2] per axis above this person's walking (``RUN_WAKE_MARGIN`` times the largest
-        absolute specific force on an axis of their latest walking ZUPT-KF strides): a device asked to wake the
-        gyroscope on it does so on the first strides of a run, before the host has recognised one. None until
-        enough walking strides were seen."""
+        """High-g threshold [m/s^2] per axis above this person's walking (``run_wake_margin`` times the largest
+        absolute specific force on an axis of their latest walking ZUPT-KF strides); None until enough."""
         if len(self.walk_peaks) < _PEAK_MIN_STRIDES:
             return None
-        return RUN_WAKE_MARGIN * max(self.walk_peaks)
+        return self.config.scheduler.run_wake_margin * max(self.walk_peaks)
 
     def bootstrapped(self) -> bool:
         """Gait-DR can place a step: some behaviour has a heading deviation (KF II) and a stride estimate."""
-        return any(self.kf2[b].n_updates >= _BOOT_STEPS and (self.recent_d[b] or self.cal.calibrated(b))
-                   for b in _BEHAVIOURS)
+        boot = self.config.deviation.boot_updates
+        return any(self.kf2[b].n_updates >= boot and (self.recent_d[b] or self.cal.calibrated(b)) for b in _BEHAVIOURS)
 
     def load_calibration(self, behaviour: str, step_model: dict[str, Any], deviation_rad: float,
                          deviation_var: float) -> None:
@@ -712,229 +663,71 @@ class GaitPipeline:
             if stored.get("form") != FORM or stored.get("run_model", "eq15_run") != self.cal.run_model:
                 self.cal.refit_stale()  # a profile fitted with other regressors than this session's
         compass = step_model.get("compass")
-        if isinstance(compass, dict) and not self.mag.ready:
-            loaded = MagCalibrator.from_state(compass)  # the same sensor's hard-iron calibration
+        if isinstance(compass, dict) and self.loaded is None:
+            loaded = MagCalibrator.from_state(compass)  # the same sensor's hard/soft-iron calibration
             if loaded.ready:
-                # used until this session's own fit is ready (_fit_compass), once re-anchored to this session's
-                # frame (its field azimuth is in the earlier session's) and its gate checked against this place
-                self.own_mag = self.mag if self.own_mag is None else self.own_mag
-                if self.own_mag.n_swing == 0:
-                    # the swings' field magnitudes tell the sensor's hard and soft iron whatever the session's frame,
-                    # place or tilt offset: this session's own fit starts with them (its stances are its own)
-                    self.own_mag.add_swing(np.asarray(loaded.swing_samples()))
+                if self.mag.n_swing == 0:
+                    # the swings' field magnitudes tell the sensor's hard and soft iron whatever the session's
+                    # frame or place: this session's own fit starts with them (its stances are its own)
+                    self.mag.add_swing(np.asarray(loaded.swing_samples()))
                 loaded.start_session()  # its axis alignment holds another power-on's accelerometer tilt offset
-                self._use_compass(loaded, loaded=True)
+                self.loaded = loaded
         kf = self.kf2[b]
         if math.isfinite(deviation_rad) and math.isfinite(deviation_var) and deviation_var > 0:
             kf.x = np.array([0.0, wrap_angle(float(deviation_rad))])
             kf.p = np.diag([kf.p0_rate**2, float(deviation_var)])
-            kf.n_updates = max(kf.n_updates, _BOOT_STEPS)
+            kf.n_updates = max(kf.n_updates, self.config.deviation.boot_updates)
 
     # ------------------------------------------------------------------ dead reckoning
     @property
     def active(self) -> bool:
         return self.dr is not None
 
-    def start(self, position: np.ndarray, heading: float) -> None:
-        """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m], sensor heading [rad]."""
+    def start(self, position: np.ndarray) -> None:
+        """(Re)start Gait-DR at a ZUPT-KF stance: NED position [m]."""
         self.dr = GaitDeadReckoner(position, compensate=not self.conventional)
-        self.heading = float(heading)
-        self.follower.restart(self._h_ref() if self.mag.ready else math.nan)  # turns are counted from here on
-        self._held = []  # a missed turn is looked for within one Gait-DR run
 
-    def reckon(self, before_s: float, label_at: Callable[[float], str],
-               weak_h: float = 0.0) -> list[tuple[PdrStep, StepEvent, str]]:
-        """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active).
-        ``weak_h``: a disturbed stance field whose horizontal part is below this fraction of the Earth's turns
-        nothing (:meth:`models.compass.CompassFollower.step`'s ``weak``).
-
-        Returns ``(step, event, heading source)`` with source ``"compass"`` (the field passed the disturbance
-        test), ``"disturbed"`` (it failed) or ``"none"`` (no calibrated field in this session's frame at that
-        stance: the last heading is held). How the compass moves the heading:
-        :meth:`models.compass.CompassFollower.step`.
-        """
-        out: list[tuple[PdrStep, StepEvent, str]] = []
+    def reckon(self, before_s: float, label_at: Callable[[float], str]) -> list[tuple[PdrStep, StepEvent, float]]:
+        """Dead-reckon the queued step events with onset before ``before_s`` [s] (dropped when not active): each
+        stride goes through the heading estimator without the gyroscope, then :meth:`place`. Returns each
+        step with its event and the drift forecast right after it (:meth:`forecast_drift_pct`)."""
+        out: list[tuple[PdrStep, StepEvent, float]] = []
         todo = [e for e in self.queue if e.t_s < before_s]
         self.queue = [e for e in self.queue if e.t_s >= before_s]
         if self.dr is None:
             return out
         for e in todo:
-            b = model_behaviour(label_at(e.t_s))
-            d, _ = self.step_length(e, b)
-            self._note_cadence(e, b)
-            m = self.mag_at(e)
-            acc_st = self.acc_at(e)
-            source = "none"
-            if m is not None and self.mag.ready:
-                if not self.mag_placed:
-                    self._check_place(acc_st, m)
-                clean = not self.mag.disturbed(acc_st, m)
-                if clean and self.mag_placed and self._observe_dip(acc_st, m):
-                    self._reanchor()
-                if not self.mag_anchored and clean:
-                    self._anchor_compass(self.heading, acc_st, m)
-                if self.mag_anchored:
-                    source = "compass" if clean else "disturbed"
-            direction = before = self.heading
-            if source == "none":
-                self.held_steps += 1  # no calibrated field in this session's frame: hold the last heading
-                self.follower.forget()
-                self._held = []
-            else:
-                shape = self.mag.field_shape(acc_st, m)
-                compass = self.mag.heading(acc_st, m)
-                led = self.follower.established
-                self.heading = self.follower.step(self.heading, compass, source == "compass",
-                                                  *shape, self.mag.trusted, self._compass_sigma(),
-                                                  self._settled(shape), self._h_ref(), self._weak(shape, weak_h))
-                self._missed_turn(e.t_s, compass, before, led)
-                self.compass_steps += 1
-                direction = self.heading
-                if self.mag.trusted:
-                    # a trusted compass's change from stance to stance is the foot turning during the swing:
-                    # the stride's chord lies half-way (the heading KF II's deviation is measured against, learn).
-                    # An untrusted one's change is mostly its own scatter being averaged (gdin --mode pdr with
-                    # the half-way heading there: stride median 1.015 -> 1.082 m)
-                    direction = before + 0.5 * wrap_angle(self.heading - before)
-            out.append((self.dr.step(e.t_s, max(d, 0.0), direction, self.deviation(b), b), e, source))
+            before = self.est.heading
+            self.track(e, 0.0, 1.0)
+            label = label_at(e.t_s)
+            out.append((self.place(e, label, before), e, self.forecast_drift_pct(label)))
         return out
 
-    def _missed_turn(self, t_s: float, compass: float, before: float, led: bool) -> None:
-        """Tell a turn missed inside a disturbance when the absolute compass leads again (:attr:`missed_turn`).
-
-        While the compass does not lead (the follower is not ``established``), the heading is held and turns are
-        taken only from compass changes that look like the foot's; a turn whose strides the field's own drift
-        hid is missed, and the compass takes it whole (beyond ``turn``) at the first stance where it leads
-        again, seconds and metres later. Where that jump is what the compass's disagreement with the heading grew
-        by over the held stretch (within a third of it, at least 10 deg), the turn happened inside it: from the
-        first held stance whose disagreement had grown by half the jump (held-out random day, seed 5, 124-128 s:
-        a 45-deg turn in steel whose dip drifted by 2-5 deg a stride; the compass took it at 140 s, and the walk
-        between stayed 46 deg off). A disagreement that was there when the compass stopped leading (steel
-        already deflecting it) is no turn of this stretch. Kept for a trusted compass only, the first stance and the
-        latest ``_HELD_MAX`` - 1 (the engine keeps the last ``_DR_LOG`` strides to re-place)."""
-        jump = wrap_angle(self.heading - before)
-        held = self._held
-        if self.mag.trusted and not led and self.follower.established and abs(jump) > self.follower.turn and len(held) >= 2:
-            grown = wrap_angle(wrap_angle(compass - before) - held[0][1])
-            if abs(wrap_angle(grown - jump)) <= max(math.radians(10.0), abs(jump) / 3.0):
-                self.missed_turn = next(((t_k, jump) for t_k, nu_k in held
-                                         if wrap_angle(nu_k - held[0][1]) * math.copysign(1.0, jump) >= 0.5 * abs(jump)),
-                                        None)
-        if self.follower.established or not self.mag.trusted:
-            self._held = []
-            return
-        held.append((float(t_s), wrap_angle(compass - self.heading)))
-        if len(held) > _HELD_MAX:  # the first (the reference) and the latest: only those strides can be re-placed
-            del held[1 : len(held) - _HELD_MAX + 1]
-
-    def _h_ref(self) -> float:
-        """Horizontal magnitude [uT] of the field the compass is calibrated to (m_n's)."""
-        norm, dip = self.mag.field_reference()
-        return norm * math.cos(dip)
-
-    def _compass_sigma(self) -> float:
-        """Noise [rad] of one compass reading: the robust scale of its disagreement with the ZUPT-KF on the
-        calibration stances (its RMS, or the trust limit, where that is unknown)."""
-        cal = self.mag
-        for s in (cal.heading_scale, cal.heading_rms, cal.max_heading_rms):
-            if math.isfinite(s):
-                return float(s)
-        return math.nan
-
-    def turn_to(self, t_start_s: float) -> tuple[float, float] | None:
-        """Turn of the foot [rad] by the compass from the last Gait-DR stance to the step event of the stance
-        starting at ``t_start_s`` [s], and its standard deviation [rad]; None where the compass cannot tell.
-
-        Only by :class:`models.compass.CompassFollower`'s rules for letting the absolute compass lead: a
-        trusted calibration in this session's frame, an established clean field before and a clean field at the
-        event (or a disturbed field whose horizontal part is at least ``strong_h`` of the Earth's), and the same
-        field magnitude and dip at both stances (the foot rotated, the field did not; :meth:`CompassFollower.
-        turn_since`). A
-        change, not the absolute compass: inside steel the gated compass erred by up to 45 deg on such stances
-        (synthetic mixed day, seed 4), its change from one stance to the next by under 8 deg. The standard
-        deviation is that of a difference of two readings, each with the compass's RMS disagreement with the
-        ZUPT-KF on its calibration stances.
-        """
-        cal = self.mag
-        if not (cal.ready and cal.trusted and self.mag_anchored):
-            return None
-        near = [q for q in self.queue if abs(q.t_s - t_start_s) <= PAIR_TOL_S]
-        if not near:
-            return None
-        e = min(near, key=lambda q: abs(q.t_s - t_start_s))
-        m = self.mag_at(e)
-        acc = self.acc_at(e)
-        if m is None:
-            return None
-        shape = cal.field_shape(acc, m)
-        clean = self.follower.established and not cal.disturbed(acc, m)
-        # or steel whose horizontal field is strong: a few uT of change turn it by a few degrees (held-out random
-        # day, seed 2, 503 s: 45 of a 90-deg turn made before the gyroscope came were lost in a 46-uT field)
-        if not clean and not self.follower.strong(*shape, self._h_ref()):
-            return None
-        turn = self.follower.turn_since(cal.heading(acc, m), *shape)
-        if turn is None:
-            return None
-        sigma = cal.heading_rms if math.isfinite(cal.heading_rms) else cal.max_heading_rms
-        return turn, math.sqrt(2.0) * sigma
-
-    def earth_compass(self, e: StepEvent) -> float | None:
-        """Heading [rad] a trusted compass reads at a step's stance where its field is the Earth's (passes the
-        gate and is :meth:`_settled`) and steady since the previous stance (the follower's, within its
-        ``steady_tol``: not the edge of a disturbance); None anywhere else or without such a compass in this
-        session's frame."""
-        cal = self.mag
-        if not (self.has_mag and cal.ready and cal.trusted and self.mag_anchored):
-            return None
-        m = self.mag_at(e)
-        if m is None:
-            return None
-        acc = self.acc_at(e)
-        if cal.disturbed(acc, m):
-            return None
-        shape = cal.field_shape(acc, m)
-        prev = self.follower.prev
-        if not self._settled(shape) or prev is None or abs(shape[0] - prev[1]) > self.follower.steady_tol * max(prev[1], 1e-9):
-            return None
-        return cal.heading(acc, m)
-
-    def weak_wake(self, frac: float) -> tuple[float, tuple[float, ...], tuple[float, ...]] | None:
-        """What a device needs to wake its gyroscope itself where the field's horizontal part drops below ``frac``
-        of the Earth's (``SensorConfig.wake_mode == "weak_field"``): the threshold [uT] and the trusted compass's
-        calibration, hard-iron offset b [uT] and soft-iron matrix W (row-major; calibrated field = W (m - b));
-        None without a trusted compass or with ``frac`` 0."""
-        cal = self.mag
-        if not (frac > 0 and self.has_mag and cal.ready and cal.trusted):
-            return None
-        return (frac * self._h_ref(), tuple(cal.b.tolist()), tuple(np.asarray(cal.w).reshape(9).tolist()))
-
-    def field_weak(self, e: StepEvent, frac: float) -> bool:
-        """The horizontal part of the field at a step's stance is below ``frac`` of the Earth's (m_n's, the
-        compass's reference): False without a trusted compass anchored in this session's frame."""
-        m = self.mag_at(e)
-        if m is None or not self.mag.ready or not self.mag.trusted or not self.mag_anchored:
-            return False
-        return self._weak(self.mag.field_shape(self.acc_at(e), m), frac)
-
-    def _weak(self, shape: tuple[float, float], frac: float) -> bool:
-        """A field of magnitude [uT] and dip [rad] ``shape`` whose horizontal part is below ``frac`` of m_n's."""
-        return shape[0] * math.cos(shape[1]) < frac * self._h_ref()
-
-    def field_clean(self, e: StepEvent) -> bool:
-        """The field at a step's stance passes the disturbance test (False without a calibrated compass)."""
-        m = self.mag_at(e)
-        return m is not None and self.mag.ready and not self.mag.disturbed(self.acc_at(e), m)
+    def place(self, e: StepEvent, label: str, before: float) -> PdrStep:
+        """Place the stride ending at ``e`` whose heading estimate went from ``before`` [rad] to the estimator's
+        current one: along their chord plus the gait deviation (004 eq. 16), the step model's length (004
+        eq. 15, 14)."""
+        assert self.dr is not None
+        b = model_behaviour(label)
+        d, _ = self.step_length(e, b)
+        self._note_cadence(e, b)
+        chord = before + 0.5 * wrap_angle(self.est.heading - before)
+        return self.dr.step(e.t_s, max(d, 0.0), chord, self.deviation_kf(b).deviation, b)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
         return {
-            "rate_hz": self.rate_hz,
-            "conventional": self.conventional,
             "low": self._low.get_state(),
             "seg": self._seg.get_state(),
             "cal": self.cal.get_state(),
             "kf2": {b: k.get_state() for b, k in self.kf2.items()},
             "mag": self.mag.get_state(),
+            "loaded": None if self.loaded is None else self.loaded.get_state(),
+            "in_use": self.in_use,
+            "est": self.est.get_state(),
+            "last_reading": None if self.last_reading is None else list(self.last_reading),
+            "prev_field": None if self._prev_field is None else list(self._prev_field),
+            "fields": [list(r) for r in self._fields],
             "dr": None if self.dr is None else self.dr.get_state(),
             "queue": [e.to_row() for e in self.queue],
             "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
@@ -942,61 +735,49 @@ class GaitPipeline:
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
             "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
             "stride_peak": [[k, v] for k, v in self.stride_peak.items()], "walk_peaks": list(self.walk_peaks),
-            "window_end": self._window_end, "cal_last": self._cal_last,
-            "heading": self.heading, "t_in": self.t_in, "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag, "recent_d": {b: list(v) for b, v in self.recent_d.items()},
+            "window_end": self._window_end, "cal_last": self._cal_last, "t_in": self.t_in,
+            "mag_fit_n": self._mag_fit_n, "has_mag": self.has_mag,
+            "recent_d": {b: list(v) for b, v in self.recent_d.items()},
             "recent_scale": {b: list(v) for b, v in self.recent_scale.items()},
             "recent_f": {b: list(v) for b, v in self.recent_f.items()},
-            "compass_steps": self.compass_steps, "held_steps": self.held_steps,
-            "held": [list(h) for h in self._held],
-            "prev_stance": list(self._prev_stance),
-            "mag_anchored": self.mag_anchored, "anchor_rows": [list(r) for r in self._anchor_rows],
-            "follower": self.follower.get_state(),
-            "own_mag": None if self.own_mag is None else self.own_mag.get_state(),
-            "mag_placed": self.mag_placed, "place": [list(p) for p in self._place],
+            "prev_stance": list(self._prev_stance), "step_s": self.step_s, "dominant": self.dominant,
         }
 
     @classmethod
-    def from_state(cls, d: dict[str, Any]) -> GaitPipeline:
-        obj = cls(d["rate_hz"], bool(d.get("conventional", False)))
+    def from_state(cls, config: EngineConfig, d: dict[str, Any]) -> GaitPipeline:
+        obj = cls(config)
         obj._low = _LowRate.from_state(d["low"])
         obj._seg = StepSegmenter.from_state(d["seg"])
         obj.cal = StepLengthCalibrator.from_state(d["cal"])
-        obj._generic = StepLengthCalibrator(obj.cal.model)
+        obj._generic = obj._new_calibrator()
         obj.kf2 = {b: HeadingDeviationKF.from_state(k) for b, k in d["kf2"].items()}
         obj.mag = MagCalibrator.from_state(d["mag"])
+        obj.loaded = None if d["loaded"] is None else MagCalibrator.from_state(d["loaded"])
+        obj.in_use = str(d["in_use"])
+        obj.est = HeadingEstimator.from_state(config.heading, d["est"])
+        lr, pf = d["last_reading"], d["prev_field"]
+        obj.last_reading = None if lr is None else (float(lr[0]), float(lr[1]), float(lr[2]))
+        obj._prev_field = None if pf is None else (float(pf[0]), float(pf[1]))
+        obj._fields = [[float(x) for x in r] for r in d["fields"]]
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
         obj.queue = [StepEvent.from_row(q) for q in d["queue"]]
         obj._mag_t = np.asarray(d["mag_t"], dtype=float)
         obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
-        # states stored before the tilt was taken from the field's own samples: no specific force kept (NaN rows,
-        # never inside a new stance's window once 2 s have passed) and the events' own tilt for queued stances
-        obj._mag_a = np.asarray(d.get("mag_a", np.full((obj._mag_t.size, 3), np.nan)), dtype=float).reshape(-1, 3)
+        obj._mag_a = np.asarray(d["mag_a"], dtype=float).reshape(-1, 3)
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
-        obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d.get("stance_acc", [])}
-        obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d.get("stance_swing", [])}
-        obj.stride_peak = {int(k): float(v) for k, v in d.get("stride_peak", [])}  # older states: none
-        obj.walk_peaks = [float(x) for x in d.get("walk_peaks", [])]
-        obj._window_end = float(d.get("window_end", -math.inf))
-        obj._cal_last = int(d.get("cal_last", -1))
-        obj.heading, obj.t_in, obj.has_mag = float(d["heading"]), float(d["t_in"]), bool(d["has_mag"])
+        obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d["stance_acc"]}
+        obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d["stance_swing"]}
+        obj.stride_peak = {int(k): float(v) for k, v in d["stride_peak"]}
+        obj.walk_peaks = [float(x) for x in d["walk_peaks"]]
+        obj._window_end = float(d["window_end"])
+        obj._cal_last = int(d["cal_last"])
+        obj.t_in, obj.has_mag = float(d["t_in"]), bool(d["has_mag"])
         obj._mag_fit_n = int(d["mag_fit_n"])
         obj.recent_d = {b: [float(x) for x in v] for b, v in d["recent_d"].items()}
-        scales = d.get("recent_scale", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
-        obj.recent_scale = {b: [float(x) for x in v] for b, v in scales.items()}
-        cadences = d.get("recent_f", {b: [] for b in _BEHAVIOURS})  # states stored before it existed: none
-        obj.recent_f = {b: [float(x) for x in v] for b, v in cadences.items()}
-        obj.compass_steps, obj.held_steps = int(d["compass_steps"]), int(d["held_steps"])
-        obj._held = [(float(t), float(nu)) for t, nu in d.get("held", [])]  # older states: none
-        ps = d.get("prev_stance", [-math.inf, math.nan])  # states stored before the turn gate existed
+        obj.recent_scale = {b: [float(x) for x in v] for b, v in d["recent_scale"].items()}
+        obj.recent_f = {b: [float(x) for x in v] for b, v in d["recent_f"].items()}
+        ps = d["prev_stance"]
         obj._prev_stance = (float(ps[0]), float(ps[1]))
-        obj.mag_anchored = bool(d.get("mag_anchored", True))  # states stored before the re-anchoring existed
-        # states stored before the anchor stances were kept (only the offsets while anchoring): none, so a compass
-        # not anchored yet starts its anchoring again and an anchored one is not read again
-        obj._anchor_rows = [[float(x) for x in r] for r in d.get("anchor_rows", [])]
-        if "follower" in d:
-            obj.follower = CompassFollower.from_state(d["follower"])
-        own = d.get("own_mag")  # states stored before the session's own fit was kept apart: none
-        obj.own_mag = None if own is None else MagCalibrator.from_state(own)
-        obj.mag_placed = bool(d.get("mag_placed", True))
-        obj._place = [(float(p[0]), float(p[1])) for p in d.get("place", [])]
+        obj.step_s = float(d["step_s"])
+        obj.dominant = None if d["dominant"] is None else float(d["dominant"])
         return obj

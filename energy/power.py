@@ -48,6 +48,7 @@ __all__ = [
     "SAMPLE_BYTES",
     "REQUEST_OVERHEAD_BYTES",
     "cost_class",
+    "DEFAULT_PROFILE",
 ]
 
 SENSORS: tuple[str, ...] = ("acc", "gyr", "mag")
@@ -55,6 +56,7 @@ MODES: tuple[str, ...] = ("zupt", "pdr", "idle")
 SAMPLE_BYTES = 6  # bytes per uploaded 3-axis sample (3 x int16, the sensors' native 16-bit output)
 TIMESTAMP_BYTES = 8  # int64 ns per uploaded sample time
 REQUEST_OVERHEAD_BYTES = 64  # per batch: headers, session id, stream descriptors (assumption, small)
+DEFAULT_PROFILE = "foot-004"  # the foot device of 004's parts: what energy simulate and eval charge by default
 
 
 @dataclass(frozen=True)

@@ -573,6 +573,13 @@ class ZuptNavigator:
         self._P[6, 6] = self._P[7, 7] = self.config.p0_tilt**2
         self._P[8, 8] = self.config.p0_yaw**2
 
+    @property
+    def dominant_ref(self) -> float | None:
+        """Heading [rad] of the building's dominant directions (``dom_on``: ``ref + k * 90 deg``, the body x axis
+        of the first straight segment), None before one is known."""
+        fsi = _k.FS
+        return float(self._fs[fsi["dom_ref"]]) if self._fs[fsi["dom_valid"]] == 1.0 else None
+
     def turn_dominant(self, delta_rad: float) -> None:
         """Turn the building's dominant directions (``dom_on``) by ``delta_rad`` [rad] about the vertical.
 

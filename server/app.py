@@ -20,9 +20,59 @@ from server.ingest import EngineHost, IngestConflict, StorageBusy
 from server.settings import Settings
 from server.upload import Uploader
 
-__all__ = ["create_app", "BodyLimit"]
+__all__ = ["create_app", "BodyLimit", "AccessLog", "configure_logging"]
 
 _log = logging.getLogger("pednav.server")
+_access = logging.getLogger("pednav.access")
+
+
+def configure_logging(level: str) -> None:
+    """Send the ``pednav`` loggers (``pednav.access``: one JSON line per request) to stderr at ``level``."""
+    import sys
+
+    lg = logging.getLogger("pednav")
+    lg.setLevel(level.upper())
+    if not any(getattr(h, "_pednav", False) for h in lg.handlers):
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        h._pednav = True  # type: ignore[attr-defined]
+        lg.addHandler(h)
+        lg.propagate = False
+
+
+class AccessLog:
+    """Pure ASGI middleware: one structured line (JSON) per request on the ``pednav.access`` logger at INFO:
+    method, path, status, duration [ms], response bytes, client. The query string is left out (the Sensor Logger
+    push carries its token there); uvicorn's own access log is off for the same reason (``pednav serve``)."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or not _access.isEnabledFor(logging.INFO):
+            await self.app(scope, receive, send)
+            return
+        import json
+        import time
+
+        t0 = time.perf_counter()
+        state = {"status": 500, "bytes": 0}
+
+        async def sent(msg: Any) -> None:
+            if msg["type"] == "http.response.start":
+                state["status"] = msg["status"]
+            elif msg["type"] == "http.response.body":
+                state["bytes"] += len(msg.get("body", b""))
+            await send(msg)
+
+        try:
+            await self.app(scope, receive, sent)
+        finally:
+            client = scope.get("client")
+            _access.info(json.dumps({
+                "method": scope.get("method"), "path": scope.get("path"), "status": state["status"],
+                "ms": round((time.perf_counter() - t0) * 1000, 2), "bytes": state["bytes"],
+                "client": f"{client[0]}:{client[1]}" if client else None}, separators=(",", ":")))
 
 
 class BodyLimit:
@@ -72,13 +122,18 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     engine_cls : type, optional
         Navigation engine class (default :class:`energy.engine.Engine`); lets an operator run a newer engine.
     """
-    from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, trajectories, users
+    from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, timelines, trajectories, users
 
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        import asyncio
+
+        closer = asyncio.create_task(_close_idle_loop(app)) if settings.sensorlogger_idle_close_s > 0 else None
         yield
+        if closer is not None:
+            closer.cancel()
         # stop the engine helper processes with the server (they are spawned again if the app is reused)
         if app.state.host.pool is not None:
             app.state.host.pool.shutdown()
@@ -109,6 +164,15 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
 
     app.add_middleware(batches.UploadFastPath, fastapi_app=app)  # inside BodyLimit (declared sizes first)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    origins = settings.cors_origin_list()
+    if origins:  # off by default: the viewer at /app is served by this app (same origin)
+        from fastapi.middleware.cors import CORSMiddleware
+
+        app.add_middleware(CORSMiddleware, allow_origins=origins, allow_methods=["*"],
+                           allow_headers=["Authorization", "Content-Type"], expose_headers=["Retry-After"],
+                           allow_credentials=False, max_age=600)
+    if settings.log_requests:
+        app.add_middleware(AccessLog)
 
     @app.exception_handler(BatchError)
     async def _batch_error(_request: Request, exc: BatchError) -> JSONResponse:
@@ -152,8 +216,10 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         return JSONResponse(status_code=422, content={"detail": msg, "field": fields[0] if fields else None, "errors": [
             {"field": f, "problem": p} for f, p in zip(fields, problems)]})
 
-    for r in (auth, users, devices, sessions, batches, profiles, trajectories, sensorlogger):
+    for r in (auth, users, devices, sessions, batches, profiles, trajectories, timelines, sensorlogger):
         app.include_router(r.router, prefix="/v1")
+
+    _mount_viewer(app, settings)
 
     @app.get("/healthz", tags=["meta"])
     def healthz() -> dict[str, str]:
@@ -162,13 +228,64 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     return app
 
 
+def _mount_viewer(app: FastAPI, settings: Settings) -> None:
+    """The web viewer at ``/app/`` (plain HTML/JS/CSS from ``server/static``, Leaflet vendored; no build step)."""
+    from pathlib import Path
+    from urllib.parse import urlsplit
+
+    from fastapi.responses import FileResponse, RedirectResponse
+    from fastapi.staticfiles import StaticFiles
+
+    static = Path(__file__).resolve().parent / "static"
+    tiles = urlsplit(settings.map_tile_url)
+    tile_origin = f" {tiles.scheme}://{tiles.netloc}" if tiles.scheme in ("http", "https") else ""
+    csp = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+           f"img-src 'self' data:{tile_origin}; connect-src 'self'; frame-ancestors 'none'")
+    app.mount("/app/static", StaticFiles(directory=static), name="viewer-static")
+
+    @app.get("/app", include_in_schema=False)
+    def viewer_redirect() -> RedirectResponse:
+        return RedirectResponse("/app/")
+
+    @app.get("/app/", include_in_schema=False)
+    def viewer() -> FileResponse:
+        return FileResponse(static / "index.html", headers={"Content-Security-Policy": csp, "Cache-Control": "no-cache"})
+
+    @app.get("/app/config.json", include_in_schema=False)
+    def viewer_config() -> dict[str, str]:
+        return {"tile_url": settings.map_tile_url, "tile_attribution": settings.map_tile_attribution}
+
+
+async def _close_idle_loop(app: FastAPI) -> None:
+    """Close idle Sensor Logger sessions every quarter of the idle time (at most every 30 s), in a worker thread."""
+    import asyncio
+
+    from starlette.concurrency import run_in_threadpool
+
+    from server.routers.sensorlogger import close_idle_sessions
+
+    s = app.state.settings
+    period = min(max(s.sensorlogger_idle_close_s / 4, 1.0), 30.0)
+    while True:
+        await asyncio.sleep(period)
+        try:
+            closed = await run_in_threadpool(close_idle_sessions, app.state.sessionmaker, app.state.host, s)
+            if closed:
+                _log.info("closed idle Sensor Logger sessions %s", closed)
+        except Exception:  # noqa: BLE001 - a failed round is logged; the next one tries again
+            _log.exception("closing idle Sensor Logger sessions failed")
+
+
 def app_from_env() -> FastAPI:
     """Factory for ``uvicorn --factory server.app:app_from_env`` (settings from ``PEDNAV_*``).
 
     The objects alive after start-up (modules, the app, the ORM) are moved out of the garbage collector's
     reach: a full collection over them took about 100 ms with the GIL held, a stall of every request."""
     import gc
+    import os
 
+    if os.environ.get("PEDNAV_LOG_LEVEL"):  # set by `pednav serve --log-level` for every worker
+        configure_logging(os.environ["PEDNAV_LOG_LEVEL"])
     app = create_app(Settings())
     gc.collect()
     gc.freeze()

@@ -35,6 +35,8 @@ __all__ = [
     "create_session",
     "get_session",
     "list_sessions",
+    "delete_session",
+    "has_magnetometer",
     "get_batch",
     "positions_of",
     "events_of",
@@ -164,6 +166,18 @@ def list_sessions(db: Session, user: User, status: str | None = None, limit: int
     if status:
         q = q.where(TrackSession.status == status)
     return list(db.execute(q.order_by(TrackSession.id).limit(limit).offset(offset)).scalars())
+
+
+def delete_session(db: Session, sess: TrackSession) -> None:
+    """Delete a session with its batches, positions, events and Sensor Logger messages and link (the database's
+    ON DELETE CASCADE); the user's calibration profiles stay."""
+    db.execute(delete(TrackSession).where(TrackSession.id == sess.id, TrackSession.user_id == sess.user_id))
+
+
+def has_magnetometer(db: Session, session_id: int) -> bool:
+    """Whether any stored batch of the session carried magnetometer samples."""
+    q = select(BatchRecord.id).where(BatchRecord.session_id == session_id, BatchRecord.n_mag > 0).limit(1)
+    return db.execute(q).first() is not None
 
 
 def get_batch(db: Session, session_id: int, seq: int) -> BatchRecord | None:

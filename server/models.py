@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import date, datetime, timezone
 from typing import Any
 
 from sqlalchemy import (
     JSON,
     BigInteger,
     Boolean,
+    Date,
     DateTime,
     Float,
     ForeignKey,
@@ -108,6 +109,11 @@ class TrackSession(Base):
     latitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     longitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     altitude_m: Mapped[float | None] = mapped_column(Float, nullable=True)
+    # the anchor (latitude/longitude/altitude above): the World Magnetic Model's date (None: the creation date),
+    # its horizontal accuracy [m] (None: given by hand) and source (models.geo.ANCHOR_SOURCES); revision 0006
+    anchor_date: Mapped[date | None] = mapped_column(Date, nullable=True)
+    anchor_accuracy_m: Mapped[float | None] = mapped_column(Float, nullable=True)
+    anchor_source: Mapped[str | None] = mapped_column(String(20), nullable=True)
     status: Mapped[str] = mapped_column(String(10), default="open")
     engine_mode: Mapped[str] = mapped_column(String(10), default="auto")
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
@@ -208,3 +214,4 @@ class SensorLoggerLink(Base):
     session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id", ondelete="CASCADE"))
     watermark_ns: Mapped[int] = mapped_column(BigInteger, default=0)
     late_samples: Mapped[int] = mapped_column(Integer, default=0)
+    last_push_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)  # idle close (revision 0006)

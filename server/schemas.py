@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+import math
+from datetime import date, datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, computed_field
 
 __all__ = [
     "DeviceKind",
@@ -17,6 +18,7 @@ __all__ = [
     "DeviceCreate",
     "DeviceOut",
     "SessionCreate",
+    "SessionPatch",
     "SessionOut",
     "SensorConfigOut",
     "PositionOut",
@@ -111,7 +113,8 @@ infinities are refused too."""
 
 
 class SessionCreate(BaseModel):
-    """Start of a session. The geodetic start (WGS-84) is optional; without it exports stay in NED metres.
+    """Start of a session. The anchor (the WGS-84 position of the first stance) is optional: without it
+    GeoJSON/GPX/KML exports are refused (409) and north stays the engine's; it can be set later (PATCH).
 
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
     Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
@@ -125,6 +128,24 @@ class SessionCreate(BaseModel):
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
+    anchor_date: date | None = Field(default=None, description="date of the World Magnetic Model's declination "
+                                     "(default: the session's creation date, UTC)")
+    anchor_accuracy_m: float | None = Field(default=None, ge=0.0, le=1e7, description="horizontal accuracy of the "
+                                            "anchor [m] (a location fix's)", **_COORD)
+
+
+class SessionPatch(BaseModel):
+    """Changes to a session: its anchor. Fields left out stay; ``latitude_deg`` and ``longitude_deg`` null
+    (together) remove the anchor. The stored positions are not touched: a trajectory is geo-referenced when read
+    (``models.geo.georeference``), so a new anchor moves every export at once."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
+    longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
+    altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
+    anchor_date: date | None = None
+    anchor_accuracy_m: float | None = Field(default=None, ge=0.0, le=1e7, **_COORD)
 
 
 class SensorConfigOut(BaseModel):
@@ -168,6 +189,30 @@ class SessionOut(_Out):
     n_positions: int
     reprocessed_at: datetime | None = None
     reprocess_count: int = 0
+    anchor_date: date | None = None
+    anchor_accuracy_m: float | None = None
+    anchor_source: str | None = None
+
+    @computed_field(description="World Magnetic Model declination at the anchor and its date [deg] (positive east; "
+                    "null without an anchor); applied to the trajectory when the engine's north is magnetic")
+    def declination_deg(self) -> float | None:
+        from models.geo import magnetic_elements
+
+        anchor = session_anchor(self)
+        return None if anchor is None else math.degrees(magnetic_elements(anchor).declination_rad)
+
+
+def session_anchor(sess: Any) -> Any:
+    """The :class:`models.geo.Anchor` of a session row (or :class:`SessionOut`), None without one."""
+    from models.geo import Anchor
+
+    if sess.latitude_deg is None or sess.longitude_deg is None:
+        return None
+    d = sess.anchor_date or (sess.created_at.date() if sess.created_at is not None else None)
+    kw: dict[str, Any] = {"accuracy_m": sess.anchor_accuracy_m, "source": sess.anchor_source or "user"}
+    if d is not None:
+        kw["date"] = d
+    return Anchor(float(sess.latitude_deg), float(sess.longitude_deg), float(sess.altitude_m or 0.0), **kw)
 
 
 class PositionOut(BaseModel):

@@ -64,6 +64,24 @@ class Settings(BaseSettings):
     max_profile_versions : int
         Versions of a user's profile kept per behaviour (the newest; every replace, reset and session close adds
         one, and the older ones are deleted beyond this).
+    cors_origins : str
+        Origins allowed to call the API from a browser page served elsewhere (CORS), comma-separated, e.g.
+        ``https://app.example.org,http://localhost:5173``; ``*`` = any origin; empty (default) = CORS off (the web
+        viewer at ``/app`` is served by the API itself and needs none).
+    sensorlogger_idle_close_s : float
+        A Sensor Logger session that received no push for this long [s] is flushed and closed (the app sends
+        nothing when its recording stops); 0 = never.
+    anchor_max_accuracy_m : float
+        A phone's location fix anchors a session when its horizontal accuracy is at most this [m] (the first such
+        fix; ``models.geo.anchor_from_fixes``).
+    map_tile_url : str
+        Map tiles of the web viewer for anchored sessions (a Leaflet URL template); default OpenStreetMap's
+        (mind its tile usage policy for heavy use); empty = never tiles (a metric grid). The viewer also falls
+        back to the grid when the browser is offline or a tile fails to load.
+    map_tile_attribution : str
+        The attribution the tiles' licence asks for, shown on the map.
+    log_requests : bool
+        Log one structured line per request (method, path, status, duration; logger ``pednav.access``).
     pg_one_statement_writes : bool
         PostgreSQL: write an upload (session update, raw batch, positions, events) as one atomic statement in
         autocommit mode, on a driver connection (2 round trips per upload: token and session read, write);
@@ -90,6 +108,16 @@ class Settings(BaseSettings):
     max_profile_bytes: int = Field(default=512 * 1024, ge=MIN_PROFILE_BYTES)
     max_profile_versions: int = Field(default=50, ge=1, le=100_000)
     pg_one_statement_writes: bool = True
+    cors_origins: str = ""
+    sensorlogger_idle_close_s: float = Field(default=300.0, ge=0.0, allow_inf_nan=False)
+    anchor_max_accuracy_m: float = Field(default=25.0, gt=0.0, allow_inf_nan=False)  # models.geo.GOOD_FIX_ACCURACY_M
+    log_requests: bool = True
+    map_tile_url: str = "https://tile.openstreetmap.org/{z}/{x}/{y}.png"
+    map_tile_attribution: str = "&copy; OpenStreetMap contributors"
+
+    def cors_origin_list(self) -> list[str]:
+        """``cors_origins`` as a list (empty: CORS off)."""
+        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
 
     @model_validator(mode="after")
     def _check_limits(self) -> Settings:
@@ -110,6 +138,14 @@ class Settings(BaseSettings):
             raise ValueError(f"PEDNAV_DATABASE_URL is not a SQLAlchemy URL: {exc}") from exc
         if url.get_backend_name() not in ("sqlite", "postgresql"):
             raise ValueError(f"unsupported database backend {url.get_backend_name()!r} (sqlite or postgresql)")
+        return v
+
+    @field_validator("cors_origins")
+    @classmethod
+    def _check_cors(cls, v: str) -> str:
+        for o in (x.strip() for x in v.split(",")):
+            if o and o != "*" and not (o.startswith(("http://", "https://")) and "/" not in o.split("://", 1)[1]):
+                raise ValueError(f"PEDNAV_CORS_ORIGINS: {o!r} is not an origin (scheme://host[:port], no path) or *")
         return v
 
     @field_validator("db_schema")

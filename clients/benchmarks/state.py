@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from clients.synth import Scenario, Segment, synthesize
 from energy import codec
-from energy.device import DeviceEmulator
-from energy.engine import Engine
+
+if TYPE_CHECKING:
+    from clients.synth import Scenario
 
 __all__ = ["add_arguments", "run", "measure"]
 
@@ -27,6 +27,8 @@ MARKS_MIN = (1.0, 10.0, 60.0)  # standing times at which the state is reported [
 
 
 def scenario(stand_min: float) -> Scenario:
+    from clients.synth import Scenario, Segment  # imported when used: `pednav --help` must not load the synthesiser
+
     """Walk, a long stand, walk (a short stand at both ends so the engine starts and ends at rest)."""
     return Scenario(f"stand-{stand_min:g}min", (Segment("stand", 10.0), Segment("walk", WALK_S, 90.0),
                                                  Segment("stand", 60.0 * stand_min), Segment("walk", WALK_S),
@@ -68,6 +70,10 @@ def measure(mode: str, batch_s: float | None, stand_min: float, seed: int = 0) -
     seed : int
         Synthesiser seed.
     """
+    from clients.synth import synthesize
+    from energy.device import DeviceEmulator
+    from energy.engine import Engine
+
     rec = synthesize(scenario(stand_min), seed=seed)
     segs = rec.truth.extra["segments"]
     t_stand0 = min(t0 for t0, _, lab in segs if lab == "stand" and t0 > 5.0)  # start of the long stand [s]

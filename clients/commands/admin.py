@@ -1,4 +1,8 @@
-"""``pednav admin``: bootstrap users and tokens, run migrations (direct database access, no server needed)."""
+"""``pednav admin``: bootstrap users and tokens, run migrations (direct database access, no server needed).
+
+The database is decided as for ``pednav serve`` (--database-url, else PEDNAV_DATABASE_URL, else pednav.db in the
+current folder) and printed on stderr, so a token made for one database is not used against a server on another.
+"""
 
 from __future__ import annotations
 
@@ -18,21 +22,28 @@ def _settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     try:
         return load_settings()
     except SettingsError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+        from clients.errors import UserError
+
+        raise UserError(str(exc), 2) from None
 
 
 def _ttl_arg(v: str) -> int:
-    n = int(v)
+    try:
+        n = int(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{v!r} is not a number of seconds") from None
     if n < 0 or 0 < n < 60:
         raise argparse.ArgumentTypeError("must be 0 (never expires) or at least 60 s")
     return n
 
 
 def _db(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    from clients.commands.serve import database_source, describe_database
     from server.db import make_engine, make_sessionmaker, migrate
 
-    eng = make_engine(_settings(args))
+    settings = _settings(args)
+    print(f"database: {describe_database(settings.database_url)} [{database_source(args.database_url)}]", file=sys.stderr)
+    eng = make_engine(settings)
     migrate(eng)
     return eng, make_sessionmaker(eng)
 

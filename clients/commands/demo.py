@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from clients.commands.energy import check_scenario
+
 __all__ = ["register", "run_demo", "LocalServer"]
 
 
@@ -156,7 +158,12 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
     from clients.synth import synthesize
     from server import crud
 
+    from clients.warmup import warm_up
+
     rec = synthesize(scenario, seed=seed)
+    rec2 = synthesize(scenario, seed=seed + 1)  # the same person another day
+    # compile (first run) or load the kernels now, announced, so the streaming bar below measures streaming
+    warm_up([rec.batch, rec2.batch], show=not quiet)
     t0_ns = int(rec.batch.t_start_ns)
     with LocalServer(f"sqlite:///{workdir / 'pednav.db'}") as srv:
         with srv.app.state.sessionmaker() as db:
@@ -165,10 +172,18 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
         if not quiet:
             print(f"server: {srv.url} (OpenAPI at {srv.url}/docs), database {workdir / 'pednav.db'}")
         with PednavClient(srv.url, token, float_dtype="<f4") as api:
-            bar = tqdm(total=100, unit="%", desc="streaming", disable=quiet, file=sys.stderr,
-                       bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}] {postfix}")
+            # the bar starts with the first answer: the server's engine process starts (and loads the kernels)
+            # on the first batch, a one-off wait that would make the estimate of the rest wrong
+            if not quiet:
+                print("streaming the walk through the API (the server's engine process starts on the first batch) ...",
+                      file=sys.stderr, flush=True)
+            bars: list[Any] = []
 
             def progress(frac: float, new: list[dict[str, Any]]) -> None:
+                if not bars:
+                    bars.append(tqdm(total=100, initial=round(frac * 100, 1), unit="%", desc="streaming", disable=quiet,
+                                     file=sys.stderr, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f}% [{elapsed}<{remaining}] {postfix}"))
+                bar = bars[0]
                 bar.n = round(frac * 100, 1)
                 if new:
                     p = new[-1]
@@ -179,12 +194,12 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
             start = {"latitude_deg": 43.6629, "longitude_deg": -79.3957, "altitude_m": 100.0}
             sim = FootSensorSimulator(rec, batch_seconds=None)
             res = sim.run(api, start=start, progress=progress)
-            bar.close()
+            for bar in bars:
+                bar.close()
             res.stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")  # type: ignore[attr-defined]
             geo = api.trajectory(res.session_id, "geojson")
             # the same person another day: closing the first session stored their calibration profile on the
             # server, which the new session uses (Gait-DR after one examination instead of an initialisation)
-            rec2 = synthesize(scenario, seed=seed + 1)
             if not quiet:
                 print("second walk, same user (the server now has their calibration profile) ...", file=sys.stderr)
             res2 = FootSensorSimulator(rec2, batch_seconds=None).run(api, start=start)
@@ -263,6 +278,10 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_scenario(args.scenario)
+    if not args.json:
+        print(f"pednav demo: a simulated person (scenario {args.scenario!r}) streamed through a local server "
+              "and back", file=sys.stderr, flush=True)
     plot = Path(args.plot).resolve()
     with tempfile.TemporaryDirectory(prefix="pednav-demo-") as tmp:
         workdir = Path(args.dir).resolve() if args.dir else Path(tmp)

@@ -26,6 +26,7 @@ def _simulate(args: argparse.Namespace) -> int:
         print(f"wrote {out}", file=sys.stderr)
     profile = load_profile(args.profile)
     errors = IMU_ERRORS[args.imu_errors]
+    check_scenario(args.scenario)
     rec = synthesize(args.scenario, seed=args.seed, errors=errors)
     truth = rec.truth
     assert truth is not None and truth.t_ns is not None and truth.positions is not None
@@ -133,6 +134,16 @@ def _plot(path: str, rec: object, batch_seconds: float | None, user_profile: dic
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def check_scenario(name: str) -> None:
+    """A :class:`clients.errors.UserError` (wrong usage) unless ``name`` is in ``clients.synth.scenario_names()``.
+    (Not an argparse type: argparse converts string defaults too, and the check imports the synthesiser.)"""
+    from clients.errors import UserError
+    from clients.synth import scenario_names
+
+    if name not in scenario_names():
+        raise UserError(f"--scenario: unknown scenario {name!r} (known: {', '.join(scenario_names())})", 2)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -2,13 +2,31 @@
 
 Forms (DESIGN.md "Evaluation contracts")::
 
-    pednav eval vicon DIR --json
+    pednav eval vicon DIR [--mode {zupt,pdr,auto}] --json
     pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
+    pednav eval recordings DIR [--mode {auto,pdr}] --json
 
-Beyond the contracts: ``pednav eval behaviour [ROOT] [--rate-hz HZ ...] --json`` (the behaviour recogniser against
-labels derived from the recordings' truth, :mod:`clients.evaluation.behaviour`) and ``pednav eval gaitmap [DIR]
-[--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
-of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`).
+Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
+of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`),
+``pednav eval plot DOC.json [DOC.json ...] --out FILE.png`` (energy against accuracy, per recording and mode, from
+saved ``--json`` documents of ``--mode auto|pdr`` runs).
+
+Energy (``--mode auto|pdr``): every recording is also replayed through the always-on baseline (``zupt``) in the
+same run, once; each row gains ``energy_ratio``, ``gyro_on_fraction``, ``accuracy_ratio``, ``accuracy_metric``
+and ``energy`` (:func:`clients.evaluation.energy_ratio.compare`), the summary the ``{"mean", "median", "worst",
+"n"}`` of the three ratios, the document the profile, the computation costs and the baseline it charged
+(``--power-profile NAME``, default the foot device :data:`energy.power.DEFAULT_PROFILE`). With ``--plot OUT_DIR``
+the energy/accuracy plot of the run is ``OUT_DIR/energy-accuracy-<dataset>-<mode>.png`` beside the per-recording
+PNGs. ``--mode zupt`` (the default) prints exactly the documents of the contracts.
+
+``pednav eval recordings DIR``: every file under DIR (and every folder an importer reads as one recording),
+without truth (:mod:`clients.evaluation.recordings`). A file that cannot be imported or replayed is one line on
+stderr and a row with ``"error"``; exit status 0 when at least one recording ran, 1 when none did (nothing
+importable, or every one failed), 2 when DIR is not a folder or an option is wrong.
+
+``pednav eval behaviour [ROOT] [--rate-hz HZ ...] --json``: the behaviour recogniser against labels derived from the
+recordings' truth (:mod:`clients.evaluation.behaviour`). ``eval recordings`` takes ``--columns``/``--units`` (the
+CSVs of DIR read with the stated columns and units, :mod:`clients.importers.generic_csv`).
 
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
@@ -62,17 +80,101 @@ def _nothing_found(dataset: str, directory: Path, match: Any) -> None:
 
 
 def _progress(items: list[Any], desc: str) -> Any:
+    """A progress bar over the recordings (on a terminal). The kernels are compiled or loaded first, announced
+    (:func:`clients.warmup.warm_up` on a short synthetic walk), so the bar's estimate is not the first run's
+    compilation spread over the recordings."""
     from tqdm import tqdm
 
+    if sys.stderr.isatty():
+        from clients.synth import synthesize
+        from clients.warmup import warm_up
+
+        b = synthesize("walk", seed=0).batch
+        warm_up([b.time_slice(None, int(b.t_start_ns) + 30 * 10**9)])
     return tqdm(items, desc=desc, unit="rec", file=sys.stderr, disable=None, leave=False)
 
 
-def _runner(batch_seconds: float, conventional: bool = False) -> Any:
+def _accounting(args: argparse.Namespace, command: str) -> Any:
+    """The energy accounting of a ``--mode auto|pdr`` run (None for ``zupt``); ``ValueError`` for an option that
+    does not apply or an unknown profile (the caller prints it as one line)."""
+    if args.mode == "zupt":
+        if args.power_profile is not None:
+            raise ValueError(f"pednav eval {command}: --power-profile applies to --mode pdr/auto only (zupt is the baseline)")
+        return None
+    from clients.evaluation.energy_ratio import EnergyAccounting
+
+    return EnergyAccounting.load(args.power_profile)
+
+
+def _with_energy(accounting: Any, dataset: str, mode: str, ev: Any, ref: Any) -> Any:
+    """Add the energy and accuracy fields against the baseline ``ref`` (the same recording evaluated in ``zupt``;
+    None without ``accounting``) to ``ev.row``; the EngineRun leaves the plot dict and is returned."""
+    run = ev.plot.pop("run", None)
+    if accounting is not None:
+        from clients.evaluation.energy_ratio import compare
+
+        ev.row.update(compare(accounting, mode, run, ref.plot["run"], dataset, ev.row, ref.row))
+    return run
+
+
+def _energy_doc(doc: dict[str, Any], accounting: Any, rows: list[dict[str, Any]], summary_rows: list[dict[str, Any]],
+                plot_dir: str | None) -> None:
+    """Add the energy part to a ``--mode auto|pdr`` document (and its plot when ``plot_dir``)."""
+    if accounting is None:
+        return
+    from clients.evaluation.energy_ratio import add_summary, metric_counts
+
+    doc["summary"] = add_summary(doc["summary"], summary_rows)
+    doc["accuracy_metrics"] = metric_counts(rows)
+    doc.update(accounting.describe([doc["mode"]]))
+    if plot_dir:
+        from clients.evaluation.plots import plot_energy_accuracy
+
+        plot_energy_accuracy(Path(plot_dir) / f"energy-accuracy-{doc['dataset']}-{doc['mode']}.png", [doc])
+
+
+def _print_energy(doc: dict[str, Any], rows: list[dict[str, Any]], width: int) -> None:
+    """The energy part of a ``--mode auto|pdr`` table."""
+    if "energy_baseline" not in doc:
+        return
+    print(f"\nenergy and accuracy against the always-on ZUPT-KF (profile {doc['power_profile']['name']}):")
+    print(f"{'':<{width}} {'energy':>7} {'gyro':>5} {'accuracy':>8}  metric")
+    for r in rows:
+        if "energy_ratio" in r:
+            print(f"{r['name']:<{width}} {_fmt(r['energy_ratio'], '7.3f')} {_fmt(r['gyro_on_fraction'], '5.2f')} "
+                  f"{_fmt(r['accuracy_ratio'], '8.2f')}  {r['accuracy_metric'] or '-'}")
+    s = doc["summary"]
+    for k in ("energy_ratio", "gyro_on_fraction", "accuracy_ratio"):
+        print(f"  {k:<18} median {_fmt(s[k]['median'], '7.3f')}  worst {_fmt(s[k]['worst'], '7.3f')}  n={s[k]['n']}")
+
+
+def _settings(items: list[str] | None) -> dict[str, Any]:
+    """``--set section.field=value`` options as an :meth:`energy.config.EngineConfig.override` mapping (values
+    parsed as JSON where they are, e.g. numbers and booleans; strings otherwise)."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, raw = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"pednav eval: --set {item!r}: expected SECTION.FIELD=VALUE, e.g. scheduler.cross_track_pct=10")
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def _runner(batch_seconds: float | None, conventional: bool = False, settings: dict[str, Any] | None = None) -> Any:
     from clients.evaluation.harness import run_engine
+    from energy.config import EngineConfig
+
+    try:
+        EngineConfig().override(settings or {})  # a bad setting is refused here, by name, before any replay
+    except (ValueError, TypeError) as exc:
+        raise SystemExit(f"pednav eval: --set: {exc}") from None
 
     def run(batch: Any, mode: str, l0_m: float | None, profile: dict[str, Any] | None = None) -> Any:
         return run_engine(batch, mode=mode, l0_m=l0_m, batch_seconds=batch_seconds, conventional=conventional,
-                          profile=profile)
+                          profile=profile, settings=settings)
 
     return run
 
@@ -127,16 +229,28 @@ def _run_vicon(args: argparse.Namespace) -> int:
     if directory is None or not directory.is_dir():
         print(f"pednav eval vicon: data folder not found ({args.dir or 'PEDNAV_DATA/vicon'})", file=sys.stderr)
         return 2
+    try:
+        accounting = _accounting(args, "vicon")
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     files = harness.select(harness.vicon_files(directory), lambda f: f.stem, args.match, args.limit)
     if not files:
         _nothing_found("vicon", directory, args.match)
-    runner = _runner(args.batch_seconds)
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_vicon
 
-    rows, failed = _evaluate_each(files, "vicon", lambda f: (f, f.stem),
-                                  lambda f: harness.evaluate_vicon_recording(harness.load_vicon_trial(f), runner),
-                                  plot_vicon, args.plot)
-    doc = {"dataset": "vicon", "mode": "zupt", "trials": rows, "summary": harness.vicon_summary(rows)}
+    def evaluate(f: Path) -> Any:
+        rec = harness.load_vicon_trial(f)
+        ev = harness.evaluate_vicon_recording(rec, runner, args.mode)
+        ref = harness.evaluate_vicon_recording(rec, runner, "zupt") if accounting is not None else None
+        _with_energy(accounting, "vicon", args.mode, ev, ref)
+        return ev
+
+    rows, failed = _evaluate_each(files, f"vicon {args.mode}", lambda f: (f, f.stem), evaluate, plot_vicon, args.plot)
+    doc = {"dataset": "vicon", "mode": args.mode, "trials": rows, "summary": harness.vicon_summary(rows),
+           "settings": _settings(args.set)}
+    _energy_doc(doc, accounting, rows, [r for r in rows if "error" not in r], args.plot)
 
     def line(r: dict[str, Any]) -> str:
         b = r["behaviour"]
@@ -148,6 +262,7 @@ def _run_vicon(args: argparse.Namespace) -> int:
         s = doc["summary"]
         print(f"\n{s['trials']} trials: mean 2-D ARMSE {_fmt(s['mean_armse_2d_m'], '.3f')} m, "
               f"median {_fmt(s['median_armse_2d_m'], '.3f')} m")
+        _print_energy(doc, rows, 22)
     return 1 if failed or not files else 0
 
 
@@ -161,6 +276,11 @@ def _run_gdin(args: argparse.Namespace) -> int:
     if loo and args.mode == "zupt":
         print("pednav eval gdin: --profile applies to --mode pdr/auto only (zupt keeps no calibration)", file=sys.stderr)
         return 2
+    try:
+        accounting = _accounting(args, "gdin")
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     directory = Path(args.dir) if args.dir else _default_dir("gdin")
     if directory is None or not directory.is_dir():
         print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
@@ -168,21 +288,24 @@ def _run_gdin(args: argparse.Namespace) -> int:
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
     if not entries:
         _nothing_found("gdin", directory, args.match)
-    runner = _runner(args.batch_seconds, args.conventional)
+    runner = _runner(_batch(args), args.conventional, _settings(getattr(args, "set", None)))
     rows: list[dict[str, Any]] = []
     failed = 0
     recs: dict[str, Any] = {}  # returning-user protocol: the recordings, kept for the profile sessions
     new_user: dict[str, Any] = {}  # and each one's new-user session: (profile handed out, events)
+    refs: dict[str, Any] = {}  # --mode auto|pdr: each recording's baseline (zupt) evaluation, computed once
     for e in _progress(entries, f"gdin {args.mode}"):
         try:
             rec = harness.load_gdin_entry(e)
             ev = harness.evaluate_gdin_recording(rec, runner, args.mode, args.l0)
+            if accounting is not None:
+                refs[e.name] = harness.evaluate_gdin_recording(rec, runner, "zupt")
+            run = _with_energy(accounting, "gdin", args.mode, ev, refs.get(e.name))
         except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
             _log_failure(e.sensor_path, exc)
             rows.append({"name": e.name, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
-        run = ev.plot.pop("run", None)
         rows.append(ev.row)
         if loo:
             recs[e.name], new_user[e.name] = rec, (run.profile, run.events)
@@ -193,17 +316,22 @@ def _run_gdin(args: argparse.Namespace) -> int:
     extra: dict[str, Any] = {}
     if loo:
         new_rows = rows
-        rows, failed_loo, chains = _returning_users(args, recs, new_user, new_rows, runner)
+        rows, failed_loo, chains = _returning_users(args, recs, new_user, new_rows, runner, accounting, refs)
         failed += failed_loo
         extra = {
             "profile": args.profile,
             "profile_groups": chains,
             "new_user_summary": harness.gdin_summary(new_rows),
         }
+        if accounting is not None:
+            from clients.evaluation.energy_ratio import add_summary
+
+            extra["new_user_summary"] = add_summary(extra["new_user_summary"], _usable(new_rows))
     excluded = [r["name"] for r in rows if not r.get("gt_usable", False)]
     doc = {
         "dataset": "gdin",
         "mode": args.mode,
+        "settings": _settings(args.set),
         "l0_m": args.l0,
         "conventional": args.conventional,
         "recordings": rows,
@@ -211,6 +339,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
         "summary": harness.gdin_summary(rows),
         **extra,
     }
+    _energy_doc(doc, accounting, rows, _usable(rows), args.plot)
     if args.json:
         print(json.dumps(doc, indent=2))
     else:
@@ -241,6 +370,7 @@ def _run_gdin(args: argparse.Namespace) -> int:
                           f"{pr['calibrated_in'].get('walk', '-'):<6} resumed {str(pr['resumed']):<5} "
                           f"exam passed/failed {ev['examination_passed']}/{ev['examination_failed']} "
                           f"calibrations {ev['calibration_done']}")
+        _print_energy(doc, rows, 6)
     return 1 if failed or not entries else 0
 
 
@@ -253,14 +383,21 @@ def _gt_note(row: dict[str, Any]) -> str:
 
 
 _COMPARED = ("loop_closure_pct", "stride_mean_err_m", "stride_rmse_m", "distance_err_pct", "gyro_on_fraction",
-             "mean_rate_hz", "pdr_distance_err_pct")
+             "mean_rate_hz", "pdr_distance_err_pct", "energy_ratio", "accuracy_ratio")
+
+
+def _usable(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The gdin rows a summary is made of (usable ground truth, no error)."""
+    return [r for r in rows if r.get("gt_usable", False) and "error" not in r]
 
 
 def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: dict[str, Any],
-                     new_rows: list[dict[str, Any]], runner: Any) -> tuple[list[dict[str, Any]], int, dict[str, list[str]]]:
+                     new_rows: list[dict[str, Any]], runner: Any, accounting: Any = None,
+                     refs: dict[str, Any] | None = None) -> tuple[list[dict[str, Any]], int, dict[str, list[str]]]:
     """Leave-one-out returning users: every recording evaluated again, starting from the profile of the other
     recordings of its sensor/format group (walked in experiment order, each session starting from the previous
-    session's profile). Returns the rows, the number of failures and the groups (format -> names)."""
+    session's profile); with ``accounting`` against the baseline evaluations ``refs`` of the new-user pass.
+    Returns the rows, the number of failures and the groups (format -> names)."""
     from clients.evaluation import harness
 
     groups: dict[str, list[str]] = {}
@@ -288,12 +425,12 @@ def _returning_users(args: argparse.Namespace, recs: dict[str, Any], new_user: d
             if name in [s.name for s in sessions]:
                 raise RuntimeError(f"{name} would feed its own profile")
             ev = harness.evaluate_gdin_recording(recs[name], runner, args.mode, args.l0, profile=profile)
+            run = _with_energy(accounting, "gdin", args.mode, ev, (refs or {}).get(name))
         except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
             _log_failure(f"{name} (returning user)", exc)
             rows.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
             failed += 1
             continue
-        run = ev.plot.pop("run")
         ev.row["profile"] = harness.profile_info(profile, sessions, run.events)
         ev.row["new_user"] = {k: by_name[name].get(k) for k in _COMPARED if k in by_name[name]}
         ev.row["new_user"]["events"] = harness.event_counts(new_user[name][1])
@@ -314,26 +451,39 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     if directory is None or not directory.is_dir():
         print(f"pednav eval gaitmap: data folder not found ({args.dir or 'PEDNAV_DATA/gaitmap-mocap'})", file=sys.stderr)
         return 2
+    try:
+        accounting = _accounting(args, "gaitmap")
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     items = harness.select(harness.gaitmap_recordings(directory), lambda it: f"{it[0].stem}-{it[1]}", args.match,
                            args.limit)
     if not items:
         _nothing_found("gaitmap", directory, args.match)
-    runner = _runner(args.batch_seconds)
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_gaitmap
 
+    def evaluate(it: tuple[Path, str]) -> Any:
+        rec = load_gaitmap(it[0], foot=it[1])
+        ev = harness.evaluate_gaitmap_recording(rec, runner, args.mode)
+        ref = harness.evaluate_gaitmap_recording(rec, runner, "zupt") if accounting is not None else None
+        _with_energy(accounting, "gaitmap", args.mode, ev, ref)
+        return ev
+
     rows, failed = _evaluate_each(items, f"gaitmap {args.mode}", lambda it: (it[0], f"{it[0].stem}-{it[1]}"),
-                                  lambda it: harness.evaluate_gaitmap_recording(load_gaitmap(it[0], foot=it[1]),
-                                                                                runner, args.mode),
-                                  plot_gaitmap, args.plot)
-    doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows)}
+                                  evaluate, plot_gaitmap, args.plot)
+    doc = {"dataset": "gaitmap", "mode": args.mode, "recordings": rows, "summary": harness.gaitmap_summary(rows),
+           "settings": _settings(args.set)}
+    _energy_doc(doc, accounting, rows, [r for r in rows if r.get("truth") and "error" not in r], args.plot)
 
     def line(r: dict[str, Any]) -> str:
         return (f"{r['name']:<40} {r['strides_detected']:>7d} {_fmt(r.get('stride_length_mean_abs_err_m'), '9.3f')} "
                 f"{_fmt(r.get('stride_length_rmse_m'), '10.3f')} {_fmt(r.get('stride_height_rmse_m'), '9.3f')} "
                 f"{_fmt(r.get('distance_err_pct'), '7.2f')} {r['climb_m']:>8.2f}")
 
-    _print(doc, rows, args.json, 40, f"{'recording':<40} {'strides':>7} {'len MAE m':>9} {'len RMSE m':>10} "
-           f"{'dh RMSE m':>9} {'dist %':>7} {'climb m':>8}", line)
+    if _print(doc, rows, args.json, 40, f"{'recording':<40} {'strides':>7} {'len MAE m':>9} {'len RMSE m':>10} "
+              f"{'dh RMSE m':>9} {'dist %':>7} {'climb m':>8}", line):
+        _print_energy(doc, rows, 40)
     return 1 if failed or not items else 0
 
 
@@ -366,6 +516,93 @@ def _run_behaviour(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_recordings(args: argparse.Namespace) -> int:
+    from clients.evaluation.recordings import candidates, evaluate_recording, recordings_summary
+    from clients.importers import ImporterError, load
+
+    directory = Path(args.dir)
+    if not directory.is_dir():
+        print(f"pednav eval recordings: {args.dir}: not a folder", file=sys.stderr)
+        return 2
+    if (args.columns is None) != (args.units is None):
+        print("pednav eval recordings: --columns and --units go together", file=sys.stderr)
+        return 2
+    try:
+        accounting = _accounting(args, "recordings")
+    except ValueError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
+    rows: list[dict[str, Any]] = []
+    for f in _progress(candidates(directory), f"recordings {args.mode}"):
+        name = str(f.relative_to(directory))
+        try:
+            if args.columns is not None and f.suffix.lower() == ".csv":
+                from clients.importers.generic_csv import load_generic_csv
+
+                rec = load_generic_csv(f, args.columns, args.units)
+            else:
+                rec = load(f)
+            ev = evaluate_recording(rec, runner, args.mode, accounting)
+        except Exception as exc:  # noqa: BLE001 - one line per file that cannot be used, never a traceback
+            reason = str(exc) if isinstance(exc, (ImporterError, ValueError)) else f"{type(exc).__name__}: {exc}"
+            print(f"pednav eval recordings: skipped {name}: {reason}", file=sys.stderr)
+            rows.append({"name": name, "file": str(f), "error": reason})
+            continue
+        ev.row["name"], ev.row["file"] = name, str(f)
+        rows.append(ev.row)
+        if args.plot:
+            from clients.evaluation.plots import plot_recording_timeline
+
+            plot_recording_timeline(args.plot, ev.row, ev.plot)
+    doc: dict[str, Any] = {"dataset": "recordings", "mode": args.mode, "directory": str(directory),
+                           "recordings": rows, "summary": recordings_summary(rows)}
+    doc.update(accounting.describe([args.mode]))
+    ran = doc["summary"]["recordings"]
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(f"{'recording':<32} {'min':>6} {'energy':>7} {'gyro':>5} {'zupt':>5} {'pdr':>5} {'idle':>5} {'strides':>7}")
+        for r in rows:
+            if "error" in r:
+                print(f"{r['name']:<32} ERROR {r['error']}")
+                continue
+            m = r["modes"]
+            print(f"{r['name']:<32} {r['duration_s'] / 60:>6.1f} {_fmt(r['energy_ratio'], '7.3f')} "
+                  f"{r['gyro_on_fraction']:>5.2f} {m.get('zupt', 0):>5.2f} {m.get('pdr', 0):>5.2f} "
+                  f"{m.get('idle', 0):>5.2f} {r['strides']:>7d}")
+        s = doc["summary"]
+        print(f"\n{ran} recording(s) replayed, {s['failed']} skipped; profile {doc['power_profile']['name']}")
+        for k in ("energy_ratio", "gyro_on_fraction"):
+            print(f"  {k:<18} median {_fmt(s[k]['median'], '7.3f')}  worst {_fmt(s[k]['worst'], '7.3f')}")
+    if not ran:
+        print(f"pednav eval recordings: no recording in {directory} could be replayed", file=sys.stderr)
+    return 0 if ran else 1
+
+
+def _run_plot(args: argparse.Namespace) -> int:
+    from clients.evaluation.plots import plot_energy_accuracy
+
+    docs = []
+    for f in args.docs:
+        try:
+            doc = json.loads(Path(f).read_text())
+        except (OSError, ValueError) as exc:
+            print(f"pednav eval plot: {f}: not a readable JSON document ({exc})", file=sys.stderr)
+            return 2
+        if not isinstance(doc, dict) or "mode" not in doc or not isinstance(doc.get("trials", doc.get("recordings")), list):
+            print(f"pednav eval plot: {f}: not a document of pednav eval ... --json (no mode and rows)", file=sys.stderr)
+            return 2
+        docs.append(doc)
+    try:
+        n = plot_energy_accuracy(args.out, docs, curve=args.curve)
+    except ValueError as exc:
+        print(f"pednav eval plot: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out} ({n} recordings)", file=sys.stderr)
+    return 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -373,18 +610,39 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
     p.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
     p.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    p.add_argument("--device-batching", action="store_true",
+                   help="upload as long as the engine asks (SensorConfig.batch_s, as a device would) instead of "
+                        "--batch-seconds")
+    p.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
+                   help="change one engine setting (repeatable), e.g. scheduler.cross_track_pct=10; "
+                        "`pednav config` lists them")
+
+
+def _batch(args: argparse.Namespace) -> float | None:
+    return None if getattr(args, "device_batching", False) else args.batch_seconds
+
+
+def _energy_options(p: argparse.ArgumentParser, modes: tuple[str, ...] = ("zupt", "pdr", "auto"),
+                    default: str = "zupt") -> None:
+    p.add_argument("--mode", choices=modes, default=default, help=f"engine mode (default {default}); pdr/auto also "
+                   "report energy_ratio, gyro_on_fraction and accuracy_ratio against zupt on the same recording")
+    p.add_argument("--power-profile", default=None, metavar="NAME",
+                   help="device power profile charged with --mode pdr/auto (energy/profiles/NAME.json or a path; "
+                        "default: the foot device energy simulate charges, foot-004)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate the engine on public datasets (VICON ARMSE, gdin loop/stride errors, "
-                                    "gaitmap stride lengths against motion capture)")
+                                    "gaitmap stride lengths against motion capture) and on your own recordings "
+                                    "(energy, modes, gyroscope timeline)")
     esub = p.add_subparsers(dest="dataset", metavar="DATASET", required=True)
     pv = esub.add_parser("vicon", help="University of Toronto VICON trials: authors' ARMSE, behaviour fractions")
     _common(pv)
+    _energy_options(pv)
     pv.set_defaults(func=_run_vicon)
     pg = esub.add_parser("gdin", help="gdin walks: loop closure, stride errors, distance error, energy figures")
     _common(pg)
-    pg.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
+    _energy_options(pg)
     pg.add_argument("--l0", type=float, default=None, metavar="METERS", help="ZUPT-KF initialisation distance before Gait-PDR (pdr/auto)")
     pg.add_argument("--conventional", action="store_true",
                     help="conventional PDR baseline (004 Table 6): generic step model, no heading-deviation compensation (pdr/auto)")
@@ -396,7 +654,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pm = esub.add_parser("gaitmap", help="gaitmap example walks and stairs (both feet): stride lengths against optical "
                                          "motion capture, height climbed")
     _common(pm)
-    pm.add_argument("--mode", choices=("zupt", "pdr", "auto"), default="zupt", help="engine mode (default zupt)")
+    _energy_options(pm)
     pm.set_defaults(func=_run_gaitmap)
     pb = esub.add_parser("behaviour", help="stand/walk/run/other recognition (accelerometer only) against the labels "
                                            "derived from the recordings' truth (clients/evaluation/behaviour_labels.csv)")
@@ -405,3 +663,25 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="also de-sampled to HZ (repeatable), as a sensor set to HZ would deliver it")
     pb.add_argument("--json", action="store_true", help="print one JSON document")
     pb.set_defaults(func=_run_behaviour)
+    pr = esub.add_parser("recordings", help="your own recordings without truth (any importable format): energy "
+                                            "against the always-on ZUPT-KF, modes, behaviours, events, gyroscope timeline")
+    pr.add_argument("dir", help="folder of recordings (every file and importable sub-folder in it and below)")
+    pr.add_argument("--json", action="store_true", help="print one JSON document")
+    pr.add_argument("--plot", metavar="OUT_DIR", default=None,
+                    help="write a mode/gyroscope/behaviour timeline PNG per recording")
+    pr.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pr.add_argument("--device-batching", action="store_true", help="upload as long as the engine asks")
+    pr.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
+                    help="change one engine setting (repeatable)")
+    pr.add_argument("--columns", default=None, metavar="SPEC",
+                    help="read every CSV in DIR with these columns (as pednav replay --columns); needs --units")
+    pr.add_argument("--units", default=None, metavar="SPEC", help="units of the --columns streams (as pednav replay --units)")
+    _energy_options(pr, ("auto", "pdr"), "auto")
+    pr.set_defaults(func=_run_recordings)
+    pp = esub.add_parser("plot", help="energy against accuracy per recording and mode, from saved --json documents "
+                                      "of eval vicon/gdin/gaitmap --mode auto|pdr")
+    pp.add_argument("docs", nargs="+", metavar="DOC.json", help="saved JSON documents (one series each)")
+    pp.add_argument("--out", required=True, metavar="FILE.png", help="PNG to write")
+    pp.add_argument("--curve", action="store_true",
+                    help="join the documents' medians in the order given (a sweep of one --set value)")
+    pp.set_defaults(func=_run_plot)

@@ -1,43 +1,58 @@
-"""``pednav export SESSION``: a session's trajectory from the server as JSON, GeoJSON or CSV."""
+"""``pednav export SESSION``: a session's trajectory from the server as JSON, GeoJSON, GPX, KML or CSV.
+
+GeoJSON (RFC 7946), GPX 1.1 and KML need an anchored session (``pednav sessions anchor``, the API's PATCH, or
+the session's start); CSV keeps the NED columns and adds latitude/longitude when anchored. A local replay
+writes the same files with ``pednav replay FILE --anchor LAT,LON --export OUT.gpx``.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
+
+from clients.commands._server import add_server_options, client_of
 
 __all__ = ["register"]
 
+FORMATS = ("json", "geojson", "gpx", "kml", "csv")
+
 
 def _run(args: argparse.Namespace) -> int:
-    from clients.sdk import ApiError, PednavClient
-
-    token = args.token or os.environ.get("PEDNAV_TOKEN")
-    if not token:
-        print("error: --token or PEDNAV_TOKEN is required", file=sys.stderr)
-        return 2
-    with PednavClient(args.server, token, retries=2) as api:
-        try:
-            doc = api.trajectory(args.session, args.format)
-        except ApiError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 1
+    fmt = args.format
+    if fmt is None and args.output:
+        suffix = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else ""
+        fmt = suffix if suffix in FORMATS else "json"
+    fmt = fmt or "json"
+    with client_of(args) as api:
+        doc = api.trajectory(args.session, fmt)
     text = doc if isinstance(doc, str) else json.dumps(doc, indent=None if args.output else 2)
     if args.output:
         with open(args.output, "w", encoding="utf-8") as fh:
             fh.write(text)
+        print(f"wrote {args.output} ({fmt})", file=sys.stderr)
     else:
         sys.stdout.write(text if text.endswith("\n") else text + "\n")
     return 0
 
 
+def _session_id(v: str) -> int:
+    try:
+        n = int(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{v!r} is not a session id (a number; 'pednav sessions list' shows them)") from None
+    if not 0 < n < 2**63:
+        raise argparse.ArgumentTypeError(f"{v!r} is not a session id (a positive number)")
+    return n
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("export", help="export a session's trajectory (JSON, GeoJSON, CSV)")
-    p.add_argument("session", type=int, help="session id")
-    p.add_argument("--server", default=os.environ.get("PEDNAV_SERVER", "http://127.0.0.1:8000"), help="server URL")
-    p.add_argument("--token", default=None, help="bearer token (default PEDNAV_TOKEN)")
-    p.add_argument("--format", choices=("json", "geojson", "csv"), default="json")
+    p = sub.add_parser("export", help="export a session's trajectory from the server (JSON, GeoJSON, GPX, KML, CSV)",
+                       description=__doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1].replace("\n", " "))
+    p.add_argument("session", type=_session_id, help="session id ('pednav sessions list')")
+    add_server_options(p)
+    p.add_argument("--format", choices=FORMATS, default=None,
+                   help="output format (default: by the suffix of --output, else json)")
     p.add_argument("-o", "--output", default=None, help="write to this file instead of stdout")
     p.add_argument("--json", action="store_true", help="(accepted for symmetry; JSON formats print JSON)")
     p.set_defaults(func=_run)

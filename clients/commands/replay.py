@@ -1,5 +1,10 @@
 """``pednav replay FILE``: stream a recording through the HTTP API or a local engine (same positions), at its
-recorded rates or, with ``--rate-hz``, de-sampled as a sensor set to a lower rate would have delivered it."""
+recorded rates or, with ``--rate-hz``, de-sampled as a sensor set to a lower rate would have delivered it.
+
+With ``--anchor LAT,LON[,ALT]`` the positions are geo-referenced by :func:`models.geo.georeference`, the function
+the server applies when it serves an anchored session: locally to the engine's output, through the API by the
+server (the session is started with the anchor and its trajectory read back), so both ways give the same
+positions. ``--export FILE`` writes them as GeoJSON, GPX, KML or CSV (by the file's suffix)."""
 
 from __future__ import annotations
 
@@ -10,7 +15,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-__all__ = ["register", "load_recording", "desampled", "replay_local", "replay_server"]
+__all__ = ["register", "load_recording", "desampled", "replay_local", "replay_local_track", "replay_server", "export_track"]
+
+EXPORT_SUFFIXES = {".geojson": "geojson", ".gpx": "gpx", ".kml": "kml", ".csv": "csv"}
 
 
 def load_recording(spec: str, mag_scale_ut: float | None = None, columns: str | None = None,  # type: ignore[no-untyped-def]
@@ -58,25 +65,78 @@ def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int
     }
 
 
-def replay_local(rec, batch_seconds: float, mode: str = "auto") -> dict[str, Any]:  # type: ignore[no-untyped-def]
-    """Device emulation through a local engine (no server)."""
+def replay_local(rec, batch_seconds: float, mode: str = "auto", anchor=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """Device emulation through a local engine (no server); with ``anchor`` (:class:`models.geo.Anchor`) the
+    positions geo-referenced as the server serves them."""
+    return replay_local_track(rec, batch_seconds, mode, anchor)[0]
+
+
+def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=None):  # type: ignore[no-untyped-def]
+    """:func:`replay_local`'s document, its :class:`models.geo.GeoTrack` and :class:`models.track_export.TrackLabels`."""
+    import numpy as np
+
     from energy.device import replay
     from energy.engine import Engine
+    from models.geo import engine_north, georeference, magnetic_north_of
+    from models.track_export import TrackLabels
 
     res = replay(Engine(mode=mode), rec.batch, batch_seconds)  # type: ignore[arg-type]
-    rows = [(p.t_ns, p.north, p.east, p.down, p.behaviour, p.mode, p.gyro_on) for p in res.positions]
-    return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction}
+    north_in = engine_north(getattr(Engine, "NORTH_REFERENCE", None), res.samples_sent.get("mag", 0) > 0)
+    col = {f: np.array([getattr(p, f) for p in res.positions], dtype=float) for f in ("north", "east", "down", "heading_rad")}
+    az = magnetic_north_of((e.kind, e.detail) for u in res.updates for e in u.events)
+    track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], anchor, north_in, az)
+    rows = [(p.t_ns, float(track.north[i]), float(track.east[i]), p.down, p.behaviour, p.mode, p.gyro_on)
+            for i, p in enumerate(res.positions)]
+    doc = {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, **track.frame_dict()}
+    if track.latitude_deg is not None:
+        doc["geodetic"] = [[float(a), float(b), float(c)] for a, b, c in zip(track.latitude_deg, track.longitude_deg, track.altitude_m)]  # type: ignore[arg-type]
+    ps = res.positions
+    labels = TrackLabels([p.t_ns for p in ps], [p.behaviour for p in ps], [p.mode for p in ps],
+                         [p.step_length_m for p in ps], [p.gyro_on for p in ps])
+    return doc, track, labels
 
 
-def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot") -> dict[str, Any]:  # type: ignore[no-untyped-def]
-    """The same device emulation, streamed through the HTTP API (lossless msgpack bodies)."""
+def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot", anchor=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+    """The same device emulation, streamed through the HTTP API (lossless msgpack bodies); with ``anchor`` the
+    session is started anchored; the trajectory, geo-referenced by the server, is read back."""
     from clients.sdk import PednavClient
     from clients.simulators import simulator_for
 
+    start = None if anchor is None else {
+        "latitude_deg": anchor.latitude_deg, "longitude_deg": anchor.longitude_deg, "altitude_m": anchor.altitude_m,
+        "anchor_date": anchor.date.isoformat()}
     with PednavClient(server, token, encoding="msgpack", float_dtype="<f8") as api:
-        res = simulator_for(device, rec, batch_seconds).run(api)
-    rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in res.positions]
-    return {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction, "session_id": res.session_id}
+        res = simulator_for(device, rec, batch_seconds).run(api, start=start)
+        traj = api.trajectory(res.session_id)
+    pos = traj["positions"]  # as the server serves them: turned to magnetic north once the engine has found it
+    rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in pos]
+    doc = {**_doc(rows, int(rec.batch.t_start_ns)), "gyro_on_fraction": res.gyro_on_fraction,
+           "session_id": res.session_id, **{k: traj[k] for k in ("north", "declination_deg", "dip_deg", "magnetic_model", "anchor") if k in traj}}
+    if anchor is not None:
+        doc["geodetic"] = [[p["latitude_deg"], p["longitude_deg"], p["altitude_m"]] for p in pos]
+    return doc
+
+
+def export_track(track, labels, path: str, name: str = "pednav replay") -> str:  # type: ignore[no-untyped-def]
+    """Write a track (:func:`replay_local_track`) to ``path`` as GeoJSON, GPX, KML or CSV (by the suffix); returns
+    the format. ``ValueError`` for an unknown suffix or a geographic format without an anchor."""
+    import json as _json
+
+    from models.track_export import to_csv, to_geojson, to_gpx, to_kml
+
+    fmt = EXPORT_SUFFIXES.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise ValueError(f"--export {path}: unknown suffix (use {', '.join(EXPORT_SUFFIXES)})")
+    if fmt != "csv" and track.anchor is None:
+        raise ValueError(f"--export {path}: {fmt} needs --anchor LAT,LON[,ALT]")
+    if fmt == "geojson":
+        text = _json.dumps(to_geojson(track, labels), allow_nan=False)
+    elif fmt == "csv":
+        text = to_csv(track, labels)
+    else:
+        text = (to_gpx if fmt == "gpx" else to_kml)(track, labels, name)
+    Path(path).write_text(text, encoding="utf-8")
+    return fmt
 
 
 def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
@@ -100,23 +160,53 @@ def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
     return replace(rec, batch=batch, meta=meta)
 
 
+def _anchor_date(args: argparse.Namespace, rec) -> Any:  # type: ignore[no-untyped-def]
+    """--anchor-date, else the recording's UTC date when its sample times are UTC, else today (UTC)."""
+    import datetime as dt
+
+    from models.geo import date_of
+
+    if args.anchor_date:
+        try:
+            return dt.date.fromisoformat(args.anchor_date)
+        except ValueError:
+            raise ValueError(f"--anchor-date {args.anchor_date!r}: expected YYYY-MM-DD") from None
+    return date_of(int(rec.batch.t_start_ns or 0)) or dt.datetime.now(dt.timezone.utc).date()
+
+
 def _run(args: argparse.Namespace) -> int:
+    from models.geo import parse_anchor
+
     try:
         if args.mag_scale_ut is not None and not args.mag_scale_ut > 0:
             raise ValueError(f"--mag-scale-ut must be a positive field in uT, got {args.mag_scale_ut}")
         if args.rate_hz is not None and not args.rate_hz > 0:
             raise ValueError(f"--rate-hz must be a positive rate in Hz, got {args.rate_hz}")
+        if not args.batch_seconds > 0:
+            raise ValueError(f"--batch-seconds must be a positive duration in s, got {args.batch_seconds}")
+        if args.export and Path(args.export).suffix.lower() not in EXPORT_SUFFIXES:
+            raise ValueError(f"--export {args.export}: unknown suffix (use {', '.join(EXPORT_SUFFIXES)})")
+        if args.export and args.server:
+            raise ValueError("--export writes a local replay; with --server use 'pednav export SESSION --format F'")
+        if args.anchor_date and not args.anchor:
+            raise ValueError("--anchor-date needs --anchor LAT,LON[,ALT]")
         rec = load_recording(args.file, args.mag_scale_ut, args.columns, args.units)
+        # --anchor, else where the recording says it started (a phone's first good location fix)
+        anchor = parse_anchor(args.anchor, _anchor_date(args, rec), source="replay") if args.anchor else rec.meta.anchor
+        if args.export and Path(args.export).suffix.lower() != ".csv" and anchor is None:
+            raise ValueError(f"--export {args.export}: a geographic format needs --anchor LAT,LON[,ALT] (the "
+                             "recording has no location fix to anchor it)")
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     if args.rate_hz is not None:
         rec = desampled(rec, args.rate_hz)
-    if len(rec.batch.gyr_t_ns) == 0:
-        # every engine mode starts on the ZUPT-KF, which integrates the gyroscope: without one the replay
-        # would end with no position at all and look like a success
-        print(f"error: {args.file}: the recording has no gyroscope samples; the engine needs a gyroscope to start "
-              "(record or export the gyroscope too)", file=sys.stderr)
+    from clients.recording import require_gyroscope
+
+    try:
+        require_gyroscope(rec, args.file)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     # a recording whose format says where it was worn (a foot dataset) is taken as it says; any other (a phone app,
     # a generic CSV, an x-io sensor) must show a foot's stance phases before it is navigated as a foot
@@ -137,9 +227,11 @@ def _run(args: argparse.Namespace) -> int:
         if not token:
             print("error: --token (or PEDNAV_TOKEN) is required with --server", file=sys.stderr)
             return 2
-        doc = replay_server(rec, args.server, token, args.batch_seconds, args.device)
+        doc = replay_server(rec, args.server, token, args.batch_seconds, args.device, anchor)
     else:
-        doc = replay_local(rec, args.batch_seconds, args.mode)
+        doc, track, labels = replay_local_track(rec, args.batch_seconds, args.mode, anchor)
+        if args.export:
+            export_track(track, labels, args.export, f"pednav replay of {rec.name}")
     doc["notes"] = list(rec.meta.notes)  # what the importer repaired or left out
     if args.json:
         print(json.dumps(doc))
@@ -147,16 +239,25 @@ def _run(args: argparse.Namespace) -> int:
         for note in doc["notes"]:
             print(f"note: {note}", file=sys.stderr)
         print(f"{rec.name}: {len(doc['positions'])} positions, modes {doc['modes']}, gyro on {doc['gyro_on_fraction']:.0%}")
+        print(f"north: {doc.get('north')}" + (f" (declination {doc['declination_deg']:.2f} deg applied)"
+                                              if doc.get("north") == "true" else ""))
         if doc["positions"]:
             t, n, e, d = doc["positions"][-1]
             print(f"final position at t={t:.1f} s: north {n:.2f} m, east {e:.2f} m, down {d:.2f} m")
+            if doc.get("geodetic"):
+                la, lo, h = doc["geodetic"][-1]
+                print(f"final position: {la:.7f}, {lo:.7f}, {h:.1f} m")
         if "session_id" in doc:
             print(f"session {doc['session_id']}")
+        if args.export:
+            print(f"wrote {args.export}")
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("replay", help="stream a recording through the API (--server) or a local engine")
+    p = sub.add_parser("replay", help="stream a recording through the API (--server) or a local engine",
+                       description="Stream a recording (any importable format) or a synthetic scenario through the "
+                                   "HTTP API or a local engine. Placements navigated today: a foot-mounted sensor.")
     p.add_argument("file", help="recording file (any importable format) or synthetic scenario name")
     p.add_argument("--server", default=None, help="server URL, e.g. http://127.0.0.1:8000 (default: local engine)")
     p.add_argument("--token", default=None, help="bearer token (default PEDNAV_TOKEN)")
@@ -172,6 +273,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "than HZ is low-passed (anti-aliasing FIR) and decimated by the whole factor nearest to its "
                         "rate / HZ (200 Hz at --rate-hz 50: every 4th sample); slower streams are kept, nothing is "
                         "up-sampled; the rates used are in the notes (default: the recorded rates)")
+    p.add_argument("--anchor", default=None, metavar="LAT,LON[,ALT]",
+                   help="WGS-84 position [deg, deg, m] of the first stance: the output adds latitude/longitude "
+                        "('geodetic') and, when the engine's north is magnetic, turns it to true north by the World "
+                        "Magnetic Model's declination (as the server does for an anchored session)")
+    p.add_argument("--anchor-date", default=None, metavar="YYYY-MM-DD",
+                   help="date of the declination (default: the recording's UTC date, else today)")
+    p.add_argument("--export", default=None, metavar="FILE",
+                   help="write the local replay's track to FILE: .geojson, .gpx, .kml (need --anchor) or .csv")
     p.add_argument("--columns", default=None, metavar="SPEC",
                    help="read FILE as a CSV with these columns: 'time=COL,acc=COL:COL:COL[,gyr=...][,mag=...]', COL a "
                         "header name or #N (1-based); needs --units")

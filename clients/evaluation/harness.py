@@ -11,8 +11,10 @@ DESIGN.md prescribes (the ground-control frame is mirrored).
 
 Definitions of this module (beyond DESIGN.md):
 
-- ``strides_detected`` = number of stance-to-stance intervals the engine reported =
-  ``len(positions) - 1`` (the first stance is the origin of the session, not a completed stride);
+- ``strides_detected`` = number of strides that moved among the stance-to-stance intervals the engine reported
+  (:func:`energy.strides.count_moved`: horizontal displacement between consecutive positions of at least
+  ``STRIDE_MIN_M``; a re-stance on the spot while standing is no stride; the first stance is the origin of the
+  session, not a completed stride); ``stances`` = the positions reported, re-stances included;
 - the estimate "at a sample" is the trace position of the last processed accelerometer sample at or before
   that time (sample-and-hold; before the first processed sample: the first one);
 - behaviour fractions are time-weighted over the processed samples (each sample stands for the interval to
@@ -39,7 +41,7 @@ import logging
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -48,7 +50,11 @@ from clients.importers._common import is_hidden
 from clients.importers.gdin import GdinEntry, find_gdin, load_gdin
 from clients.importers.vicon import load_vicon
 from clients.recording import Recording
+from energy.strides import count_moved
 from models.batch import SensorBatch
+
+if TYPE_CHECKING:
+    from energy.power import Timeline
 
 __all__ = [
     "BEHAVIOURS",
@@ -58,6 +64,8 @@ __all__ = [
     "run_engine",
     "positions_at",
     "behaviour_fractions",
+    "mode_fractions",
+    "MODES",
     "evaluate_vicon_recording",
     "evaluate_gdin_recording",
     "vicon_summary",
@@ -83,6 +91,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 BEHAVIOURS: tuple[str, ...] = ("stand", "walk", "run", "other")
+MODES: tuple[str, ...] = ("zupt", "pdr", "idle")  # navigation modes of the engine's trace
 GDIN_SUMMARY_KEYS: tuple[str, ...] = (
     "loop_closure_pct",
     "stride_mean_err_m",
@@ -135,6 +144,12 @@ class EngineRun:
         when the runner does not say.
     events : tuple of (str, dict)
         Every engine event (kind, detail) in order; empty when the runner does not say.
+    timeline : energy.power.Timeline or None
+        What the device did during the replay (:meth:`energy.power.Timeline.from_replay`: sensor states and
+        rates over time, samples and batches per cost class, bytes uploaded), the input of the power
+        accounting; None when the runner does not say.
+    t_start_ns : int
+        First sample time of the replayed recording [ns] (the origin of the timelines).
     """
 
     t_ns: np.ndarray
@@ -146,6 +161,8 @@ class EngineRun:
     mode: np.ndarray | None = None
     profile: dict[str, Any] | None = None
     events: tuple[tuple[str, dict[str, Any]], ...] = ()
+    timeline: Timeline | None = None
+    t_start_ns: int = 0
 
 
 class Runner(Protocol):
@@ -154,18 +171,21 @@ class Runner(Protocol):
     def __call__(self, batch: SensorBatch, mode: str, l0_m: float | None) -> EngineRun: ...
 
 
-def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float = 1.0,
-               conventional: bool = False, profile: dict[str, Any] | None = None) -> EngineRun:
+def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None, batch_seconds: float | None = 1.0,
+               conventional: bool = False, profile: dict[str, Any] | None = None,
+               settings: dict[str, Any] | None = None) -> EngineRun:
     """Replay ``batch`` through a fresh engine (``trace=True``) in ``mode``; ``l0_m`` sets ``EngineConfig.l0_m``,
     ``conventional`` the conventional-PDR baseline (``EngineConfig.pdr_conventional``), ``profile`` the per-user
-    calibration profile it starts with (None: a new user)."""
+    calibration profile it starts with (None: a new user), ``settings`` further engine settings by dotted path
+    (:meth:`energy.config.EngineConfig.override`); ``batch_seconds`` None uploads as the engine asks."""
     from energy.device import replay  # lazy: keeps `pednav --help` fast
     from energy.engine import Engine, EngineConfig
+    from energy.power import Timeline
 
-    kw: dict[str, Any] = {"pdr_conventional": bool(conventional)}
+    kw: dict[str, Any] = {"pdr_conventional": bool(conventional), **(settings or {})}
     if l0_m is not None:
-        kw["l0_m"] = float(l0_m)
-    config = EngineConfig(**kw)
+        kw["scheduler.l0_m"] = float(l0_m)
+    config = EngineConfig().override(kw)
     engine = Engine(mode=mode, config=config, profile=profile, trace=True)
     res = replay(engine, batch, batch_seconds=batch_seconds)
     tr = res.trace
@@ -180,6 +200,8 @@ def run_engine(batch: SensorBatch, mode: str = "zupt", l0_m: float | None = None
         mode=np.asarray(tr.mode).astype(str),
         profile=engine.profile_dict(),
         events=tuple((e.kind, dict(e.detail)) for u in res.updates for e in u.events),
+        timeline=Timeline.from_replay(res, int(batch.t_end_ns or 0)),
+        t_start_ns=int(batch.t_start_ns or 0),
     )
 
 
@@ -202,21 +224,35 @@ def positions_at(t_ns: np.ndarray, pos: np.ndarray, query_ns: np.ndarray) -> np.
     return np.asarray(pos, dtype=np.float64)[np.clip(i, 0, t.size - 1)]
 
 
-def behaviour_fractions(t_ns: np.ndarray, labels: np.ndarray) -> dict[str, float]:
-    """Fraction of the processed time labelled each of :data:`BEHAVIOURS` (sums to 1; zeros when empty)."""
+def _time_fractions(t_ns: np.ndarray, labels: np.ndarray, names: Sequence[str], other: str | None) -> dict[str, float]:
+    """Fraction of the processed time carrying each label of ``names``: each sample stands for the interval to
+    the next one (the last one for the median interval). Labels outside ``names`` count as ``other`` (one of
+    ``names``) or, with None, towards no fraction. Zeros when empty."""
     t = np.asarray(t_ns, dtype=np.int64)
     lab = np.asarray(labels).astype(str)
-    out = {b: 0.0 for b in BEHAVIOURS}
+    out = {b: 0.0 for b in names}
     if t.size == 0:
         return out
     dt = np.diff(t).astype(np.float64)
     last = float(np.median(dt)) if dt.size else 1.0
     w = np.append(dt, last)
-    lab = np.where(np.isin(lab, BEHAVIOURS[:3]), lab, "other")
+    if other is not None:
+        lab = np.where(np.isin(lab, [n for n in names if n != other]), lab, other)
     total = float(w.sum())
-    for b in BEHAVIOURS:
+    for b in names:
         out[b] = float(w[lab == b].sum() / total) if total > 0 else 0.0
     return out
+
+
+def behaviour_fractions(t_ns: np.ndarray, labels: np.ndarray) -> dict[str, float]:
+    """Fraction of the processed time labelled each of :data:`BEHAVIOURS` (sums to 1; zeros when empty)."""
+    return _time_fractions(t_ns, labels, BEHAVIOURS, "other")
+
+
+def mode_fractions(t_ns: np.ndarray, modes: np.ndarray) -> dict[str, float]:
+    """Fraction of the processed time the engine navigated in each of :data:`MODES` (time-weighted as
+    :func:`behaviour_fractions`; sums to 1 when every sample has one of them)."""
+    return _time_fractions(t_ns, modes, MODES, None)
 
 
 @dataclass
@@ -228,11 +264,12 @@ class Evaluated:
     usable: bool = True
 
 
-def evaluate_vicon_recording(rec: Recording, runner: Runner) -> Evaluated:
-    """ARMSE (2-D and 3-D, authors' definition) and behaviour fractions of one VICON trial, engine in ``zupt``."""
+def evaluate_vicon_recording(rec: Recording, runner: Runner, mode: str = "zupt") -> Evaluated:
+    """ARMSE (2-D and 3-D, authors' definition) and behaviour fractions of one VICON trial, engine in ``mode``
+    (default ``zupt``, DESIGN.md's form); the plot dict keeps the :class:`EngineRun` under ``"run"``."""
     if rec.truth is None or rec.truth.positions is None or rec.truth.t_ns is None:
         raise ValueError(f"{rec.name}: no per-sample truth")
-    run = runner(rec.batch, "zupt", None)
+    run = runner(rec.batch, mode, None)
     est = positions_at(run.t_ns, run.pos, rec.truth.t_ns) * _NED_TO_VICON
     gt = rec.truth.positions
     a2 = metrics.armse(est, gt, dims=2)
@@ -248,7 +285,7 @@ def evaluate_vicon_recording(rec: Recording, runner: Runner) -> Evaluated:
     }
     if rec.meta.notes:  # what the importer dropped (e.g. truth samples of an occluded marker)
         row["notes"] = list(rec.meta.notes)
-    return Evaluated(row, {"est_xy": aligned[:, :2], "truth_xy": gt0[:, :2]})
+    return Evaluated(row, {"est_xy": aligned[:, :2], "truth_xy": gt0[:, :2], "run": run})
 
 
 def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: float | None = None,
@@ -271,8 +308,10 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         notes.append("no ground truth (no SensorConnectData_NN.mat with GCP_meters for this experiment): "
                      "figures without truth only, left out of the summary")
         est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
+        refused = [d.get("reason") for kind, d in run.events if kind == "gyroscope_off_refused"]
         row0: dict[str, Any] = {
-            "name": rec.name, "distance_err_pct": None, "strides_detected": max(int(st.shape[0]) - 1, 0),
+            "name": rec.name, "distance_err_pct": None, "gyro_off_refused": refused[0] if refused else None, "strides_detected": count_moved(st[:, 1:3]),
+            "stances": int(st.shape[0]),
             "strides_truth": None, "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
             "gt_usable": False, "format": rec.meta.source_format, "est_path_m": est_len, "truth_path_m": None,
             "notes": notes,
@@ -313,10 +352,15 @@ def evaluate_gdin_recording(rec: Recording, runner: Runner, mode: str, l0_m: flo
         plot.update(aligned_strides_xy=se.aligned_xy, angle_rad=se.angle_rad, gcp_xy=gcp[: n + 1])
     est_len = metrics.path_length_xy(st[:, 1:3]) if st.shape[0] >= 2 else 0.0
     row["distance_err_pct"] = metrics.distance_error_pct(est_len, truth_len)
-    row["strides_detected"] = max(int(st.shape[0]) - 1, 0)
+    row["strides_detected"] = count_moved(st[:, 1:3])
+    row["stances"] = int(st.shape[0])
     row["strides_truth"] = int(n_truth) if n_truth is not None else int(len(x["gcp_m"]) - 1)
     row["gyro_on_fraction"] = run.gyro_on_fraction
     row["mean_rate_hz"] = run.mean_rate_hz
+    if mode != "zupt":
+        # --mode pdr kept the gyroscope because nothing would hold the heading (the engine's event says why)
+        refused = [d.get("reason") for kind, d in run.events if kind == "gyroscope_off_refused"]
+        row["gyro_off_refused"] = refused[0] if refused else None
     # a sensor file cut short against its truth (clients.importers.gdin.load_gdin) is not comparable either
     row["gt_usable"] = bool(x.get("gcp_exist_and_correct", True)) and bool(x.get("truth_covers_recording", True))
     row["format"] = rec.meta.source_format
@@ -334,17 +378,20 @@ def evaluate_gaitmap_recording(rec: Recording, runner: Runner, mode: str = "zupt
     engine's trace position is compared with the heel marker's (:func:`clients.evaluation.metrics.
     stride_length_errors`: strides of at least 0.3 m, distance over all of them); the engine's own stance times
     are not used (it reports a stance at its end, when the heel has already lifted by centimetres).
+    The plot dict keeps the :class:`EngineRun` under ``"run"``.
     ``climb_m``: height of the last reported stance above the first [m] (stairs: what the flight rose or,
-    negative, fell; there is no truth for it). ``strides_detected``: stance-to-stance intervals reported.
+    negative, fell; there is no truth for it). ``strides_detected``: strides that moved among the
+    stance-to-stance intervals reported (module docstring); ``stances``: positions reported.
     """
     run = runner(rec.batch, mode, None)
     st = run.stances
     has_truth = rec.truth is not None and "stance_t_ns" in rec.truth.extra
-    row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": max(int(st.shape[0]) - 1, 0),
+    row: dict[str, Any] = {"name": rec.name, "mode": mode, "strides_detected": count_moved(st[:, 1:3]),
+                           "stances": int(st.shape[0]),
                            "climb_m": float(st[0, 3] - st[-1, 3]) if st.shape[0] >= 2 else 0.0,
                            "gyro_on_fraction": run.gyro_on_fraction, "mean_rate_hz": run.mean_rate_hz,
                            "truth": has_truth}
-    plot: dict[str, Any] = {"stances_ned": st[:, 1:4].copy()}
+    plot: dict[str, Any] = {"stances_ned": st[:, 1:4].copy(), "run": run}
     if has_truth:
         assert rec.truth is not None
         q = np.asarray(rec.truth.extra["stance_t_ns"], dtype=np.int64)

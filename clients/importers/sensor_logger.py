@@ -235,6 +235,37 @@ def _to_ms2(name: str, v: np.ndarray, conv: dict[str, str]) -> np.ndarray:
     return v
 
 
+def _location_fixes(path: Path) -> list:  # type: ignore[type-arg]
+    """The fixes of the export's ``Location.csv`` (folder or zip; columns by name: ``time`` [ns], ``latitude``,
+    ``longitude``, ``altitude``, ``horizontalAccuracy``), as :class:`models.geo.Fix`; rows that cannot be read
+    are left out (a location file never refuses the recording)."""
+    from models.geo import Fix
+
+    text = None
+    if path.suffix.lower() == ".zip":
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if Path(info.filename).name.lower() == "location.csv":
+                    text = zf.read(info).decode("utf-8-sig")
+    elif path.suffix.lower() != ".json":
+        f = (path if path.is_dir() else path.parent) / "Location.csv"
+        if f.exists():
+            text = f.read_text(encoding="utf-8-sig")
+    fixes = []
+    for row in csv.DictReader(io.StringIO(text or "")):
+        def num(k: str) -> float | None:
+            try:
+                v = float(row.get(k) or "nan")
+            except ValueError:
+                return None
+            return v if np.isfinite(v) else None
+
+        t, lat, lon = _cell_time_ns(row.get("time") or ""), num("latitude"), num("longitude")
+        if t is not None and lat is not None and lon is not None:
+            fixes.append(Fix(t, lat, lon, num("altitude"), num("horizontalAccuracy")))
+    return fixes
+
+
 def load_sensor_logger(path: str | Path) -> Recording:
     """Import a Sensor Logger export (folder, one of its CSVs, zip, or JSON) as SI streams."""
     p = Path(path)
@@ -304,11 +335,19 @@ def load_sensor_logger(path: str | Path) -> Recording:
     batch = make_batch(src, acc_t, acc, gyr_t, gyr, mag_t, mag)
     notes += gap_notes(src, batch)
     rate = batch.rate_hz("acc")
+    from models.geo import anchor_from_fixes
+
+    fixes = _location_fixes(p)
+    anchor = anchor_from_fixes(fixes)
+    if fixes:
+        notes.append(f"location: {len(fixes)} fixes; " + (
+            f"anchored at the first with an accuracy of {anchor.accuracy_m:g} m ({anchor.latitude_deg:.6f}, "
+            f"{anchor.longitude_deg:.6f})" if anchor is not None else "none accurate enough to anchor (25 m)"))
     return Recording(
         name=src.stem if src.is_file() else src.name,
         batch=batch,
         meta=RecordingMeta(source_format="sensor-logger", rate_hz=rate, units_converted=conv, mount="phone",
-                           notes=tuple(notes)),
+                           notes=tuple(notes), anchor=anchor),
     )
 
 

@@ -26,6 +26,20 @@ as they are, and then feeds what is held back read afresh, a piece written only 
 changed meanwhile (else read again). So a push is never answered 4xx after its message was stored, and no sample
 is fed twice.
 
+Sessions: a push with no sensor samples (the app's connection test, an empty interval) creates nothing and
+stores nothing. The first push with samples of a new app ``sessionId`` starts a session; a new ``sessionId`` from
+the same ``deviceId`` means the app stopped its previous recording, whose session is then flushed and closed.
+A session that received no push for ``PEDNAV_SENSORLOGGER_IDLE_CLOSE_S`` (default 300 s) is flushed and closed by
+the server (the app sends nothing when its recording stops): :func:`close_idle_sessions`. Repeated
+``messageId`` values are applied once. The app's ``location`` stream anchors the session: the first fix whose
+``horizontalAccuracy`` is at most ``PEDNAV_ANCHOR_MAX_ACCURACY_M`` (default 25 m) sets its latitude, longitude,
+altitude (WGS-84, the app's ``altitude``), accuracy and date (``models.geo.anchor_from_fixes``), unless the
+session already has an anchor.
+
+The app cannot obey the sensor configuration the server answers (gyroscope off, lower rates): it records what
+its own settings say. The Python SDK (``clients.sdk``, ``clients.simulators``) uploads batches to
+``PUT /v1/sessions/{id}/batches/{seq}`` and applies the ``sensor_config`` of each answer to the next batch.
+
 Point the app at ``http://HOST:PORT/v1/sensorlogger?token=TOKEN`` (or send ``Authorization: Bearer``). This push
 is the only route that takes ``?token=`` (the app cannot set headers); every other route, the flush below
 included, refuses it with 401 (URLs end up in access logs). Give the app a token of its own (``POST /v1/tokens``
@@ -47,12 +61,20 @@ from models.batch import BatchError, SensorBatch
 from server import crud
 from server.deps import CurrentUser, HostDep, SensorLoggerUser, SessionDep, SettingsDep
 from server.formats import PayloadTooLarge
-from server.ingest import IngestConflict, StorageBusy, apply_batch, engine_profile_in, is_contention, json_safe
-from server.models import SensorLoggerLink, SensorLoggerMessage, TrackSession, User
+from server.ingest import (
+    IngestConflict,
+    StorageBusy,
+    apply_batch,
+    close_session,
+    engine_profile_in,
+    is_contention,
+    json_safe,
+)
+from server.models import SensorLoggerLink, SensorLoggerMessage, TrackSession, User, utcnow
 from server.schemas import SensorLoggerPush
 from server.statecodec import pack_state
 
-__all__ = ["router", "samples_to_batch"]
+__all__ = ["router", "samples_to_batch", "location_fixes", "close_idle_sessions", "close_link_session"]
 
 router = APIRouter(prefix="/sensorlogger", tags=["sensorlogger"])
 
@@ -97,6 +119,44 @@ def samples_to_batch(items: list[dict[str, Any]]) -> SensorBatch:
     g_t, g = _stream(items, "gyroscope")
     m_t, m = _stream(items, "magnetometer")
     return SensorBatch(acc_t_ns=acc_t, acc=acc, gyr_t_ns=g_t, gyr=g, mag_t_ns=m_t, mag=m)
+
+
+def location_fixes(payload: list[Any]) -> list[Any]:
+    """The ``location`` items of a push as :class:`models.geo.Fix` (time order). Sensor Logger's fields:
+    ``latitude``, ``longitude`` [deg], ``altitude`` [m, WGS-84], ``horizontalAccuracy`` [m]. An item without a
+    numeric latitude and longitude is no fix and is left out (the push's sensor samples are still taken); a
+    missing accuracy makes a fix that never anchors."""
+    from models.geo import Fix
+
+    def num(v: dict[str, Any], k: str) -> float | None:
+        x = v.get(k, v.get(k.lower()))
+        return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and abs(x) < 1e300 else None
+
+    fixes = []
+    for it in payload:
+        if it.name.lower() != "location":
+            continue
+        lat, lon = num(it.values, "latitude"), num(it.values, "longitude")
+        if lat is None or lon is None:
+            continue
+        fixes.append(Fix(int(it.time), lat, lon, num(it.values, "altitude"), num(it.values, "horizontalAccuracy")))
+    return sorted(fixes, key=lambda f: f.t_ns)
+
+
+def _anchor_from(db: SessionDep, session_id: int, fixes: list[Any], max_accuracy_m: float) -> None:
+    """Anchor the session at the first good fix unless it has an anchor (in the caller's transaction)."""
+    from models.geo import anchor_from_fixes
+
+    if not fixes:
+        return
+    sess = db.get(TrackSession, session_id)
+    if sess is None or sess.latitude_deg is not None:
+        return
+    a = anchor_from_fixes(fixes, max_accuracy_m, source="location")
+    if a is None:
+        return
+    sess.latitude_deg, sess.longitude_deg, sess.altitude_m = a.latitude_deg, a.longitude_deg, a.altitude_m
+    sess.anchor_date, sess.anchor_accuracy_m, sess.anchor_source = a.date, a.accuracy_m, a.source
 
 
 _FLOAT_MAX = int(np.finfo(np.float64).max)
@@ -215,14 +275,14 @@ def _window_problem(pieces: list[tuple[SensorBatch, int]]) -> BatchError | None:
     return None
 
 
-def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, host: Any) -> SensorLoggerLink:
-    """The link of the push's Sensor Logger session; a new one (and its session) is flushed, not committed: it is
-    stored with the push's message or not at all."""
+def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, host: Any) -> tuple[SensorLoggerLink, bool]:
+    """The link of the push's Sensor Logger session and whether this call made it; a new one (and its session) is
+    flushed, not committed: it is stored with the push's message or not at all."""
     link = db.execute(
         select(SensorLoggerLink).where(SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)
     ).scalar_one_or_none()
     if link is not None:
-        return link
+        return link, False
     profile = engine_profile_in(db, user)
     engine = host.new(settings.engine_mode, profile)
     sess = crud.create_session(
@@ -230,15 +290,15 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
         engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id,
-                            watermark_ns=0, late_samples=0)
+                            watermark_ns=0, late_samples=0, last_push_at=utcnow())
     db.add(link)
     try:
         db.flush()
     except IntegrityError:  # a concurrent first push of this session created it (was HTTP 500): take that one
         db.rollback()
         return db.execute(select(SensorLoggerLink).where(
-            SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)).scalar_one()
-    return link
+            SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == push.sessionId)).scalar_one(), False
+    return link, True
 
 
 def _unfed(db: SessionDep, link: SensorLoggerLink) -> list[SensorLoggerMessage]:
@@ -380,7 +440,10 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
     A database busy beyond its retries: 503 with ``Retry-After`` while the message is stored (nothing stored,
     send it again); once it is stored, the feed is only put off: 200 with ``deferred`` saying so (else null).
     """
+    fixes = location_fixes(body.payload)
     items = [it.model_dump() for it in body.payload if it.name.lower() in _NAMES]
+    if not items:  # nothing to navigate on (a connection test, an empty interval): nothing is created or stored
+        return _sampleless(db, user, body, fixes, settings)
     for it in items:
         it["name"] = it["name"].lower()
         for k in ("x", "y", "z"):
@@ -392,7 +455,7 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
     _check_size(items, settings.max_samples_per_stream)
     _check_samples(items)
     with _not_stored_when_busy(db, body.messageId):
-        link = _link(db, user, body, settings, host)
+        link, new_link = _link(db, user, body, settings, host)
         _lock_session(db, link.session_id)  # until the message is committed: concurrent pushes of the session wait
         db.refresh(link)  # the watermark as it is now
         t_max = max((int(it["time"]) for it in items), default=0)
@@ -429,8 +492,12 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
                 raise _refusal(problem, acc_name, " (in the held-back samples this push would feed)")
         if late:
             link.late_samples += late
+        link.last_push_at = utcnow()
+        _anchor_from(db, link.session_id, fixes, settings.anchor_max_accuracy_m)
         session_id, late_samples = link.session_id, link.late_samples
         db.commit()  # the message is stored before it is answered
+    if new_link and body.deviceId:  # a new recording of this device: the app stopped its earlier ones
+        _close_earlier_recordings(db, host, user, body, settings)
     positions, behaviour, skipped, busy = [], None, {"skipped_samples": 0, "skipped": None}, None
     if pieces is not None:  # this push moved the horizon: feed up to it (read again: other pushes may feed too)
         try:
@@ -443,6 +510,73 @@ def push(body: SensorLoggerPush, db: SessionDep, user: SensorLoggerUser, setting
         "database busy: held-back samples not fed yet; this message is stored, a later push or the flush feeds them")
     return {"session_id": session_id, "duplicate": False, "late_samples": late_samples,
             "positions": positions, "behaviour": behaviour, **skipped, "deferred": deferred}
+
+
+def _sampleless(db: SessionDep, user: User, body: SensorLoggerPush, fixes: list[Any], settings: Any) -> dict[str, Any]:
+    """A push without sensor samples: creates no session and stores no message; its location fixes may anchor the
+    session of its app session when that exists."""
+    link = db.execute(select(SensorLoggerLink).where(
+        SensorLoggerLink.user_id == user.id, SensorLoggerLink.sl_session_id == body.sessionId)).scalar_one_or_none()
+    if link is not None and fixes:
+        _anchor_from(db, link.session_id, fixes, settings.anchor_max_accuracy_m)
+        db.commit()
+    return {"session_id": None if link is None else link.session_id, "duplicate": False,
+            "late_samples": 0 if link is None else link.late_samples, "positions": [], "behaviour": None,
+            "skipped_samples": 0, "skipped": None, "deferred": None, "empty": True}
+
+
+def close_link_session(db: SessionDep, host: Any, link_id: int, settings: Any) -> int | None:
+    """Feed every held-back sample of a Sensor Logger link's session and close it; returns the session id when
+    this call closed it (None: gone, or already closed)."""
+    link = db.get(SensorLoggerLink, link_id)
+    if link is None:
+        return None
+    user = db.get(User, link.user_id)
+    sess = db.get(TrackSession, link.session_id)
+    if user is None or sess is None or sess.status != "open":
+        db.rollback()
+        return None
+    db.expunge(user)
+    sid = sess.id
+    db.rollback()
+    try:
+        _feed(db, user, link_id, host, settings.max_samples_per_stream, None)
+    except IngestConflict:  # closed meanwhile
+        return None
+    closed = close_session(db, host, user, sid, keep_versions=settings.max_profile_versions)
+    return sid if closed is not None and closed.status == "closed" else None
+
+
+def _close_earlier_recordings(db: SessionDep, host: Any, user: User, body: SensorLoggerPush, settings: Any) -> None:
+    rows = db.execute(
+        select(SensorLoggerLink.id).join(TrackSession, TrackSession.id == SensorLoggerLink.session_id).where(
+            SensorLoggerLink.user_id == user.id, SensorLoggerLink.device_id == body.deviceId,
+            SensorLoggerLink.sl_session_id != body.sessionId, TrackSession.status == "open")).scalars().all()
+    db.rollback()
+    for link_id in rows:
+        close_link_session(db, host, link_id, settings)
+
+
+def close_idle_sessions(sessionmaker: Any, host: Any, settings: Any, now: Any = None) -> list[int]:
+    """Flush and close every open Sensor Logger session whose last push is older than
+    ``settings.sensorlogger_idle_close_s``; returns the ids closed. Run periodically by the app (``create_app``)."""
+    from datetime import timedelta
+
+    if settings.sensorlogger_idle_close_s <= 0:
+        return []
+    cutoff = (now or utcnow()) - timedelta(seconds=settings.sensorlogger_idle_close_s)
+    closed = []
+    with sessionmaker() as db:
+        ids = db.execute(
+            select(SensorLoggerLink.id).join(TrackSession, TrackSession.id == SensorLoggerLink.session_id).where(
+                TrackSession.status == "open", SensorLoggerLink.last_push_at.is_not(None),
+                SensorLoggerLink.last_push_at < cutoff)).scalars().all()
+        db.rollback()
+        for link_id in ids:
+            sid = close_link_session(db, host, link_id, settings)
+            if sid is not None:
+                closed.append(sid)
+    return closed
 
 
 @router.post("/{sl_session_id}/flush")

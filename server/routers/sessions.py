@@ -1,16 +1,16 @@
-"""Sessions: start (with optional geodetic start), list, read, close."""
+"""Sessions: start (with an optional anchor), list, read, change the anchor, close, delete, re-process."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Query, status
+from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from server import crud
 from server.deps import CurrentUser, HostDep, OffsetQuery, PathId, SessionDep, SettingsDep
 from server.ingest import close_session, engine_profile_in, json_safe
 from server.reprocess import ReprocessConflict, reprocess_session
-from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut
+from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut, SessionPatch
 from server.statecodec import pack_state
 
 __all__ = ["router"]
@@ -31,7 +31,9 @@ def start_session(body: SessionCreate, db: SessionDep, user: CurrentUser, settin
     engine = host.new(settings.engine_mode, profile)
     sess = crud.create_session(
         db, user, device_kind=body.device_kind, device_id=body.device_id, latitude_deg=body.latitude_deg,
-        longitude_deg=body.longitude_deg, altitude_m=body.altitude_m, engine_mode=settings.engine_mode,
+        longitude_deg=body.longitude_deg, altitude_m=body.altitude_m, anchor_date=body.anchor_date,
+        anchor_accuracy_m=body.anchor_accuracy_m,
+        anchor_source="user" if body.latitude_deg is not None else None, engine_mode=settings.engine_mode,
         profile_in=json_safe(profile), engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     db.commit()
@@ -51,6 +53,51 @@ def get_session(session_id: PathId, db: SessionDep, user: CurrentUser) -> Any:
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
     return sess
+
+
+@router.patch("/{session_id}", response_model=SessionOut)
+def patch_session(session_id: PathId, body: SessionPatch, db: SessionDep, user: CurrentUser) -> Any:
+    """Set, change or remove the session's anchor (open or closed). Only the fields sent change;
+    ``latitude_deg`` and ``longitude_deg`` null together remove it (with its date, accuracy and source). The
+    trajectory is geo-referenced when read, so every export follows at once; the stored positions are unchanged."""
+    sess = crud.get_session(db, user, session_id, for_update=True)
+    if sess is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    sent = body.model_fields_set
+    if ("latitude_deg" in sent) != ("longitude_deg" in sent):
+        raise HTTPException(422, "latitude_deg: latitude and longitude must be given together")
+    if "latitude_deg" in sent and (body.latitude_deg is None) != (body.longitude_deg is None):
+        raise HTTPException(422, "latitude_deg: latitude and longitude must both be numbers or both null")
+    if "latitude_deg" in sent and body.latitude_deg is None:
+        for f in ("latitude_deg", "longitude_deg", "altitude_m", "anchor_date", "anchor_accuracy_m", "anchor_source"):
+            setattr(sess, f, None)
+    else:
+        if "latitude_deg" not in sent and sess.latitude_deg is None and sent:
+            raise HTTPException(422, "latitude_deg: the session has no anchor; send latitude_deg and longitude_deg")
+        for f in ("latitude_deg", "longitude_deg", "altitude_m", "anchor_date", "anchor_accuracy_m"):
+            if f in sent:
+                setattr(sess, f, getattr(body, f))
+        if "latitude_deg" in sent:
+            sess.anchor_source = "user"
+            if "anchor_accuracy_m" not in sent:
+                sess.anchor_accuracy_m = None  # a hand-given position has no fix accuracy
+    db.commit()
+    return sess
+
+
+@router.delete("/{session_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response)
+def delete_session(session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep) -> Response:
+    """Delete the session with its raw batches, positions, events and Sensor Logger messages (open or closed).
+    The user's calibration profiles stay (a closed session has already handed its calibration over)."""
+    with host.lock(session_id):
+        sess = crud.get_session(db, user, session_id, for_update=True)
+        if sess is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+        crud.delete_session(db, sess)
+        with host.write_lock:
+            db.commit()
+        host.forget(session_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
 
 
 @router.post("/{session_id}/close", response_model=SessionOut)

@@ -7,6 +7,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from energy.strides import STRIDE_MIN_M
 from server import crud
 from server.deps import CurrentUser, SessionDep
 from server.schemas import GaitSummaryOut, UserOut
@@ -44,7 +45,8 @@ def _deviation_series(db: SessionDep, sess: Any) -> list[dict[str, Any]]:
 
 def _session_gait(db: SessionDep, sess: Any) -> dict[str, Any]:
     pos = crud.positions_of(db, sess.id)
-    moving = [p for p in pos if p.behaviour in ("walk", "run") and p.step_length_m > 0]
+    # strides that moved: a re-stance on the spot while standing (a step length of a few cm) is no step
+    moving = [p for p in pos if p.behaviour in ("walk", "run") and p.step_length_m >= STRIDE_MIN_M]
     series = _deviation_series(db, sess)
     out: dict[str, Any] = {
         "session_id": sess.id,

@@ -420,3 +420,35 @@ def test_sensor_logger_push_refusals_and_isolation(client, make_user) -> None:  
     assert client.post("/v1/sensorlogger/x/flush", headers=auth(b)).status_code == 404
     sid = r.json()["session_id"]
     assert client.get(f"/v1/sessions/{sid}", headers=auth(b)).status_code == 404
+
+
+@pytest.mark.parametrize("container", ["folder", "zip"])
+def test_sensor_logger_location_anchors_the_recording(tmp_path: Path, container: str) -> None:
+    """The export's Location.csv: the first fix with an accuracy of at most 25 m anchors the recording; a poor
+    first fix and an unreadable row are passed over; without a good fix there is no anchor (and it says so)."""
+    b = _phone_batch()
+    files = _export(b, "total")
+    t0 = int(b.acc_t_ns[0])
+    files["Location"] = "\n".join([
+        "time,seconds_elapsed,bearingAccuracy,speedAccuracy,verticalAccuracy,horizontalAccuracy,speed,bearing,altitude,longitude,latitude",
+        f"{t0},0,0,0,10,65.0,0,0,30.0,-117.80,33.60",
+        f"{t0 + 10**9},1,0,0,5,,0,0,31.0,-117.81,33.61",
+        f"{t0 + 2 * 10**9},2,0,0,4,6.5,0,0,15.5,-117.8443,33.6405",
+        f"{t0 + 3 * 10**9},3,0,0,3,3.0,0,0,16.0,-117.9,33.7"]) + "\n"
+    if container == "folder":
+        path = _write_folder(tmp_path, files)
+    else:
+        path = tmp_path / "export.zip"
+        with zipfile.ZipFile(path, "w") as zf:
+            for k, v in files.items():
+                zf.writestr(f"rec/{k}.csv", v)
+    rec = load_any(path)
+    a = rec.meta.anchor
+    assert a is not None and (a.latitude_deg, a.longitude_deg, a.altitude_m, a.accuracy_m) == (33.6405, -117.8443, 15.5, 6.5)
+    assert a.source == "location" and any("location: 4 fixes" in n for n in rec.meta.notes)
+    files["Location"] = files["Location"].replace(",6.5,", ",60.0,").replace(",3.0,", ",90.0,")
+    (tmp_path / "poor").mkdir()
+    for k, v in files.items():
+        (tmp_path / "poor" / f"{k}.csv").write_text(v)
+    rec = load_any(tmp_path / "poor")
+    assert rec.meta.anchor is None and any("none accurate enough" in n for n in rec.meta.notes)

@@ -7,7 +7,7 @@ import pytest
 
 from clients.sdk import PednavClient
 from clients.simulators import FootSensorSimulator, PhoneSimulator, WatchSimulator, simulator_for
-from energy.scheduler import BATCH_S, LOW_POWER_BATCH_S
+from energy.config import RatesConfig
 from tests.server.conftest import app, backend, client, make_user, settings  # noqa: F401 - fixtures
 
 
@@ -71,6 +71,6 @@ def test_simulator_uploads_as_long_as_the_server_says(client, make_user, walk_re
     spans = [(b - a) / 1e9 for (a, _), (b, _) in zip(res.configs, res.configs[1:])]
     wanted = [c["batch_s"] for _, c in res.configs[:-1]]
     assert spans == pytest.approx(wanted, abs=1e-9)
-    assert {BATCH_S, LOW_POWER_BATCH_S} <= set(wanted)  # the scheduler asked for both, so this proves something
+    assert {RatesConfig().batch_s, RatesConfig().low_power_batch_s} <= set(wanted)  # the scheduler asked for both, so this proves something
     stored = api._json("GET", f"/v1/sessions/{res.session_id}/batches")
     assert len(stored) == len(res.configs) and sum(b["n_acc"] for b in stored) == res.samples_sent["acc"]

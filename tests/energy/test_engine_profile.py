@@ -20,7 +20,7 @@ from models.heading_deviation import wrap_angle
 from models.steps import StepEvent
 from tests.energy.replayed import replayed_batches
 
-CFG = EngineConfig(l0_m=15.0, t0_s=20.0)
+CFG = EngineConfig().override({"scheduler.l0_m": 15.0, "scheduler.t0_s": 20.0})
 
 
 @pytest.fixture(scope="module")
@@ -121,18 +121,19 @@ def test_a_re_mounted_session_is_chunk_invariant_and_restores_identically(profil
 
 
 def test_a_behaviour_without_a_deviation_of_its_own_borrows_the_best_estimated_one() -> None:
-    gait = GaitPipeline(25.0)
-    assert gait.deviation("run") == 0.0  # nothing learned anywhere
+    gait = GaitPipeline(EngineConfig())
+    assert gait.deviation_kf("run").deviation == 0.0  # nothing learned anywhere
     gait.load_calibration("walk", {}, math.radians(178.0), math.radians(1.0) ** 2)
-    assert gait.deviation("walk") == pytest.approx(math.radians(178.0))
-    assert gait.deviation("run") == pytest.approx(math.radians(178.0))  # the mount's, not 0
-    assert gait.deviation("stand") == pytest.approx(math.radians(178.0))  # stand/other steps use the walk's
+    assert gait.deviation_kf("walk").deviation == pytest.approx(math.radians(178.0))
+    assert gait.deviation_kf("run").deviation == pytest.approx(math.radians(178.0))  # the mount's, not 0
+    assert gait.deviation_kf("stand").deviation == pytest.approx(math.radians(178.0))  # stand/other steps use the walk's
     gait.kf2["run"].update(math.radians(170.0))  # a deviation of its own, from one stride
-    assert gait.deviation("run") == pytest.approx(math.radians(170.0))
+    assert gait.deviation_kf("run").deviation == pytest.approx(math.radians(170.0))
     # Gait-DR places a run-labelled stride along the borrowed deviation
-    gait = GaitPipeline(25.0)
+    gait = GaitPipeline(EngineConfig())
     gait.load_calibration("walk", {}, math.radians(178.0), math.radians(1.0) ** 2)
-    gait.start(np.zeros(3), 0.0)
+    gait.start(np.zeros(3))
+    gait.start_frame(0.0)
     gait.queue = [StepEvent(1.0, 1.0, 1.0, 10.0, 20.0, 2.0, (0.0, 0.0, 9.81), False, 1)]
     gait.recent_d["run"] = [1.5]
     (step, _, _), = gait.reckon(2.0, lambda t: "run")

@@ -1,4 +1,4 @@
-"""Gait-DR pipeline: KF II turn gate, compass following in dead reckoning, state round trip."""
+"""Gait-DR pipeline: KF II turn gate, the compass through the heading estimator, state round trip."""
 
 from __future__ import annotations
 
@@ -10,8 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from energy.config import EngineConfig
 from energy.codec import dumps, loads
 from energy.gait_dr import GaitPipeline
+from models.heading_deviation import wrap_angle
+from models.heading_deviation import wrap_angle
 from models.step_length import StepFeatures
 from models.steps import StepEvent
 from models.zupt_nav import Stance
@@ -26,7 +29,7 @@ def _pair(k: int, heading: float, walk_dir: float, d: float = 1.3, period: float
 
 
 def test_kf2_skips_turning_strides() -> None:
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     dev = math.radians(5.0)
     k = 0
     for _ in range(12):  # straight north: walking direction = heading + 5 deg
@@ -43,7 +46,7 @@ def test_kf2_skips_turning_strides() -> None:
         k += 1
     assert gp.kf2["walk"].n_updates == n + 5
     assert gp.kf2["walk"].deviation == pytest.approx(dev, abs=math.radians(0.5))
-    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    back = GaitPipeline.from_state(EngineConfig(), loads(dumps(gp.get_state())))
     assert back._prev_stance == gp._prev_stance
 
 
@@ -51,7 +54,7 @@ def test_kf2_observes_the_heading_half_way_through_the_swing() -> None:
     """The foot's heading wobbles by 8 deg from stance to stance while the walk goes straight: each stride's chord
     lies half-way between the stance headings before and after its swing. Against the mid-swing heading every
     observation is the deviation itself; against the heel-strike heading they would alternate by +-4 deg."""
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     dev = math.radians(3.0)
     wobble = math.radians(8.0)
     devs = []
@@ -68,19 +71,19 @@ def test_kf2_observes_the_heading_half_way_through_the_swing() -> None:
 def test_conventional_pipeline_uses_the_generic_model_and_no_deviation() -> None:
     from models.step_length import StepFeatures, StepLengthCalibrator
 
-    gps = {c: GaitPipeline(25.0, conventional=c) for c in (False, True)}
+    gps = {c: GaitPipeline(EngineConfig().override({"pdr_conventional": c})) for c in (False, True)}
     for gp in gps.values():
         for k in range(12):  # a person with 1.6 m strides walking 20 deg off the sensor's x axis
             gp.learn(*_pair(k, 0.0, math.radians(20.0), d=1.6), "walk")
         gp.fit("walk")
-        gp.start(np.zeros(3), 0.0)
+        gp.start(np.zeros(3))
+        gp.start_frame(0.0)
     e = _pair(20, 0.0, 0.0)[1]
     generic = StepLengthCalibrator().predict("walk", StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min))[0]
     assert gps[True].step_length(e, "walk")[0] == pytest.approx(generic)
     assert gps[False].step_length(e, "walk")[0] == pytest.approx(1.6, abs=0.05)
     assert gps[False].kf2["walk"].deviation == pytest.approx(math.radians(20.0), abs=math.radians(0.5))
     assert gps[True].dr is not None and not gps[True].dr.compensate
-    assert GaitPipeline.from_state(loads(dumps(gps[True].get_state()))).conventional
 
 
 def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
@@ -90,7 +93,7 @@ def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
     from models.step_length import StepLengthCalibrator
 
     generic = StepLengthCalibrator()
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     slow = [_pair(k, 0.0, 0.0, period=1.4) for k in range(6)]
     for st, e in slow:
         d = 1.2 * generic.predict("walk", StepFeatures(e.f_s, e.acc_mean, e.acc_max, e.acc_min))[0]
@@ -100,7 +103,7 @@ def test_unfitted_stride_follows_the_cadence_at_the_persons_scale() -> None:
     want = 1.2 * generic.predict("walk", StepFeatures(fast.f_s, fast.acc_mean, fast.acc_max, fast.acc_min))[0]
     assert gp.step_length(fast, "walk")[0] == pytest.approx(want)
     assert want > 1.05 * float(np.median(gp.recent_d["walk"]))
-    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    back = GaitPipeline.from_state(EngineConfig(), loads(dumps(gp.get_state())))
     assert back.step_length(fast, "walk")[0] == gp.step_length(fast, "walk")[0]
 
 
@@ -112,7 +115,7 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
     trip and the event rows keep the marks."""
     from models.steps import StepEvent
 
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     for k in range(6):
         st, e = _pair(k, 0.0, 0.0, period=1.1 + 0.02 * k)  # walking strides of 1.10-1.20 s
         gp.learn(st, e, "walk")
@@ -125,18 +128,15 @@ def test_a_paused_stride_takes_its_own_behaviours_cadence() -> None:
     assert gp.features(paused, "run").f_s == paused.f_s  # no measured running stride to take one from
     assert gp.step_length(paused, "walk")[0] == gp.step_length(dataclasses.replace(paused, f_s=want, paused=False), "walk")[0]
     assert gp.step_length(paused, "walk")[0] != gp.step_length(run_pace, "walk")[0]
-    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
+    back = GaitPipeline.from_state(EngineConfig(), loads(dumps(gp.get_state())))
     assert back.features(paused, "walk") == gp.features(paused, "walk")
     for ev in (paused, run_pace, dataclasses.replace(run_pace, after_rest=True)):
         assert StepEvent.from_row(ev.to_row()) == ev
-    old = gp.get_state()
-    del old["recent_f"]  # a state stored before the cadences were kept: none
-    assert GaitPipeline.from_state(old).features(paused, "walk").f_s == paused.f_s
 
 
 def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> None:
     """A profile whose walking fit predates K3 on the mean acceleration is refitted from its pairs."""
-    src = GaitPipeline(25.0)
+    src = GaitPipeline(EngineConfig())
     for k in range(20):
         src.learn(*_pair(k, 0.0, 0.0, d=1.25 + 0.01 * (k % 3)), "walk")
     src.fit("walk")
@@ -145,7 +145,7 @@ def test_profile_fitted_with_the_older_step_model_form_is_refitted_on_load() -> 
     del old["calibrator"]["form"]
     for v in old["calibrator"]["fits"].values():
         v["coef"][3] = -0.014  # a K3 fitted on the ~30 m/s^2 peak
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.load_calibration("walk", old, 0.0, 1e-4)
     e = _pair(30, 0.0, 0.0)[1]
     assert gp.step_length(e, "walk") == src.step_length(e, "walk")
@@ -177,242 +177,81 @@ def _calibrated_compass(rng: np.random.Generator, frame_offset: float = 0.0):
     return cal
 
 
-def _reckon_one(gp: GaitPipeline, k: int, acc: np.ndarray, mag: np.ndarray) -> str:
-    e = StepEvent(100.0 + k, 1.1, 0.9, 12.0, 25.0, 5.0, tuple(acc), False, 1000 + k)
+def _event(k: int, acc: np.ndarray) -> StepEvent:
+    return StepEvent(100.0 + 1.1 * k, 1.1, 0.9, 12.0, 25.0, 5.0, tuple(acc), False, 1000 + k)
+
+
+def _zupt_stride(gp: GaitPipeline, k: int, yaw: float, delta: float, acc: np.ndarray, mag: np.ndarray) -> None:
+    """A ZUPT-KF stride ending at heading ``yaw`` [rad] after a gyroscope-measured turn ``delta`` [rad]: the
+    compass calibration (learn) and the heading estimator (track), as the engine runs them."""
+    st, e = _pair(k, yaw, yaw)
+    e = dataclasses.replace(e, acc_stance=tuple(acc), index=k)
+    gp.stance_mag[e.index] = mag
+    gp.stance_acc[e.index] = acc
+    gp.learn(st, e, "walk")
+    gp.track(e, delta, 0.0)
+
+
+def _reckon_one(gp: GaitPipeline, k: int, acc: np.ndarray, mag: np.ndarray):
+    """One Gait-DR stride whose stance reads ``acc``, ``mag``; returns (step, drift forecast %)."""
+    e = _event(k, acc)
     gp.queue.append(e)
     gp.stance_mag[e.index] = mag
-    (_, _, source), = gp.reckon(e.t_s + 0.1, lambda t: "walk")
-    return source
+    gp.stance_acc[e.index] = acc
+    (step, _, drift), = gp.reckon(e.t_s + 0.1, lambda t: "walk")
+    return step, drift
 
 
-def test_compass_from_a_profile_is_reanchored_to_this_sessions_frame() -> None:
-    """A stored calibration's field azimuth is in the frame of the session that fitted it (heading 0 = where
-    the foot pointed at that session's start); this session starts elsewhere. Without re-anchoring every
-    compass heading would be off by the difference of the two frames (here 40 deg)."""
-    rng = np.random.default_rng(3)
-    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    assert not gp.mag_anchored
-    gp.start(np.zeros(3), 0.3)  # this session's heading of the foot, which points at yaw 0.3
-    # three clean stances anchor the frame (their offsets averaged); until then the heading is held
-    assert [_reckon_one(gp, k, *_field_stance(rng, 0.3)) for k in range(3)] == ["none", "none", "compass"]
-    assert gp.mag_anchored and gp.heading == pytest.approx(0.3, abs=math.radians(1.5))
-    for k in range(3, 8):  # turn to yaw 1.3: followed in this session's frame
-        _reckon_one(gp, k, *_field_stance(rng, 1.3))
-    assert gp.heading == pytest.approx(1.3, abs=math.radians(1.5))
-    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
-    assert back.mag_anchored and back.follower.clean_run == gp.follower.clean_run
-
-
-def test_loaded_compass_is_anchored_again_as_this_sessions_tilt_offset_is_learned() -> None:
-    """This power-on's accelerometer offset (1.4 deg) tilts the loaded compass by up to ``tan(dip)`` times it, by
-    heading: anchored on 3 stances facing one way, the frame took that way's error (-0.3 deg here) and kept it after
-    :meth:`MagCalibrator.observe_dip` had learned the tilt (2.1-2.5 deg off at every heading). The anchor stances are
-    read again at each tilt refit, so the frame follows: within 0.6 deg at the four headings walked."""
-    from models.rotations import rotvec_to_dcm
-
-    rng = np.random.default_rng(31)
-    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
+def _walking(gp: GaitPipeline, rng: np.random.Generator, yaw: float = 0.3, n: int = 12, **field) -> None:
+    """Start the session frame at ``yaw`` and walk ``n`` ZUPT-KF strides on it."""
     gp.has_mag = True
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    tilt = rotvec_to_dcm(np.radians([1.2, -0.8, 0.0]))  # body axes
-
-    def stance(yaw: float) -> tuple[np.ndarray, np.ndarray]:
-        acc, mag = _field_stance(rng, yaw)
-        return tilt @ acc, mag
-
-    yaws = (0.0, math.pi / 2, math.pi, -math.pi / 2)
-
-    def errors_deg(p: GaitPipeline) -> np.ndarray:
-        return np.degrees([np.mean([math.remainder(p.mag.heading(*stance(y)) - y, 2 * math.pi) for _ in range(20)])
-                           for y in yaws])
-
-    for k in range(3):
-        _learn_one(gp, k, 0.0, *stance(0.0))
-    assert gp.mag_anchored and gp.mag.n_stances == stored.n_stances
-    assert max(abs(errors_deg(gp))) > 3.0  # the tilt offset, before its fit
-    gp.start(np.zeros(3), 0.0)
-    k = 3
-    for y in yaws * 2:
-        for _ in range(10):
-            _reckon_one(gp, k, *stance(y))
-            k += 1
-            if k == 30:
-                back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
-                assert back._anchor_rows == gp._anchor_rows and back.mag_anchored
-    assert max(abs(errors_deg(gp))) < 0.6
+    gp.start_frame(yaw)
+    for k in range(n):
+        _zupt_stride(gp, k, yaw, 0.0, *_field_stance(rng, yaw, **field))
+    gp.start(np.zeros(3))
 
 
-@pytest.mark.parametrize("off_deg, handed_refit", [(0.0, True), (25.0, False)])
-def test_profile_compass_is_refitted_unless_the_latest_stances_pull_it_off(off_deg: float, handed_refit: bool) -> None:
-    """A profile hands on the compass refitted on every stance it holds, unless that refit agrees with the ZUPT-KF
-    on the stances of the fit in use by half again worse (and 0.5 deg): six later stances whose ZUPT-KF heading
-    was 25 deg off (a segment restarted from a held heading) are not the sensor's calibration. Six good ones are."""
-    from models.compass import MagCalibrator
-
-    rng = np.random.default_rng(41)
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
-    gp.mag = _calibrated_compass(rng)
-    gp._mag_fit_n = gp.mag.n_added  # the fit in use saw every stance so far
-    for _ in range(6):
-        acc, mag = _field_stance(rng, 0.4)
-        gp.mag.add(acc, mag, 0.4 + math.radians(off_deg))
-    refit = MagCalibrator.from_state(gp.mag.get_state())
-    refit.refit()
-    assert not np.allclose(refit.b, gp.mag.b)
-    used, worse = gp.mag.heading_scale_on(0, gp._mag_fit_n), refit.heading_scale_on(0, gp._mag_fit_n)
-    assert (worse > max(1.5 * used, used + math.radians(0.5))) != handed_refit
-    handed = MagCalibrator.from_state(gp.compass_state())
-    assert np.allclose(handed.b, refit.b if handed_refit else gp.mag.b)
-    assert handed.n_stances == gp.mag.n_stances  # the stances are handed on either way
-
-
-def test_a_loaded_compass_learns_its_tilt_offset_only_from_the_earths_field() -> None:
-    """Steel that leaves the field inside the disturbance gate (dip +2.5 deg, |m| -3 %) on one leg of the walk: its
-    dips are not the tilt offset's. Fitted from every stance that passed the gate, the offset came out 1.1 deg
-    (the sensor has none) and the compass 1.9-2.9 deg off at two headings on the clean field; fitted only from
-    settled stances, within 1.2 deg everywhere."""
-    rng = np.random.default_rng(33)
-    stored = _calibrated_compass(rng)
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    h, n = math.hypot(M_N[0], M_N[1]), float(np.linalg.norm(M_N))
-    n2, d2 = 0.97 * n, math.atan2(M_N[2], h) + math.radians(2.5)
-    steel = np.array([M_N[0] / h * n2 * math.cos(d2), M_N[1] / h * n2 * math.cos(d2), n2 * math.sin(d2)])
-    assert not gp.mag.disturbed(*_field_stance(rng, math.pi, place=steel))
-    for k in range(3):
-        _learn_one(gp, k, 0.0, *_field_stance(rng, 0.0))
-    gp.start(np.zeros(3), 0.0)
-    yaws = (0.0, math.pi / 2, math.pi, -math.pi / 2)
-    k = 3
-    for y in yaws * 2:
-        for _ in range(10):
-            _reckon_one(gp, k, *_field_stance(rng, y, place=steel if y == math.pi else M_N))
-            k += 1
-    errs = [np.mean([math.remainder(gp.mag.heading(*_field_stance(rng, y)) - y, 2 * math.pi) for _ in range(20)])
-            for y in yaws]
-    assert max(abs(np.degrees(errs))) < 1.2
-
-
-ELSEWHERE = np.array([26.0, 3.0, 46.0])  # uT, NED: another building's field (|m| +15 %, dip +5 deg against M_N)
-
-
-def _learn_one(gp: GaitPipeline, k: int, yaw: float, acc: np.ndarray, mag: np.ndarray) -> None:
-    """A ZUPT-KF stance of this session at heading ``yaw`` [rad] (its frame), then the engine's compass query."""
-    st, e = _pair(k, yaw, yaw)
-    e = dataclasses.replace(e, acc_stance=tuple(acc))
-    gp.stance_mag[e.index] = mag
-    gp.learn(st, e, "walk")
-    gp.heading_source()  # what the engine asks after every stance (refits the compass when due)
-
-
-def test_compass_from_another_place_is_replaced_by_the_sessions_own_fit() -> None:
-    """A profile's compass fitted where the field is M_N, used where it is ELSEWHERE (another session's building):
-    its gate is moved to this place's field after 3 stances (before, every stance here failed it, so it was never
-    re-anchored and Gait-DR held one heading), and once this session's own stances span enough headings their
-    fit replaces it (this place's field, this session's frame, no rows of the other session)."""
+def test_a_profiles_compass_reads_in_its_own_frame_and_the_estimator_learns_the_offset() -> None:
+    """A stored calibration's field azimuth is in the frame of the session that fitted it; this session's frame
+    began elsewhere (here 40 deg apart). The heading estimator takes the difference as the compass's frame
+    offset from the ZUPT-KF strides, and Gait-DR then follows a turn in this session's frame."""
     rng = np.random.default_rng(21)
     stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    assert stored.disturbed(*_field_stance(rng, 0.0, place=ELSEWHERE))  # the gate as loaded rejects this place
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
+    gp = GaitPipeline(EngineConfig())
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    assert gp.own_mag is not None and not gp.mag_placed and not gp.mag_anchored
-    yaws = rng.uniform(-math.pi, math.pi, 40)
-    for k, yaw in enumerate(yaws[:6]):
-        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw), place=ELSEWHERE))
-    assert gp.mag is not gp.own_mag and gp.mag_placed and gp.mag_anchored  # relocated (3), then re-anchored (3)
-    acc, mag = _field_stance(rng, 1.0, place=ELSEWHERE)
-    assert not gp.mag.disturbed(acc, mag)
-    assert gp.mag.heading(acc, mag) == pytest.approx(1.0, abs=math.radians(3.0))  # the loaded hard iron, this frame
-    for k, yaw in enumerate(yaws[6:], start=6):
-        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw), place=ELSEWHERE))
-        if gp.own_mag is None:
-            break
-    assert gp.own_mag is None  # superseded by this session's own fit
-    assert gp.mag.n_stances == k + 1  # this session's stances only
-    assert gp.mag.field_reference()[0] == pytest.approx(float(np.linalg.norm(ELSEWHERE)), rel=0.03)
-    acc, mag = _field_stance(rng, -2.0, place=ELSEWHERE)
-    assert gp.mag.heading(acc, mag) == pytest.approx(-2.0, abs=math.radians(2.0))
-    assert gp.compass_state()["rows"].shape[0] == k + 1  # what the profile hands on next (Engine.profile_dict)
+    _walking(gp, rng)
+    assert gp.compass() is gp.loaded and gp.in_use == "loaded"
+    assert wrap_angle(gp.est.offset - math.radians(40.0)) == pytest.approx(0.0, abs=math.radians(2.0))
+    for k in range(20, 24):
+        step, _ = _reckon_one(gp, k, *_field_stance(rng, 1.3))
+    assert gp.est.heading == pytest.approx(1.3, abs=math.radians(3.0))
+    back = GaitPipeline.from_state(EngineConfig(), loads(dumps(gp.get_state())))
+    assert back.est.heading == gp.est.heading and back.compass() is back.loaded
 
 
-def test_good_loaded_compass_keeps_working_before_the_session_has_its_own_fit() -> None:
-    """Same place, 3 ZUPT-KF stances (far fewer than a fit needs): the loaded compass is re-anchored on them and
-    Gait-DR follows a turn with it; this session's stances wait in its own fit."""
-    rng = np.random.default_rng(22)
-    stored = _calibrated_compass(rng, frame_offset=math.radians(-60.0))
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    for k in range(3):
-        _learn_one(gp, k, 0.3, *_field_stance(rng, 0.3))
-    assert gp.mag_placed and gp.mag_anchored and gp.heading_source()
-    assert gp.own_mag is not None and gp.own_mag.n_stances == 3 and not gp.own_mag.ready
-    assert gp.mag.n_stances == stored.n_stances  # the loaded compass is not refitted with this frame's stances
-    gp.start(np.zeros(3), 0.3)
-    sources = [_reckon_one(gp, k, *_field_stance(rng, 1.3)) for k in range(5)]
-    assert set(sources) == {"compass"}
-    assert gp.heading == pytest.approx(1.3, abs=math.radians(2.0))
-    assert gp.own_mag is not None  # Gait-DR stances have no ZUPT-KF heading: they do not feed the own fit
-
-
-@pytest.mark.parametrize("seed, off_deg, own_trusted", [(23, 20.0, False), (24, 4.0, True)])
-def test_trusted_loaded_compass_is_replaced_only_by_an_own_fit_that_agrees_better(seed, off_deg, own_trusted) -> None:
-    """A returning user's own fit from a few examination stances can be ready but not trusted (its headings
-    disagree with the ZUPT-KF's by 20 deg; replacing a trusted loaded compass with it made auto keep the gyroscope
-    on: mixed-day returning seeds 1-2, energy ratio 0.10 -> 0.25), or trusted yet noisier than the loaded one
-    (4 deg; mixed-day returning seed 26: 15 stances, some of them running, 3.8 deg against the ZUPT-KF, and the
-    compass was then 8-10 deg off through the run, mean error 7.2 m; kept, 4.1 m). It supersedes the loaded one
-    only when trusted and its agreement with the ZUPT-KF (:attr:`MagCalibrator.heading_scale`) is at least as
-    good: here the loaded one stays."""
+@pytest.mark.parametrize("seed, off_deg, replaced", [(23, 20.0, False), (24, 4.0, False), (25, 0.0, True)])
+def test_an_own_fit_supersedes_a_trusted_profile_compass_only_when_it_agrees_at_least_as_well(seed, off_deg,
+                                                                                            replaced) -> None:
+    """A returning user's own fit from a few examination stances can be ready but not trusted (headings 20 deg off
+    the ZUPT-KF's), or trusted yet noisier than the loaded one (4 deg): the loaded one stays. An own fit as good
+    takes over (this place's field, this session's frame: offset 0)."""
     rng = np.random.default_rng(seed)
     stored = _calibrated_compass(rng)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    yaws = rng.uniform(-math.pi, math.pi, 20)
-    for k, yaw in enumerate(yaws):  # ZUPT-KF headings off the compass's at random
-        off = float(rng.normal(scale=math.radians(off_deg)))
-        _learn_one(gp, k, float(yaw), *_field_stance(rng, float(yaw) + off))
-    assert gp.own_mag is not None and gp.own_mag.ready and gp.own_mag.trusted == own_trusted
-    assert gp.own_mag.heading_scale > gp.mag.heading_scale
-    assert gp.mag.trusted and gp.heading_source() and gp.mag.n_stances == stored.n_stances
-
-
-def test_loaded_compass_from_another_place_reanchors_in_dead_reckoning_and_round_trips() -> None:
-    """The same with Gait-DR soon after the start (one ZUPT-KF stance): 3 stances move the gate to this place, 3
-    clean ones re-anchor it; the heading is held until then and follows the compass after. The state round trip keeps
-    the loaded compass, the session's own fit and the place check."""
-    rng = np.random.default_rng(23)
-    stored = _calibrated_compass(rng, frame_offset=math.radians(40.0))
-    gp = GaitPipeline(25.0)
-    gp.has_mag = True
-    gp.load_calibration("walk", {"compass": stored.get_state()}, 0.0, 1e-4)
-    _learn_one(gp, 0, 0.3, *_field_stance(rng, 0.3, place=ELSEWHERE))  # one ZUPT-KF stance: own fit, place check
-    gp.start(np.zeros(3), 0.3)
-    back = GaitPipeline.from_state(loads(dumps(gp.get_state())))
-    assert back.own_mag is not None and back.own_mag.n_stances == 1
-    assert not back.mag_placed and len(back._place) == 1 and not back.mag_anchored
-    assert back.mag.n_stances == stored.n_stances
-    stances = [_field_stance(rng, 0.3, place=ELSEWHERE) for _ in range(5)]
-    out = [[_reckon_one(p, k, *s) for k, s in enumerate(stances)] for p in (gp, back)]
-    # place check: the ZUPT-KF stance + 2; then 3 clean stances re-anchor it (the last of them already follows)
-    assert out[0] == out[1] == ["none"] * 3 + ["compass"] * 2
-    assert back.heading == gp.heading == pytest.approx(0.3, abs=math.radians(2.0))
-    assert back.mag.field_reference() == pytest.approx(gp.mag.field_reference())
-    _reckon_one(gp, 5, *_field_stance(rng, 1.3, place=ELSEWHERE))
-    _reckon_one(gp, 6, *_field_stance(rng, 1.3, place=ELSEWHERE))
-    assert gp.heading == pytest.approx(1.3, abs=math.radians(3.0))
+    gp.start_frame(0.0)
+    for k, yaw in enumerate(rng.uniform(-math.pi, math.pi, 60)):
+        off = float(rng.normal(scale=math.radians(off_deg))) if off_deg else 0.0
+        _zupt_stride(gp, k, float(yaw), 0.0, *_field_stance(rng, float(yaw) + off))
+    assert gp.mag.ready
+    assert (gp.compass() is gp.mag) == replaced
+    assert gp.in_use == ("own" if replaced else "loaded")
 
 
 def test_disturbed_stances_stay_out_of_a_trusted_compass_calibration() -> None:
     rng = np.random.default_rng(5)
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     gp.has_mag = True
     gp.mag = _calibrated_compass(rng)
     n = gp.mag.n_stances
@@ -423,6 +262,43 @@ def test_disturbed_stances_stay_out_of_a_trusted_compass_calibration() -> None:
         gp.stance_mag[e.index] = mag
         gp.learn(st, e, "walk")
     assert gp.mag.n_stances == n + 2  # the steel stance is not the Earth's field
+
+
+def test_turning_stride_goes_half_way_and_the_drift_forecast_stays_within_budget_on_a_clean_field() -> None:
+    """A 40 deg turn between two stances on a clean field: the compass change is the foot's (the field kept its
+    shape), the stride's chord lies half-way, and the drift forecast stays within the default budget."""
+    rng = np.random.default_rng(8)
+    gp = GaitPipeline(EngineConfig())
+    gp.mag = _calibrated_compass(rng)
+    _walking(gp, rng, yaw=0.0, n=20)
+    _reckon_one(gp, 30, *_field_stance(rng, 0.0))
+    step, drift = _reckon_one(gp, 31, *_field_stance(rng, math.radians(40.0)))
+    assert math.degrees(step.direction) == pytest.approx(20.0, abs=2.5)
+    assert math.degrees(gp.est.heading) == pytest.approx(40.0, abs=3.0)
+    _, drift = _reckon_one(gp, 32, *_field_stance(rng, math.radians(40.0)))
+    assert drift < EngineConfig().scheduler.cross_track_pct
+
+
+def test_steel_holds_the_heading_and_a_turn_inside_it_is_still_the_foots() -> None:
+    """Walking into steel changes the field's shape (vertical +15 uT, horizontal +12 uT: the compass swings by 20
+    deg): the heading is held and the drift forecast leaves the budget (the scheduler would ask for the
+    gyroscope). Inside the steel, where the field keeps its disturbed shape, a 60-deg turn of the foot is taken
+    from the compass change."""
+    rng = np.random.default_rng(9)
+    gp = GaitPipeline(EngineConfig())
+    gp.mag = _calibrated_compass(rng)
+    _walking(gp, rng, yaw=0.0, n=20)
+    steel = np.array([10.0, 10.0, 15.0])
+    step, drift = _reckon_one(gp, 30, *_field_stance(rng, 0.0, steel))
+    assert abs(math.degrees(gp.est.heading)) < 8.0
+    assert drift > EngineConfig().scheduler.cross_track_pct
+    for k in range(31, 34):
+        _reckon_one(gp, k, *_field_stance(rng, 0.0, steel))
+    assert abs(math.degrees(gp.est.heading)) < 8.0
+    for k in range(34, 37):
+        _reckon_one(gp, k, *_field_stance(rng, math.radians(60.0), steel))
+    # steel fixed in the building frame turns with the foot in the body frame: the same field, read 60 deg on
+    assert math.degrees(gp.est.heading) == pytest.approx(60.0, abs=12.0)
 
 
 def test_low_rate_stream_has_no_gap_where_the_device_lowers_its_rate() -> None:
@@ -457,9 +333,9 @@ def kf2_movement_after_convergence(rec) -> dict[str, float]:
     hist: dict[str, list[tuple[float, bool]]] = {}
     learn = GaitPipeline.learn
 
-    def recording_learn(self: GaitPipeline, st: Stance, e: StepEvent, behaviour: str) -> None:
+    def recording_learn(self: GaitPipeline, st: Stance, e: StepEvent, behaviour: str, step_model: bool = True) -> None:
         before = {b: k.n_updates for b, k in self.kf2.items()}
-        learn(self, st, e, behaviour)
+        learn(self, st, e, behaviour, step_model)
         for b, k in self.kf2.items():
             if k.n_updates != before[b]:
                 hist.setdefault(b, []).append((k.deviation, k.converged))
@@ -496,29 +372,6 @@ def test_kf2_deviation_stays_within_2_deg_after_convergence(gdin_dir, name: str)
     assert all(v <= 2.0 for v in moved.values()), moved
 
 
-def test_turning_stride_goes_half_way_with_a_trusted_compass() -> None:
-    """A 40 deg turn between two stances: the stride's chord lies half-way (20 deg) with a trusted compass; with
-    an untrusted one (its stance-to-stance changes are mostly scatter being averaged) the heading reached is used."""
-    rng = np.random.default_rng(8)
-    out = {}
-    for trusted in (True, False):
-        gp = GaitPipeline(25.0)
-        gp.mag = _calibrated_compass(rng)
-        if not trusted:
-            gp.mag.max_heading_rms = 0.0  # same compass, declared untrusted
-        gp.follower.clean_run = gp.follower.reanchor_stances
-        gp.start(np.zeros(3), 0.0)
-        _reckon_one(gp, 0, *_field_stance(rng, 0.0))
-        e = StepEvent(200.0, 1.1, 0.9, 12.0, 25.0, 5.0, (0.0, 0.0, -G), False, 2000)
-        acc, mag = _field_stance(rng, math.radians(40.0))
-        gp.queue.append(dataclasses.replace(e, acc_stance=tuple(acc)))
-        gp.stance_mag[e.index] = mag
-        (step, _, _), = gp.reckon(e.t_s + 0.1, lambda t: "walk")
-        out[trusted] = (math.degrees(step.direction), math.degrees(gp.heading))
-    assert out[True][0] == pytest.approx(20.0, abs=1.5) and out[True][1] == pytest.approx(40.0, abs=1.5)
-    assert out[False][0] == pytest.approx(out[False][1])  # untrusted: the heading reached
-
-
 def test_stance_tilt_and_field_come_from_the_same_still_samples() -> None:
     """The compass's tilt and field are averaged over the same low-rate samples, the stance's stillest window.
     Before, the field came from the end of the swing (foot still pitched) and the tilt from the segmenter's
@@ -529,7 +382,7 @@ def test_stance_tilt_and_field_come_from_the_same_still_samples() -> None:
 
     rec = synthesize("walk", seed=2)
     b = rec.batch
-    gp = GaitPipeline(25.0)
+    gp = GaitPipeline(EngineConfig())
     t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
     events, pitch_new, pitch_old, field_err, swings = [], [], [], [], []
     for lo in range(0, len(t), 400):  # 2-s batches at 200 Hz

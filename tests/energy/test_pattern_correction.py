@@ -12,7 +12,7 @@ from energy.device import replay
 from energy.engine import Engine
 from tests.energy.replayed import replayed_batches
 
-CFG = EngineConfig(l0_m=15.0)
+CFG = EngineConfig().override({"scheduler.l0_m": 15.0})
 # a walk with turns (the compass is fitted, Gait-DR takes over), then a straight faster walk the walking model was
 # not fitted on: its first strides are placed by the old model before the ZUPT-KF initialises the new pattern
 PACE_CHANGE = Scenario("pace-change", (Segment("stand", 5.0), Segment("walk", 20.0, 90.0), Segment("walk", 20.0, 90.0),

@@ -260,8 +260,11 @@ def test_returning_user_resumes_from_the_profile():
             for u in (None, prof)]
     t0 = int(r.batch.t_start_ns)
     for run, returning in zip(runs, (False, True)):
-        switches = [e.detail for u in run.replay.updates for e in u.events if e.kind == "mode_switch"]
-        assert ("profile" in switches[0]["reason"]) is returning
+        kinds = [e.kind for u in run.replay.updates for e in u.events]
+        first_pdr = next(i for i, k in enumerate(kinds) if k == "mode_switch")
+        # the new user reaches Gait-DR through an initialisation, the returning one through an examination
+        assert ("calibration_done" in kinds[:first_pdr]) is not returning
+        assert ("examination_passed" in kinds[:first_pdr]) is returning
         stand = [c for t, c in run.replay.configs if 5e9 <= t - t0 < 9e9]  # levelled by 5 s
         assert stand and not any(c.gyro_on for c in stand)
         # a new user's first steps need the ZUPT-KF (nothing else could place them); a returning user's first

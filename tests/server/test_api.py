@@ -590,7 +590,7 @@ def test_trajectory_formats(client, make_user, app) -> None:  # type: ignore[no-
     assert coords[0, 2] == pytest.approx(80.0, abs=1e-6)
     r = client.get(f"/v1/sessions/{flat}/trajectory?format=geojson", headers=auth(a))
     assert r.status_code == 409 and "latitude" in r.json()["detail"]
-    assert client.get(f"/v1/sessions/{geo}/trajectory?format=kml", headers=auth(a)).status_code == 422
+    assert client.get(f"/v1/sessions/{geo}/trajectory?format=shp", headers=auth(a)).status_code == 422
     summary = client.get("/v1/users/me/gait-summary", headers=auth(a)).json()["sessions"]
     assert summary[0]["steps"] == 3 and summary[0]["distance_m"] == pytest.approx(3.0)
     assert summary[0]["cadence_steps_per_min"] == pytest.approx(60.0)

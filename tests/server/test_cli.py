@@ -61,6 +61,47 @@ def test_replay_over_http_equals_local_and_export(capsys, live_server, tmp_path:
     capsys.readouterr()
 
 
+def test_anchored_replay_over_http_equals_local(capsys, live_server, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """--anchor: the server geo-references the session it stores, the local replay its engine's output, with the
+    same function; positions and latitude/longitude agree to 1e-9. The synthetic walk has a magnetometer: once
+    its compass is calibrated the engine announces magnetic north's azimuth in its frame (``north_reference``),
+    so both turn the track onto magnetic north and then by the declination."""
+    north = "magnetic"
+    import math
+
+    import xmlschema
+
+    from models.geo import to_true_north
+    from models.track_export import read_gpx
+
+    srv, url = live_server
+    _, out = _run(capsys, ["admin", "create-user", f"geo-{north}", "--json", "--database-url", url])
+    token = json.loads(out)["token"]
+    anchor = ["--anchor", "33.6405,-117.8443,15", "--anchor-date", "2026-12-03"]
+    gpx = tmp_path / "walk.gpx"
+    rc1, local = _run(capsys, ["replay", "walk", *anchor, "--export", str(gpx), "--json"])
+    rc2, remote = _run(capsys, ["replay", "walk", "--server", srv.url, "--token", token, *anchor, "--json"])
+    assert rc1 == rc2 == 0
+    a, b = json.loads(local), json.loads(remote)
+    assert a["north"] == b["north"] == ("true" if north else "initial-heading")
+    assert a["declination_deg"] == b["declination_deg"]
+    assert (a["declination_deg"] > 10.5) == (north is not None)
+    pa, pb = np.array(a["positions"]), np.array(b["positions"])
+    assert pa.shape == pb.shape and pa.shape[0] > 5 and np.max(np.abs(pa - pb)) <= 1e-9
+    ga, gb = np.array(a["geodetic"]), np.array(b["geodetic"])
+    assert np.max(np.abs(ga[:, :2] - gb[:, :2])) <= 1e-12 and np.max(np.abs(ga[:, 2] - gb[:, 2])) <= 1e-9
+    assert ga[0, 0] == pytest.approx(33.6405 + pa[0, 1] / 111_000, abs=1e-5)
+    xmlschema.XMLSchema(str(Path(__file__).parents[1] / "models" / "data" / "gpx11_subset.xsd")).validate(gpx.read_text())
+    np.testing.assert_allclose(read_gpx(gpx.read_text())[:, :2], ga[:, :2], atol=1e-9)
+    rc, text = _run(capsys, ["export", str(b["session_id"]), "--server", srv.url, "--token", token, "--format", "kml"])
+    assert rc == 0 and "<coordinates>" in text
+    _, plain = _run(capsys, ["replay", "walk", "--json"])
+    pu = np.array(json.loads(plain)["positions"])
+    assert json.loads(plain)["north"] == ("magnetic" if north else "initial-heading")
+    n, e, _ = to_true_north(pu[:, 1], pu[:, 2], np.zeros(len(pu)), math.radians(a["declination_deg"]))
+    np.testing.assert_allclose(np.column_stack([n, e]), pa[:, 1:3], atol=1e-9)  # one turn about the origin
+
+
 def test_replay_unknown_input(capsys) -> None:  # type: ignore[no-untyped-def]
     assert main(["replay", "no-such-file-or-scenario", "--json"]) == 1
     assert "not a synthetic scenario" in capsys.readouterr().err
