@@ -63,12 +63,17 @@ class Truth:
 
 @dataclass(frozen=True)
 class Recording:
-    """A named recording: samples, metadata and (optional) truth."""
+    """A named recording: samples, metadata and (optional) truth.
+
+    ``aux`` holds what the file records besides the engine's streams and the truth, by name (e.g. GNSS location
+    fixes ``"gnss"``, the phone's own orientation ``"ahrs"``, ``"device"`` facts); empty when there is none.
+    """
 
     name: str
     batch: SensorBatch
     meta: RecordingMeta
     truth: Truth | None = None
+    aux: dict[str, Any] = field(default_factory=dict)
 
 
 def require_gyroscope(rec: Recording, spec: str) -> None:

@@ -131,6 +131,11 @@ def _raise_for(r: httpx2.Response) -> None:
     raise ApiError(r.status_code, detail, body)
 
 
+def _is_empty(batch: SensorBatch) -> bool:
+    """No sample in any stream (the server refuses such an upload)."""
+    return not any(len(batch.stream(name)[0]) for name in STREAMS)
+
+
 def _retry_after(r: httpx2.Response, cap_s: float = 30.0) -> float:
     """Extra wait [s] a 429/503 asks for (``Retry-After`` in seconds; 0 when absent or unreadable)."""
     try:
@@ -155,6 +160,35 @@ class _Options:
     float_dtype: str
     retries: int
     backoff_s: float
+    wait_s: float = 300.0
+
+
+class _RetryPlan:
+    """When one request is tried again, and after how long.
+
+    A transport error or a 429/502/503/504 uses up one of ``retries`` extra attempts, the n-th after
+    ``backoff_s * 2**(n-1)`` plus the ``Retry-After`` the answer asks for. A 503 or 429 WITH ``Retry-After`` (the
+    server says it stored nothing and when to come back: its engines compiling after a fresh install, an engine
+    helper that died twice, a busy database, a rate limit) uses up no attempt while such waits add up to at most
+    ``wait_s``: a device waits out a server that is starting instead of giving up on it after a few seconds.
+    """
+
+    def __init__(self, opts: _Options) -> None:
+        self.opts = opts
+        self.attempts = 0  # extra attempts used up
+        self.waited_s = 0.0  # waited for Retry-After answers that used up no attempt
+
+    def wait_before_next(self, r: httpx2.Response | None) -> float | None:
+        """Seconds to wait before trying again after ``r`` (None: a transport error), or None to give up."""
+        if r is not None and r.status_code in (429, 503) and "retry-after" in r.headers:
+            ra = max(_retry_after(r), 0.1)
+            if self.waited_s + ra <= self.opts.wait_s:
+                self.waited_s += ra
+                return ra
+        if self.attempts >= self.opts.retries:
+            return None
+        self.attempts += 1
+        return self.opts.backoff_s * 2 ** (self.attempts - 1) + (_retry_after(r) if r is not None else 0.0)
 
 
 class PednavClient:
@@ -174,6 +208,9 @@ class PednavClient:
         Extra attempts of a request that failed in transit or got 429/502/503/504.
     backoff_s : float
         First retry delay [s]; doubles per attempt.
+    wait_s : float
+        Longest total wait [s] for 503/429 answers that carry ``Retry-After`` (they use up no attempt before it;
+        see :class:`_RetryPlan`).
     timeout_s : float
         Per-request timeout [s].
     http : httpx2.Client, optional
@@ -189,13 +226,14 @@ class PednavClient:
         float_dtype: str = "<f8",
         retries: int = 5,
         backoff_s: float = 0.1,
+        wait_s: float = 300.0,
         timeout_s: float = 30.0,
         http: httpx2.Client | None = None,
     ) -> None:
         self._own = http is None
         self.http = http if http is not None else httpx2.Client(base_url=base_url, timeout=timeout_s)
         self.token = token
-        self.opts = _Options(encoding, float_dtype, retries, backoff_s)
+        self.opts = _Options(encoding, float_dtype, retries, backoff_s, wait_s)
 
     # -------------------------------------------------------------- plumbing
     def __enter__(self) -> PednavClient:
@@ -215,22 +253,21 @@ class PednavClient:
     def request(self, method: str, path: str, **kw: Any) -> httpx2.Response:
         """One request with retries on transport errors and 429/5xx; raises :class:`Offline` at the end."""
         headers = self._headers(kw.pop("headers", None))
-        last: Exception | None = None
-        for attempt in range(self.opts.retries + 1):
-            if attempt:
-                time.sleep(self.opts.backoff_s * 2 ** (attempt - 1))
+        plan = _RetryPlan(self.opts)
+        while True:
+            resp: httpx2.Response | None = None
             try:
-                r = self.http.request(method, path, headers=headers, **kw)
+                resp = self.http.request(method, path, headers=headers, **kw)
             except httpx2.TransportError as exc:
-                last = exc
-                continue
-            if r.status_code in _RETRY_STATUS:
-                last = ApiError(r.status_code, r.text)
-                if attempt < self.opts.retries:
-                    time.sleep(_retry_after(r))
-                continue
-            return r
-        raise Offline(f"{method} {path}: gave up after {self.opts.retries + 1} attempts: {last}")
+                last: Exception = exc
+            else:
+                if resp.status_code not in _RETRY_STATUS:
+                    return resp
+                last = ApiError(resp.status_code, resp.text)
+            wait = plan.wait_before_next(resp)
+            if wait is None:
+                raise Offline(f"{method} {path}: gave up after {plan.attempts + 1} attempts: {last}")
+            time.sleep(wait)
 
     def _json(self, method: str, path: str, **kw: Any) -> Any:
         return _decode(self.request(method, path, **kw))
@@ -274,15 +311,19 @@ class PednavClient:
         altitude_m: float | None = None,
         anchor_date: str | None = None,
         anchor_accuracy_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
         """Start a session, optionally anchored (WGS-84 position of the first stance; ``anchor_date`` ISO
-        ``YYYY-MM-DD``, the World Magnetic Model's date); returns the session document."""
+        ``YYYY-MM-DD``, the World Magnetic Model's date); ``placement``: ``foot``, ``phone-hand``,
+        ``phone-pocket``, ``watch`` or None to let the server recognise a phone's; returns the session document."""
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
         if anchor_date is not None:
             body["anchor_date"] = anchor_date
         if anchor_accuracy_m is not None:
             body["anchor_accuracy_m"] = anchor_accuracy_m
+        if placement is not None:
+            body["placement"] = placement
         return self._json("POST", "/v1/sessions", json=body)
 
     def patch_session(self, session_id: int, **changes: Any) -> dict[str, Any]:
@@ -582,8 +623,11 @@ class BatchStream:
         """Queue ``batch`` as the next sequence number and deliver what can be delivered.
 
         Returns the answers received now (oldest first, including those of batches queued earlier); an
-        empty list means the server is unreachable and the batch is buffered.
+        empty list means the server is unreachable and the batch is buffered. A batch without samples is not
+        sent (the server refuses it; the sequence number stays free) and only delivers what is buffered.
         """
+        if _is_empty(batch):
+            return self.drain()
         if len(self.pending) >= self.max_buffer:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)
@@ -619,13 +663,14 @@ class AsyncPednavClient:
         float_dtype: str = "<f8",
         retries: int = 5,
         backoff_s: float = 0.1,
+        wait_s: float = 300.0,
         timeout_s: float = 30.0,
         http: httpx2.AsyncClient | None = None,
     ) -> None:
         self._own = http is None
         self.http = http if http is not None else httpx2.AsyncClient(base_url=base_url, timeout=timeout_s)
         self.token = token
-        self.opts = _Options(encoding, float_dtype, retries, backoff_s)
+        self.opts = _Options(encoding, float_dtype, retries, backoff_s, wait_s)
 
     async def __aenter__(self) -> AsyncPednavClient:
         return self
@@ -639,22 +684,21 @@ class AsyncPednavClient:
 
     async def request(self, method: str, path: str, **kw: Any) -> httpx2.Response:
         headers = {**({"Authorization": f"Bearer {self.token}"} if self.token else {}), **(kw.pop("headers", None) or {})}
-        last: Exception | None = None
-        for attempt in range(self.opts.retries + 1):
-            if attempt:
-                await asyncio.sleep(self.opts.backoff_s * 2 ** (attempt - 1))
+        plan = _RetryPlan(self.opts)
+        while True:
+            resp: httpx2.Response | None = None
             try:
-                r = await self.http.request(method, path, headers=headers, **kw)
+                resp = await self.http.request(method, path, headers=headers, **kw)
             except httpx2.TransportError as exc:
-                last = exc
-                continue
-            if r.status_code in _RETRY_STATUS:
-                last = ApiError(r.status_code, r.text)
-                if attempt < self.opts.retries:
-                    await asyncio.sleep(_retry_after(r))
-                continue
-            return r
-        raise Offline(f"{method} {path}: gave up after {self.opts.retries + 1} attempts: {last}")
+                last: Exception = exc
+            else:
+                if resp.status_code not in _RETRY_STATUS:
+                    return resp
+                last = ApiError(resp.status_code, resp.text)
+            wait = plan.wait_before_next(resp)
+            if wait is None:
+                raise Offline(f"{method} {path}: gave up after {plan.attempts + 1} attempts: {last}")
+            await asyncio.sleep(wait)
 
     @property
     def server_key(self) -> str:
@@ -673,9 +717,12 @@ class AsyncPednavClient:
         latitude_deg: float | None = None,
         longitude_deg: float | None = None,
         altitude_m: float | None = None,
+        placement: str | None = None,
     ) -> dict[str, Any]:
         body = {"device_kind": device_kind, "device_id": device_id, "latitude_deg": latitude_deg,
                 "longitude_deg": longitude_deg, "altitude_m": altitude_m}
+        if placement is not None:
+            body["placement"] = placement
         return await self._json("POST", "/v1/sessions", json=body)
 
     async def session(self, session_id: int) -> dict[str, Any]:
@@ -727,6 +774,8 @@ class AsyncBatchStream:
         return None if self.last_response is None else self.last_response["sensor_config"]
 
     async def send(self, batch: SensorBatch) -> list[dict[str, Any]]:
+        if _is_empty(batch):
+            return await self.drain()
         if len(self.pending) >= self.max_buffer:
             raise BufferError(f"offline buffer full ({self.max_buffer} batches)")
         body, ctype = encode_batch(batch, self.client.opts.encoding, self.client.opts.float_dtype)

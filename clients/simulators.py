@@ -1,5 +1,10 @@
 """Device simulators: a foot sensor, a phone and a watch streaming a recording through the SDK.
 
+The phone and the watch stream phone- and watch-like signals: by default a synthetic walk carried in the hand /
+on the wrist (:mod:`clients.phone_synth`), and they start their sessions with their placement (the phone's left to
+the server to recognise unless given), so the server runs the step-and-heading engine for them; the foot sensor
+streams whatever foot recording it is given.
+
 Each simulator behaves like the real device talking to the server: it sends ``batch_seconds`` of samples
 per request and, after every answer, applies the server's sensor configuration from the next batch on —
 gyroscope off means no gyroscope samples are sent (with wake-on-motion, until the device's accelerometer sees
@@ -86,8 +91,10 @@ class DeviceSimulator:
     """
 
     kind = "foot"
+    placement: str | None = "foot"
 
     def __init__(self, recording: Recording | SensorBatch, batch_seconds: float | None = 1.0) -> None:
+        self.recording = recording if isinstance(recording, Recording) else None
         self.batch = recording.batch if isinstance(recording, Recording) else recording
         if self.batch.t_start_ns is None:
             raise ValueError("recording: no samples")
@@ -106,7 +113,10 @@ class DeviceSimulator:
             t0 = t1
 
     def _start_kwargs(self, start: dict[str, Any] | None) -> dict[str, Any]:
-        return {"device_kind": self.kind, **(start or {})}
+        base: dict[str, Any] = {"device_kind": self.kind}
+        if self.placement is not None:
+            base["placement"] = self.placement
+        return {**base, **(start or {})}
 
     def run(
         self,
@@ -193,24 +203,62 @@ class FootSensorSimulator(DeviceSimulator):
     """A foot-mounted IMU paired with a phone (the phone relays its batches)."""
 
     kind = "foot"
+    placement = "foot"
 
 
 class PhoneSimulator(DeviceSimulator):
-    """A phone's own IMU (Android ``SensorEvent`` streams)."""
+    """A phone's own IMU (Android ``SensorEvent`` streams).
+
+    Parameters
+    ----------
+    recording : Recording or SensorBatch, optional
+        What the phone measured; default: the synthetic ``phone-walk`` (held in the hand,
+        :func:`clients.phone_synth.synthesize_phone`).
+    batch_seconds : float or None
+    placement : {"phone-hand", "phone-pocket", "foot"} or None
+        Told to the server at the session start; None: the server's engine recognises it.
+    """
 
     kind = "phone"
 
+    def __init__(self, recording: Recording | SensorBatch | None = None, batch_seconds: float | None = 1.0,
+                 placement: str | None = None) -> None:
+        if recording is None:
+            from clients.phone_synth import synthesize_phone
+
+            recording = synthesize_phone("phone-walk")
+        super().__init__(recording, batch_seconds)
+        self.placement = placement
+
 
 class WatchSimulator(DeviceSimulator):
-    """A smartwatch IMU."""
+    """A smartwatch IMU on the wrist (default recording: the synthetic ``watch-walk``)."""
 
     kind = "watch"
+    placement = "watch"
+
+    def __init__(self, recording: Recording | SensorBatch | None = None, batch_seconds: float | None = 1.0) -> None:
+        if recording is None:
+            from clients.phone_synth import synthesize_phone
+
+            recording = synthesize_phone("watch-walk")
+        super().__init__(recording, batch_seconds)
 
 
-def simulator_for(kind: str, recording: Recording | SensorBatch, batch_seconds: float | None = 1.0) -> DeviceSimulator:
-    """The simulator class for a device kind (``foot``, ``phone``, ``watch``)."""
-    classes = {"foot": FootSensorSimulator, "phone": PhoneSimulator, "watch": WatchSimulator}
-    try:
-        return classes[kind](recording, batch_seconds)
-    except KeyError:
-        raise ValueError(f"kind: expected one of {sorted(classes)}, got {kind!r}") from None
+def simulator_for(kind: str, recording: Recording | SensorBatch | None, batch_seconds: float | None = 1.0,
+                  placement: str | None = None) -> DeviceSimulator:
+    """The simulator for a device kind (``foot``, ``phone``, ``watch``); ``placement`` as the client states it
+    (default: the kind's own; a phone's None = recognised by the server)."""
+    if kind == "foot":
+        if recording is None:
+            raise ValueError("recording: a foot sensor simulator needs a foot recording")
+        sim: DeviceSimulator = FootSensorSimulator(recording, batch_seconds)
+    elif kind == "phone":
+        sim = PhoneSimulator(recording, batch_seconds, placement)
+    elif kind == "watch":
+        sim = WatchSimulator(recording, batch_seconds)
+    else:
+        raise ValueError(f"kind: expected one of ['foot', 'phone', 'watch'], got {kind!r}")
+    if placement is not None and kind != "phone":
+        sim.placement = placement
+    return sim

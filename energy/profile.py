@@ -11,7 +11,8 @@ from typing import Any
 
 __all__ = ["BehaviourCalibration", "Profile", "PROFILE_BEHAVIOURS"]
 
-PROFILE_BEHAVIOURS: tuple[str, ...] = ("walk", "run")
+# "pdr": the step-and-heading engines' calibration (energy.phone_engine: step length per placement)
+PROFILE_BEHAVIOURS: tuple[str, ...] = ("walk", "run", "pdr")
 _VERSION = 1
 
 

@@ -11,12 +11,17 @@ from typing import Any
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import TimeoutError as SQLAlchemyTimeoutError
 
 from models.batch import BatchError
-from server.auth import RateLimiter
+from server.auth import FailedAuthGuard, RateLimiter
 from server.db import make_engine, make_sessionmaker, migrate
 from server.formats import PayloadTooLarge
-from server.ingest import EngineHost, IngestConflict, StorageBusy
+from server.redact import install as install_log_redaction
+from server.ingest import EngineHost, IngestConflict, StorageBusy, is_contention
+from server.openapi import install as install_openapi
+from server.openapi import operation_id
 from server.settings import Settings
 from server.upload import Uploader
 
@@ -125,9 +130,11 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     from server.routers import auth, batches, devices, profiles, sensorlogger, sessions, timelines, trajectories, users
 
     settings = settings or Settings()
+    install_log_redaction()  # the access log writes URLs: the Sensor Logger push carries its token in one
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        app.state.host.start()  # the engines warm up now, not under the first upload
         import asyncio
 
         closer = asyncio.create_task(_close_idle_loop(app)) if settings.sensorlogger_idle_close_s > 0 else None
@@ -145,6 +152,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         title="pednav",
         version="1",
         description="Energy-aware pedestrian navigation service: sessions, sensor batches, calibration profiles, trajectories.",
+        generate_unique_id_function=operation_id,
     )
     db_engine = make_engine(settings)
     if settings.migrate_on_startup:
@@ -153,10 +161,12 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.db_engine = db_engine
     app.state.sessionmaker = make_sessionmaker(db_engine)
     app.state.limiter = RateLimiter(settings.rate_limit_per_s, settings.rate_limit_burst)
+    app.state.auth_guard = FailedAuthGuard(settings.auth_failures_per_s, settings.auth_failures_burst)
     # batch uploads run on a small dedicated pool: few threads contend less for the GIL than anyio's 40
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
-                                engine_processes=settings.engine_processes, channels=settings.ingest_threads)
+                                engine_processes=settings.engine_processes, channels=settings.ingest_threads,
+                                warm=settings.engine_warmup)
     # batch uploads on driver connections (SQLite: group commit; PostgreSQL: one statement), see server.upload
     sqlite = db_engine.dialect.name == "sqlite"
     app.state.uploader = Uploader(db_engine, app.state.host, app.state.limiter) if (
@@ -196,6 +206,21 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
         return JSONResponse(status_code=503, content={"detail": exc.message},
                             headers={"Retry-After": str(exc.retry_after_s)})
 
+    @app.exception_handler(OperationalError)
+    async def _operational(request: Request, exc: OperationalError) -> JSONResponse:
+        # a route's write refused only because other writers held the database (SQLite busy past its timeout,
+        # PostgreSQL lock/statement timeout, deadlock, serialization failure): its transaction is rolled back,
+        # nothing stored, so a retryable 503 as StorageBusy, never a 500; any other database error stays a 500
+        if not is_contention(exc):
+            raise exc
+        return await _busy(request, StorageBusy("database busy: nothing of this request was stored; send it again"))
+
+    @app.exception_handler(SQLAlchemyTimeoutError)
+    async def _pool_timeout(request: Request, exc: SQLAlchemyTimeoutError) -> JSONResponse:
+        # every pooled connection stayed in use for pool_timeout: nothing was done for this request
+        return await _busy(request, StorageBusy("database connections all busy: nothing of this request was "
+                                                "stored; send it again"))
+
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         errs = exc.errors()
@@ -222,9 +247,15 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     _mount_viewer(app, settings)
 
     @app.get("/healthz", tags=["meta"])
-    def healthz() -> dict[str, str]:
-        return {"status": "ok"}
+    def healthz() -> Any:
+        """Readiness: 200 once the engines can take an upload within the normal latency; 503 with ``Retry-After``
+        while they are still being compiled (first start after an install) or loaded."""
+        if app.state.host.ready():
+            return {"status": "ok", "ready": True}
+        return JSONResponse(status_code=503, headers={"Retry-After": "2"}, content={
+            "status": "starting", "ready": False, "detail": "the navigation engines are being compiled or loaded"})
 
+    install_openapi(app)
     return app
 
 

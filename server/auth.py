@@ -24,7 +24,8 @@ from sqlalchemy.orm import Session
 from server.models import Token
 from server.security import hash_token
 
-__all__ = ["QUERY_TOKEN_ROUTE", "RateLimiter", "admit", "authenticate", "query_token_refused", "require_token"]
+__all__ = ["QUERY_TOKEN_ROUTE", "FailedAuthGuard", "RateLimiter", "admit", "authenticate", "query_token_refused",
+           "require_token"]
 
 _T = Token.__table__
 
@@ -70,10 +71,49 @@ class RateLimiter:
             self._buckets[key] = (tokens, t)
             return (1.0 - tokens) / self.rate
 
+    def peek(self, key: Hashable, now: float | None = None) -> float:
+        """The wait [s] until ``key`` may make a request (0: now), taking nothing from its bucket."""
+        if not self.enabled:
+            return 0.0
+        t = time.monotonic() if now is None else now
+        with self._lock:
+            tokens, last = self._buckets.get(key, (self.burst, t))
+        tokens = min(self.burst, tokens + (t - last) * self.rate)
+        return 0.0 if tokens >= 1.0 else (1.0 - tokens) / self.rate
+
     def _prune(self, t: float) -> None:
         full = [k for k, (tok, last) in self._buckets.items() if tok + (t - last) * self.rate >= self.burst]
         for k in full:
             del self._buckets[k]
+
+
+class FailedAuthGuard:
+    """Failed authentications per client address: ``burst`` of them at once, then ``rate_per_s`` on average; a
+    client past that gets 429 with ``Retry-After`` for every request that carries a token, before its token is
+    looked up. Invalid tokens were not limited at all (the rate limit is per user, and an invalid token has no
+    user): 1,000 guesses at ~300 requests/s each cost a database lookup.
+
+    The address is the peer the server sees (behind a load balancer run uvicorn with ``--proxy-headers`` and
+    ``--forwarded-allow-ips`` so that it is the client's). Kept per server process.
+    """
+
+    def __init__(self, rate_per_s: float, burst: int) -> None:
+        self.limiter = RateLimiter(rate_per_s, burst)
+
+    def check(self, client: str | None) -> None:
+        """429 when ``client`` has used up its failures (call before looking the token up)."""
+        wait = self.limiter.peek(client)
+        if wait > 0:
+            raise HTTPException(
+                status.HTTP_429_TOO_MANY_REQUESTS,
+                f"too many failed authentications from this client: at most {self.limiter.rate:g} per second "
+                f"(bursts of {self.limiter.burst:g}); retry in {wait:.2f} s",
+                headers={"Retry-After": str(max(1, math.ceil(wait)))},
+            )
+
+    def failed(self, client: str | None) -> None:
+        """Count one failed authentication (401) of ``client``."""
+        self.limiter.hit(client)
 
 
 def _unauthorized(detail: str) -> HTTPException:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta, timezone
 from typing import Any
 
-from sqlalchemy import delete, func, select
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
 from server.models import (
@@ -26,6 +26,7 @@ __all__ = [
     "list_tokens",
     "get_token",
     "lock_user",
+    "lock_user_for_write",
     "count_live_tokens",
     "prune_dead_tokens",
     "user_by_token",
@@ -93,6 +94,16 @@ def lock_user(db: Session, user: User) -> None:
     requests of one user that count and then add rows (tokens) take turns. SQLite has no row locks: there the
     first write of a transaction takes the database's write lock, which serializes the same way."""
     db.execute(select(User.id).where(User.id == user.id).with_for_update())
+
+
+def lock_user_for_write(db: Session, user: User) -> None:
+    """Take ``user``'s write lock as the transaction's FIRST statement, held until it ends: a no-op update of the
+    user's row locks that row on PostgreSQL and, as the first write of the transaction, takes SQLite's write lock
+    before anything is read (a read first would pin a snapshot whose later write fails at once with "database is
+    locked" when another writer committed meanwhile). Writers that read and then add a user's rows (profile
+    versions) so take turns instead of computing the same next version (HTTP 500 on the unique constraint)."""
+    users = User.__table__
+    db.execute(update(users).where(users.c.id == user.id).values(id=users.c.id))
 
 
 def _live(now: datetime) -> Any:
@@ -221,7 +232,12 @@ def add_profile_version(db: Session, user: User, behaviour: str, data: dict[str,
                         keep: int | None = None) -> ProfileVersion:
     """Add the next version of ``user``'s profile of ``behaviour``; with ``keep``, delete all but the newest
     ``keep`` versions of it (versions are consecutive numbers, so these are the ones below ``version - keep + 1``).
+
+    Takes the user's write lock first (:func:`lock_user_for_write`): concurrent writers of one user's profiles
+    (PUT, reset, session closes) take turns. Call it before reading anything else in the transaction on SQLite
+    (or take that lock first yourself).
     """
+    lock_user_for_write(db, user)
     last = db.execute(
         select(func.max(ProfileVersion.version)).where(ProfileVersion.user_id == user.id, ProfileVersion.behaviour == behaviour)
     ).scalar_one()

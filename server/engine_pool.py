@@ -38,14 +38,19 @@ import numpy as np
 
 from models.batch import STREAMS
 
-__all__ = ["EngineHelperError", "EnginePool"]
+__all__ = ["EngineHelperDied", "EngineHelperError", "EnginePool"]
 
 _CACHE: OrderedDict[int, tuple[int, Any]] = OrderedDict()
 _CACHE_SIZE = 512
 
 
 class EngineHelperError(RuntimeError):
-    """The helper process died or failed outside the engine's own validation."""
+    """The helper process failed outside the engine's own validation (an error inside it, or it died)."""
+
+
+class EngineHelperDied(EngineHelperError):
+    """The helper process died (killed, out of memory) while or before it answered: the request was not fed
+    for good (the worker commits nothing without an answer), and a fresh helper takes the next one."""
 
 
 def _watch_parent() -> None:
@@ -96,14 +101,14 @@ def _feed(
     ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state``,
     also when an engine is cached at ``version`` (the worker does not vouch for it, see the module docstring).
     """
-    from energy.engine import Engine
+    from energy.engines import engine_from_bytes
     from models.batch import BatchError, SensorBatch
     from server.ingest import feed_engine
     from server.statecodec import unpack_state
 
     hit = _CACHE.pop(session_id, None)
     if state is not None:
-        engine = Engine.from_bytes(unpack_state(state))
+        engine = engine_from_bytes(unpack_state(state))
     elif hit is not None and hit[0] == version:
         engine = hit[1]
     else:
@@ -118,16 +123,24 @@ def _feed(
     return ("ok", fed)
 
 
-def _serve(conns: list[Any], cache_size: int) -> None:
-    """Helper process main loop: answer requests on any of ``conns`` until all are closed."""
+def _serve(conns: list[Any], cache_size: int, ready: Any = None, warm: bool = False) -> None:
+    """Helper process main loop: answer requests on any of ``conns`` until all are closed. With ``warm``, the
+    engine's kernels are compiled or loaded first (:func:`server.warmup.warm_up`); ``ready`` is set then."""
     import gc
     import selectors
 
     import energy.engine  # noqa: F401 - loaded before the freeze below
+    import energy.phone_engine  # noqa: F401
 
     global _CACHE_SIZE
     _CACHE_SIZE = cache_size
     _watch_parent()
+    if warm:
+        from server.warmup import warm_up
+
+        warm_up(energy.engine.Engine)
+    if ready is not None:
+        ready.set()
     gc.collect()
     gc.freeze()  # module objects out of the collector's reach (full collections stall every session's feed)
     # one selector for the helper's life (multiprocessing.connection.wait builds one and registers every
@@ -151,14 +164,16 @@ def _serve(conns: list[Any], cache_size: int) -> None:
 
 
 class _Helper:
-    def __init__(self, ctx: Any, channels: int, cache_size: int) -> None:
+    def __init__(self, ctx: Any, channels: int, cache_size: int, warm: bool = False) -> None:
         pairs = [ctx.Pipe(duplex=True) for _ in range(channels)]
-        self.proc = ctx.Process(target=_serve, args=([b for _, b in pairs], cache_size), daemon=True,
-                                name="pednav-engine")
+        self.ready = ctx.Event()
+        self.proc = ctx.Process(target=_serve, args=([b for _, b in pairs], cache_size, self.ready, warm),
+                                daemon=True, name="pednav-engine")
         self.proc.start()
         for _, b in pairs:
             b.close()
         self.free: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.broken = False  # a pipe failed: the helper is replaced on the next request
         self.conns = [a for a, _ in pairs]
         for a in self.conns:
             self.free.put(a)
@@ -184,12 +199,15 @@ class EnginePool:
     channels : int
         Pipes per helper: the most requests in flight to one helper (one per ingest thread); further callers
         wait for a free pipe.
+    warm : bool
+        Each helper compiles or loads the engine's kernels before it takes requests (:mod:`server.warmup`).
     """
 
-    def __init__(self, processes: int, cache_size: int, channels: int = 16) -> None:
+    def __init__(self, processes: int, cache_size: int, channels: int = 16, warm: bool = False) -> None:
         self.processes = processes
         self.cache_size = cache_size
         self.channels = channels
+        self.warm = warm
         self._helpers: list[_Helper | None] | None = None
         self._lock = threading.Lock()
         # session id -> version this worker committed from its helper's cached engine (LRU, as the helpers')
@@ -201,13 +219,25 @@ class EnginePool:
         with self._lock:  # ingest threads may arrive together on the first request
             ctx = multiprocessing.get_context("spawn")  # never fork a threaded server
             if self._helpers is None:  # all helpers start together (each imports the engine at start)
-                self._helpers = [_Helper(ctx, self.channels, self.cache_size) for _ in range(self.processes)]
+                self._helpers = [_Helper(ctx, self.channels, self.cache_size, self.warm) for _ in range(self.processes)]
             h = self._helpers[i]
-            if h is None or not h.proc.is_alive():
+            if h is None or h.broken or not h.proc.is_alive():
                 if h is not None:
                     h.stop()
-                h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size)
+                h = self._helpers[i] = _Helper(ctx, self.channels, self.cache_size, self.warm)
             return h
+
+    def start(self) -> None:
+        """Spawn the helpers now (at server start), so their warm-up runs before the first upload."""
+        self._helper(0)
+
+    def ready(self) -> bool:
+        """Every helper has been spawned and finished its warm-up (one replaced after a death warms up again;
+        the server stays ready meanwhile: its kernels are cached on disk by then and load in about a second)."""
+        with self._lock:
+            helpers = self._helpers
+        return helpers is not None and all(h is None or h.ready.is_set() or h.broken for h in helpers) and any(
+            h is not None and h.ready.is_set() for h in helpers)
 
     def committed(self, session_id: int, version: int) -> None:
         """The worker committed ``version`` of the session from the state its helper fed last (the helper's
@@ -237,19 +267,32 @@ class EnginePool:
         ``state`` None: the helper's cached engine at ``version`` (only after :meth:`take`); else the engine
         restored from ``state`` (the helper's cached one is then never used)."""
         h = self._helper(session_id)
-        try:
-            conn = h.free.get(timeout=120.0)
-        except queue.Empty:
-            raise EngineHelperError("no engine helper channel free for 120 s") from None
+        waited = 0.0
+        while True:  # a free channel; give up at once when the helper died meanwhile (its channels never free)
+            try:
+                conn = h.free.get(timeout=0.5)
+                break
+            except queue.Empty:
+                waited += 0.5
+                if h.broken or not h.proc.is_alive():
+                    raise EngineHelperDied("engine helper process died") from None
+                if waited >= 120.0:
+                    raise EngineHelperError("no engine helper channel free for 120 s") from None
         try:
             conn.send((session_id, version, state, seq, *_pack_streams(streams)))
             out: tuple[Any, ...] = conn.recv()
         except (EOFError, OSError) as exc:  # the helper died: this pipe is out of step, do not reuse it
-            raise EngineHelperError(f"engine helper process failed: {type(exc).__name__}") from None
+            h.broken = True
+            raise EngineHelperDied(f"engine helper process died ({type(exc).__name__})") from None
         h.free.put(conn)
         if out[0] == "error":
             raise EngineHelperError(f"engine helper: {out[1]}")
         return out
+
+    def pids(self) -> list[int]:
+        """Process ids of the running helpers (none before the first request)."""
+        with self._lock:
+            return [h.proc.pid for h in self._helpers or [] if h is not None and h.proc.pid is not None]
 
     def shutdown(self) -> None:
         with self._lock:

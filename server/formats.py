@@ -192,13 +192,17 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
     return SensorBatch(**kw)
 
 
-def decode_batch(body: bytes, content_type: str | None, max_samples: int) -> SensorBatch:
+def decode_batch(body: bytes, content_type: str | None, max_samples: int, *, allow_empty: bool = False) -> SensorBatch:
     """Parse a request body into a :class:`SensorBatch` (not yet validated for plausibility).
+
+    ``allow_empty``: take a batch without any sample (stored batches, re-processed as they were stored). An
+    upload without samples is refused: ``{}`` was accepted and consumed a sequence number for nothing (a device
+    with nothing to send sends nothing; the SDK skips empty batches).
 
     Raises
     ------
     BatchError
-        Malformed body; ``field`` names the offending part.
+        Malformed body or, unless ``allow_empty``, no samples in any stream; ``field`` names the offending part.
     PayloadTooLarge
         More than ``max_samples`` samples in one stream.
     """
@@ -208,16 +212,21 @@ def decode_batch(body: bytes, content_type: str | None, max_samples: int) -> Sen
             doc = msgpack.unpackb(body, raw=False, strict_map_key=True, max_bin_len=len(body), max_array_len=16, max_map_len=16)
         except Exception as exc:  # noqa: BLE001 - any unpack failure is a client error
             raise BatchError("body", f"not valid msgpack: {exc}") from None
-        return _from_msgpack(doc, max_samples)
-    if ctype == JSON_TYPE:
+        batch = _from_msgpack(doc, max_samples)
+    elif ctype == JSON_TYPE:
         try:
             doc = json.loads(body)
         except (ValueError, UnicodeDecodeError) as exc:
             raise BatchError("body", f"not valid JSON: {exc}") from None
         except RecursionError:
             raise BatchError("body", "JSON nested too deeply") from None
-        return _from_json(doc, max_samples)
-    raise BatchError("content-type", f"unsupported {ctype!r}; use {JSON_TYPE} or {MSGPACK_TYPE}")
+        batch = _from_json(doc, max_samples)
+    else:
+        raise BatchError("content-type", f"unsupported {ctype!r}; use {JSON_TYPE} or {MSGPACK_TYPE}")
+    if not allow_empty and not any(batch.stream(name)[0].size for name in STREAMS):
+        raise BatchError("body", "a batch without samples (every stream missing or empty); send batches that hold "
+                                 "samples (the sequence number stays free)")
+    return batch
 
 
 def canonical_bytes(batch: SensorBatch) -> bytes:

@@ -30,21 +30,26 @@ from sqlalchemy.orm.exc import StaleDataError
 
 from models.batch import STREAMS, BatchError, SensorBatch
 from server import crud
-from server.engine_pool import EnginePool
+from server.engine_pool import EngineHelperDied, EnginePool
 from server.formats import canonical_bytes, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state, unpack_state
 from server.timing import phase, since
+from server.plausibility import STILL_GYRO
+from server.watermarks import advanced, check_after
 
 __all__ = [
     "EngineHost",
+    "EngineUnavailable",
     "Fed",
     "IngestConflict",
     "StorageBusy",
     "apply_batch",
     "close_session",
+    "apply_known_distance",
     "engine_profile_in",
     "engine_profile_from_stored",
+    "session_spec",
     "feed_engine",
     "is_contention",
     "pool_feed",
@@ -77,6 +82,12 @@ class StorageBusy(Exception):
         super().__init__(message)
         self.message = message
         self.retry_after_s = retry_after_s
+
+
+class EngineUnavailable(StorageBusy):
+    """HTTP 503 with ``Retry-After``: the engine cannot take the batch now (its helper process died twice in a row
+    under this request, or the engines are still being compiled after a fresh install); nothing was stored, the
+    same batch may be sent again under the same sequence number."""
 
 
 def batch_busy_message(session_id: int, seq: int, attempts: int) -> str:
@@ -130,6 +141,9 @@ class EngineHost:
         Helper processes that run the engines of batch uploads (0 = in this process).
     channels : int
         Requests in flight to one helper process (one per ingest thread).
+    warm : bool
+        Compile or load the engine's kernels at :meth:`start` and report :meth:`ready` only then
+        (:mod:`server.warmup`); False: ready at once.
     """
 
     def __init__(
@@ -139,10 +153,16 @@ class EngineHost:
         serialize_writes: bool = False,
         engine_processes: int = 0,
         channels: int = 16,
+        warm: bool = False,
     ) -> None:
         self.cache_size = cache_size
+        self.warm = warm
         # engines in helper processes (only for the default engine class: helpers import it themselves)
-        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels) if engine_processes > 0 and engine_cls is None else None
+        self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels, warm) if (
+            engine_processes > 0 and engine_cls is None) else None
+        self._warmed = threading.Event()
+        if not warm:
+            self._warmed.set()
         # SQLite has one writer at a time; letting this process's threads queue on a lock is far cheaper than
         # SQLite's busy-wait sleeps (other worker processes are still arbitrated by SQLite itself)
         self.serialize_writes = serialize_writes
@@ -152,13 +172,49 @@ class EngineHost:
         self._locks: dict[int, threading.Lock] = {}
         self._guard = threading.Lock()
 
+    def start(self) -> None:
+        """At server start: spawn the engine helpers (they warm up themselves), or warm up this process's engine
+        in a background thread (``warm``)."""
+        if self.pool is not None:
+            self.pool.start()
+        elif not self._warmed.is_set():
+            def warm() -> None:
+                from server.warmup import warm_up
+
+                try:
+                    warm_up(self.engine_cls)
+                finally:
+                    self._warmed.set()
+
+            threading.Thread(target=warm, daemon=True, name="engine-warmup").start()
+
+    def ready(self) -> bool:
+        """The engine's kernels are compiled and loaded: an upload is answered within the normal latency."""
+        if self.pool is not None:
+            return not self.warm or self.pool.ready()
+        return self._warmed.is_set()
+
     @property
     def engine_cls(self) -> Any:
         if self._engine_cls is None:
             self._engine_cls = _default_factory()
         return self._engine_cls
 
-    def new(self, mode: str, profile: dict[str, Any] | None) -> EngineLike:
+    def engine_class_of(self, placement: str | None, device_kind: str) -> Any:
+        """The engine class a session of that placement and device kind runs (a custom ``engine_cls`` for all)."""
+        if self._engine_cls is not None:
+            return self._engine_cls
+        from energy.engines import EngineSpec, engine_class
+
+        return engine_class(EngineSpec(device_kind, placement))
+
+    def new(self, mode: str, profile: dict[str, Any] | None, spec: Any = None) -> EngineLike:
+        """A fresh engine; ``spec`` (:class:`energy.engines.EngineSpec`, default: a foot sensor) picks the
+        pipeline of the default engines; a custom ``engine_cls`` is always used as it is."""
+        if self._engine_cls is None:
+            from energy.engines import new_engine
+
+            return new_engine(mode, profile, spec)  # type: ignore[no-any-return]
         return self.engine_cls(mode=mode, profile=profile)
 
     def restore(self, sess: TrackSession) -> EngineLike:
@@ -175,8 +231,12 @@ class EngineHost:
             self._cache.move_to_end(session_id)
             return hit[1]
         blob = load_state()
-        if blob is None:
+        if blob is None:  # only sessions from before engine states were stored: all ran the foot engine
             return self.new(mode, engine_profile_from_stored(profile))
+        if self._engine_cls is None:
+            from energy.engines import engine_from_bytes
+
+            return engine_from_bytes(unpack_state(blob))  # type: ignore[no-any-return]
         return self.engine_cls.from_bytes(unpack_state(blob))
 
     def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
@@ -285,8 +345,13 @@ def validate_calibration(behaviour: str, data: dict[str, Any], host: EngineHost 
     try:
         Profile.from_dict({"version": 1, "behaviours": {behaviour: _calibration_in(data)}})
         if host is not None:
+            from energy.engines import EngineSpec
+            from energy.phone_engine import PROFILE_KEY
+
             stored = json_safe(data)  # what is stored; a session start reads it back through _calibration_in
-            host.new("auto", {"version": 1, "behaviours": {behaviour: _calibration_in(stored)}})  # "auto" loads it
+            # the engine that takes this calibration ("auto" loads it): a phone's for the step-and-heading entry
+            spec = EngineSpec("phone", "phone-hand") if behaviour == PROFILE_KEY else None
+            host.new("auto", {"version": 1, "behaviours": {behaviour: _calibration_in(stored)}}, spec)
     except ValueError:
         raise
     except RecursionError:
@@ -304,10 +369,29 @@ def engine_profile_from_stored(profile: dict[str, Any] | None) -> dict[str, Any]
     return {**profile, "behaviours": {b: _calibration_in(c) for b, c in behaviours.items() if isinstance(c, dict)}}
 
 
-def engine_profile_in(db: Session, user: User) -> dict[str, Any] | None:
-    """The user's current calibration profiles in the engine's form, or None when there are none."""
+def engine_profile_in(db: Session, user: User, pipeline: str | None = None) -> dict[str, Any] | None:
+    """The user's current calibration profiles in the engine's form, or None when there are none; with
+    ``pipeline`` (``foot`` / ``step-and-heading``) only what an engine of that pipeline takes."""
     cur = {b: _calibration_in(p.data) for b, p in crud.current_profiles(db, user).items() if p.data is not None}
-    return {"version": 1, "behaviours": cur} if cur else None
+    prof = {"version": 1, "behaviours": cur} if cur else None
+    if pipeline is None:
+        return prof
+    from energy.engines import profile_for
+
+    return profile_for(prof, pipeline)
+
+
+def session_spec(device_kind: str, placement: str | None, latitude_deg: float | None, longitude_deg: float | None,
+                 altitude_m: float | None, created_at: Any) -> Any:
+    """The :class:`energy.engines.EngineSpec` of a session's stored fields (anchor from its geodetic start, WMM
+    date from its creation)."""
+    from energy.engines import EngineSpec
+
+    anchor = None
+    if latitude_deg is not None and longitude_deg is not None:
+        anchor = (float(latitude_deg), float(longitude_deg), float(altitude_m or 0.0))
+    day = created_at.date() if hasattr(created_at, "date") and callable(created_at.date) else created_at
+    return EngineSpec(device_kind, placement, anchor, day)
 
 
 def _update_dict(session_id: int, seq: int, next_seq: int, upd: Any) -> dict[str, Any]:
@@ -370,13 +454,25 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
     out: tuple[Any, ...] = ("miss",)
     if pool.take(session_id, version):
-        with phase("engine"):
-            out = pool.feed(session_id, version, None, seq, streams)
+        try:
+            with phase("engine"):
+                out = pool.feed(session_id, version, None, seq, streams)
+        except EngineHelperDied:  # its cached engine died with it: a fresh helper restores the stored state
+            out = ("miss",)
     if out[0] == "miss":
         with phase("load_state"):
             blob = load_blob()
-        with phase("engine"):
-            out = pool.feed(session_id, version, blob, seq, streams)
+        for attempt in (1, 2):  # a helper that dies under the request costs one retry on a fresh one
+            try:
+                with phase("engine"):
+                    out = pool.feed(session_id, version, blob, seq, streams)
+                break
+            except EngineHelperDied as exc:
+                if attempt == 2:
+                    raise EngineUnavailable(
+                        f"the navigation engine's helper process died twice under batch {seq} of session "
+                        f"{session_id}; the batch was NOT stored: send it again with the same sequence number",
+                        retry_after_s=2) from exc
     if out[0] == "batch_error":
         raise BatchError(out[1], out[2])
     return out[1]
@@ -496,7 +592,8 @@ def _apply_once(
         since("lock", t_lock)
         with phase("read"):
             row = db.execute(
-                select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in).where(
+                select(_TS.c.version, _TS.c.next_seq, _TS.c.status, _TS.c.engine_mode, _TS.c.profile_in,
+                       _TS.c.gyr_newest_ns, _TS.c.mag_newest_ns).where(
                     _TS.c.id == session_id, _TS.c.user_id == user_id
                 )
             ).first()
@@ -511,6 +608,15 @@ def _apply_once(
         if seq > row.next_seq:
             db.rollback()
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {row.next_seq}", row.next_seq)
+        newest0 = {"gyr": row.gyr_newest_ns, "mag": row.mag_newest_ns}
+        try:
+            check_after(batch, newest0)  # 422: late gyroscope/magnetometer samples (nothing stored)
+            STILL_GYRO.check(batch)  # 422: a gyroscope in deg/s while standing
+        except BatchError:
+            db.rollback()
+            raise
+        newest = advanced(batch, newest0)
+
         def load_state() -> bytes | None:
             # version and state in ONE statement: separate SELECTs need not see the same commit (SQLite's
             # driver runs SELECTs outside a transaction; PostgreSQL reads committed per statement)
@@ -555,7 +661,8 @@ def _apply_once(
                     update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
                         version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=behaviour,
                         mode=mode, sensor_config=resp["sensor_config"],
-                        n_positions=_TS.c.n_positions + len(resp["positions"]),
+                        n_positions=_TS.c.n_positions + len(resp["positions"]), gyr_newest_ns=newest["gyr"],
+                        mag_newest_ns=newest["mag"],
                     )
                 )
                 if res.rowcount != 1:
@@ -585,10 +692,22 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
 
     Closing an already closed session changes nothing. ``keep_versions``: profile versions kept per behaviour
     (the newest; ``Settings.max_profile_versions``).
+
+    The session's write lock is the transaction's first statement (a no-op update of its row: PostgreSQL's row
+    lock, SQLite's write lock), so concurrent closes of one session (other threads, other workers) take turns
+    and each later one finds it closed; its profile versions then take the user's lock
+    (:func:`server.crud.add_profile_version`). Reading first let six simultaneous closes on PostgreSQL all add
+    the same next profile version: five answered HTTP 500 and left their sessions open.
     """
-    with host.lock(session_id):
-        sess = crud.get_session(db, user, session_id, for_update=True)
+    with host.lock(session_id), host.write_lock:  # SQLite: this process's writers queue here, not in busy waits
+        locked = db.execute(update(_TS).where(_TS.c.id == session_id, _TS.c.user_id == user.id)
+                            .values(status=_TS.c.status))
+        if locked.rowcount != 1:
+            db.rollback()
+            return None
+        sess = crud.get_session(db, user, session_id)
         if sess is None or sess.status != "open":
+            db.rollback()
             return sess
         engine = host.restore(sess)
         host.forget(session_id)
@@ -601,9 +720,49 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
         sess.engine_state = pack_state(engine.to_bytes())
         sess.status = "closed"
         sess.closed_at = utcnow()
+        db.commit()
+        return sess
+
+
+def apply_known_distance(db: Session, host: EngineHost, user: User, session_id: int, t0_ns: int, t1_ns: int,
+                         distance_m: float) -> dict[str, Any] | None:
+    """A distance the user walked between two times of an open session (a user-entered distance, a stretch a foot
+    sensor or GNSS measured): the session's step-and-heading engine calibrates its step length from the steps
+    between them; the ``calibration`` event is stored and returned, the engine state with it (the profile takes it
+    at the close). None when the user has no such session.
+
+    Raises
+    ------
+    IngestConflict
+        The session is closed.
+    ValueError
+        Not a step-and-heading session, or the engine refuses the distance (no steps between the times ...).
+    """
+    with host.lock(session_id):
+        sess = crud.get_session(db, user, session_id, for_update=True)
+        if sess is None:
+            return None
+        if sess.status != "open":
+            db.rollback()
+            raise IngestConflict(f"session {session_id} is closed; a distance calibrates an open session", sess.next_seq)
+        engine = host.restore(sess)
+        host.forget(session_id)
+        calibrate = getattr(engine, "calibrate_distance", None)
+        if calibrate is None:
+            db.rollback()
+            raise ValueError("session: a foot sensor's step length is calibrated by its own ZUPT-KF; known distances "
+                             "calibrate phone and watch sessions")
+        try:
+            ev = calibrate(int(t0_ns), int(t1_ns), float(distance_m))
+        except ValueError:
+            db.rollback()
+            raise
+        detail = json_safe(dict(ev.detail))
+        db.add(EventRecord(session_id=sess.id, seq=max(sess.next_seq - 1, 0), t_ns=int(ev.t_ns), kind=ev.kind, detail=detail))
+        sess.engine_state = pack_state(engine.to_bytes())
         with host.write_lock:
             db.commit()
-        return sess
+        return {"t_ns": int(ev.t_ns), "kind": ev.kind, "detail": detail}
 
 
 def _profiles_out(engine: EngineLike) -> dict[str, dict[str, Any]]:

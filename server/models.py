@@ -106,6 +106,9 @@ class TrackSession(Base):
     user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
     device_id: Mapped[int | None] = mapped_column(ForeignKey("devices.id", ondelete="SET NULL"), nullable=True)
     device_kind: Mapped[str] = mapped_column(String(20))
+    # where the device is carried (models.placement.PLACEMENTS); NULL: recognised by the engine (migration 0008
+    # set 'foot' on older sessions: they all ran the foot engine)
+    placement: Mapped[str | None] = mapped_column(String(12), nullable=True)
     latitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     longitude_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
     altitude_m: Mapped[float | None] = mapped_column(Float, nullable=True)
@@ -128,6 +131,10 @@ class TrackSession(Base):
     reprocessed_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
     reprocess_count: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     version: Mapped[int] = mapped_column(Integer, nullable=False, default=0)
+    # newest gyroscope / magnetometer sample time received [ns] (None: none yet): later uploads must start after
+    # them (server.watermarks)
+    gyr_newest_ns: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
+    mag_newest_ns: Mapped[int | None] = mapped_column(BigInteger, nullable=True)
 
     __mapper_args__ = {"version_id_col": version}
 

@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session
 
 from models.batch import BatchError
 from server.formats import MSGPACK_TYPE, decode_batch
-from server.ingest import EngineHost, _update_dict, engine_profile_from_stored
+from server.ingest import EngineHost, _update_dict, engine_profile_from_stored, session_spec
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
 from server.statecodec import pack_state
 
@@ -64,13 +64,15 @@ class ReprocessResult:
 
 
 def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] | None, raws: list[Any],
-         closed: bool, next_seq: int) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any] | None, bytes]:
-    """Feed the stored batches to a fresh engine; returns (position rows, event rows, last answer, state).
+         closed: bool, next_seq: int, spec: Any = None
+         ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any] | None, bytes, str]:
+    """Feed the stored batches to a fresh engine (built for the session's ``spec``); returns (position rows,
+    event rows, last answer, state, the engine class's name).
 
     ``profile`` is the session's stored ``profile_in`` (nulls where the engine had NaN), given to the engine in
     its own form as the session's first upload did (the stored form failed with TypeError: HTTP 500).
     """
-    engine = host.new(mode, engine_profile_from_stored(profile))
+    engine = host.new(mode, engine_profile_from_stored(profile), spec)
     positions: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
     last: dict[str, Any] | None = None
@@ -83,7 +85,7 @@ def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] |
         last = d
 
     for row in raws:
-        batch = decode_batch(row.raw, MSGPACK_TYPE, 2**62)
+        batch = decode_batch(row.raw, MSGPACK_TYPE, 2**62, allow_empty=True)
         try:
             upd = engine.feed(batch)
         except BatchError as exc:
@@ -93,7 +95,8 @@ def _run(host: EngineHost, session_id: int, mode: str, profile: dict[str, Any] |
         take(row.seq, upd)
     if closed:
         take(next_seq, engine.flush())
-    return positions, events, last, pack_state(engine.to_bytes())
+    cls = type(engine)
+    return positions, events, last, pack_state(engine.to_bytes()), f"{cls.__module__}.{cls.__qualname__}"
 
 
 def _compare(old: list[Any], new: list[dict[str, Any]]) -> tuple[bool, float | None]:
@@ -139,7 +142,9 @@ def reprocess_session(
     """
     with host.lock(session_id):  # uploads of this session in this process wait; other processes: version check
         sess = db.execute(
-            select(_TS.c.version, _TS.c.status, _TS.c.next_seq, _TS.c.engine_mode, _TS.c.profile_in, _TS.c.reprocess_count)
+            select(_TS.c.version, _TS.c.status, _TS.c.next_seq, _TS.c.engine_mode, _TS.c.profile_in, _TS.c.reprocess_count,
+                   _TS.c.device_kind, _TS.c.placement, _TS.c.latitude_deg, _TS.c.longitude_deg, _TS.c.altitude_m,
+                   _TS.c.created_at)
             .where(_TS.c.id == session_id, _TS.c.user_id == user.id)
         ).first()
         if sess is None:
@@ -160,10 +165,13 @@ def reprocess_session(
             )
         mode = engine_mode or sess.engine_mode
         closed = sess.status != "open"
-        positions, events, last, state = _run(host, session_id, mode, sess.profile_in, raws, closed, sess.next_seq)
+        spec = session_spec(sess.device_kind, sess.placement, sess.latitude_deg, sess.longitude_deg, sess.altitude_m,
+                            sess.created_at)
+        positions, events, last, state, engine_name = _run(host, session_id, mode, sess.profile_in, raws, closed,
+                                                           sess.next_seq, spec)
         identical, shift = _compare(old, positions)
         result = ReprocessResult(
-            session_id=session_id, engine=f"{host.engine_cls.__module__}.{host.engine_cls.__qualname__}",
+            session_id=session_id, engine=engine_name,
             engine_mode=mode, batches=len(raws), positions_before=len(old), positions_after=len(positions),
             events_after=len(events), identical=identical, max_shift_m=shift, stored=False,
             reprocess_count=sess.reprocess_count,

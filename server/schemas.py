@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 import math
+import re
 from datetime import date, datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, computed_field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, computed_field
 
 __all__ = [
+    "CONTROL_CHARS",
     "DeviceKind",
+    "ErrorOut",
+    "Label",
+    "check_text",
+    "check_user_name",
     "UserCreate",
     "UserOut",
     "TokenCreate",
@@ -31,10 +37,53 @@ __all__ = [
     "SensorLoggerPush",
     "ReprocessIn",
     "ReprocessOut",
+    "DistanceIn",
 ]
 
 DeviceKind = Literal["foot", "phone", "watch"]
+Placement = Literal["foot", "phone-hand", "phone-pocket", "watch"]
 BehaviourName = Literal["stand", "walk", "run", "other"]
+
+CONTROL_CHARS = re.compile(r"[\x00-\x1f\x7f]")
+"""Characters no name, label or identifier may hold: C0 controls and DEL. PostgreSQL refuses NUL in text (a
+device name, token label or Sensor Logger id with one answered HTTP 500), SQLite stored it; the others break
+logs and terminals."""
+
+
+def check_text(v: str) -> str:
+    """``v`` itself, or ``ValueError`` naming the first control character and where it is."""
+    m = CONTROL_CHARS.search(v)
+    if m is not None:
+        raise ValueError(f"control character U+{ord(m.group()):04X} at position {m.start()} (not allowed in text)")
+    return v
+
+
+_TEXT_SCHEMA = {"pattern": r"^[^\x00-\x1f\x7f]*$"}  # what check_text takes, published in the schema
+Label = Annotated[str, Field(max_length=100, json_schema_extra=_TEXT_SCHEMA), AfterValidator(check_text)]
+"""Free text of at most 100 characters (the columns' size) without control characters."""
+
+USER_NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,100}$")
+
+
+def check_user_name(name: str) -> str:
+    """``name`` itself, or ``ValueError`` saying what a user name must be (API and ``pednav admin``)."""
+    if not USER_NAME.match(name):
+        raise ValueError(f"user name {name!r} must be 1-100 characters of letters, digits, '_', '.', '@' or '-'")
+    return name
+
+
+_ID = {"ge": -(2**31), "le": 2**31 - 1}  # the id columns' range (server.deps.ID_MIN/ID_MAX)
+
+
+class ErrorOut(BaseModel):
+    """Every refusal (4xx) and 503: ``detail`` says what went wrong in one readable line; ``field`` names the
+    offending part of the request where there is one (``path.session_id``, ``acc.xyz``, ``body``...)."""
+
+    detail: str
+    field: str | None = Field(default=None, description="the request part at fault (422), when there is one")
+    problem: str | None = Field(default=None, description="what is wrong with ``field`` (422 from batch checks)")
+    errors: list[dict[str, Any]] | None = Field(default=None, description="every validation error: field, problem (422)")
+    expected_seq: int | None = Field(default=None, description="the sequence number the session expects next (409)")
 
 
 class _Out(BaseModel):
@@ -62,7 +111,7 @@ class TokenCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    label: str = Field(default="api", max_length=100)
+    label: Label = "api"
     ttl_s: int | None = Field(default=None, ge=60, description="lifetime [s], at most the remaining lifetime of the minting token "
                                   "(422 beyond); default: the server's token_ttl_s, ending no later than the minting token")
 
@@ -97,7 +146,7 @@ class DeviceCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     kind: DeviceKind
-    name: str = Field(default="", max_length=100)
+    name: Label = ""
 
 
 class DeviceOut(_Out):
@@ -116,6 +165,11 @@ class SessionCreate(BaseModel):
     """Start of a session. The anchor (the WGS-84 position of the first stance) is optional: without it
     GeoJSON/GPX/KML exports are refused (409) and north stays the engine's; it can be set later (PATCH).
 
+    ``placement`` decides the pipeline (DESIGN.md "Placement"): ``foot`` runs the ZUPT-KF / Gait-DR engine, the
+    others the step-and-heading engine. Omitted: a foot sensor is on the foot, a watch on the wrist, and a phone's
+    placement (hand or pocket) is recognised by the engine, a change reported as a ``placement_changed`` event. A
+    placement the device kind cannot have (a watch in a pocket) is 422.
+
     Unknown fields are refused: ``latitude`` for ``latitude_deg`` started a session without a geodetic start.
     Coordinates are JSON numbers (integers too) within range: latitude -90..90 deg, longitude -180..180 deg,
     altitude -500..10 000 m, and ``device_id`` a JSON integer; anything else is 422 naming the field.
@@ -124,7 +178,8 @@ class SessionCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     device_kind: DeviceKind
-    device_id: int | None = Field(default=None, ge=-(2**63), le=2**63 - 1, strict=True)  # "5" or true: 422
+    placement: Placement | None = None
+    device_id: int | None = Field(default=None, strict=True, **_ID)  # "5" or true: 422; the id column's range
     latitude_deg: float | None = Field(default=None, ge=-90.0, le=90.0, **_COORD)
     longitude_deg: float | None = Field(default=None, ge=-180.0, le=180.0, **_COORD)
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
@@ -146,6 +201,16 @@ class SessionPatch(BaseModel):
     altitude_m: float | None = Field(default=None, ge=-500.0, le=10_000.0, **_COORD)
     anchor_date: date | None = None
     anchor_accuracy_m: float | None = Field(default=None, ge=0.0, le=1e7, **_COORD)
+
+
+class DistanceIn(BaseModel):
+    """A distance walked between two times of the session (user-entered, or measured by a foot sensor or GNSS)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    t0_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="start of the stretch [ns], device clock")
+    t1_ns: int = Field(strict=True, ge=-(2**63), le=2**63 - 1, description="its end [ns], after t0_ns")
+    distance_m: float = Field(gt=0.0, le=100_000.0, strict=True, allow_inf_nan=False, description="distance walked [m]")
 
 
 class SensorConfigOut(BaseModel):
@@ -175,6 +240,7 @@ class SensorConfigOut(BaseModel):
 class SessionOut(_Out):
     id: int
     device_kind: str
+    placement: str | None = Field(default=None, description="placement given at the start; null: recognised by the engine")
     device_id: int | None
     latitude_deg: float | None
     longitude_deg: float | None
@@ -287,8 +353,9 @@ class SensorLoggerItem(BaseModel):
 
 class SensorLoggerPush(BaseModel):
     messageId: int = Field(**_INT64)  # noqa: N815 - Sensor Logger's own field names
-    sessionId: str = Field(max_length=100)  # noqa: N815 - columns of 100 characters (PostgreSQL refused longer: 500)
-    deviceId: str = Field(default="", max_length=100)  # noqa: N815
+    # columns of 100 characters (PostgreSQL refused longer: 500), no control characters (NUL: 500)
+    sessionId: Annotated[Label, Field(min_length=1)]  # noqa: N815 - Sensor Logger's own field names
+    deviceId: Label = ""  # noqa: N815
     payload: list[SensorLoggerItem]
 
 

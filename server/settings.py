@@ -35,6 +35,9 @@ class Settings(BaseSettings):
         Engines kept in memory between batches (their state is still persisted after every batch).
     engine_processes : int
         Helper processes per server process that run the navigation engines (0 = in the server process).
+    engine_warmup : bool
+        Compile or load the engine's kernels when the server starts and report ready on ``/healthz`` only then;
+        uploads before are refused with 503 ``Retry-After`` (nothing stored). False: the first upload compiles.
     ingest_threads : int
         Worker threads of one process that handle batch uploads (uploads in flight; a thread waiting for the
         engine helper or the commit holds no GIL).
@@ -56,6 +59,11 @@ class Settings(BaseSettings):
         tokens are kept per user (listed by ``GET /v1/tokens``); older ones are deleted when a token is minted,
         so the tokens table holds at most about twice this per user. The admin CLI (``pednav admin token``)
         is not held to it.
+    auth_failures_per_s : float
+        Failed authentications (401) allowed per client address and second on average, per server process; past
+        them every request with a token gets 429 before its token is looked up. 0 = no limit.
+    auth_failures_burst : int
+        Failed authentications a client may make at once.
     max_profile_bytes : int
         Largest calibration profile a client may store (``PUT /v1/profiles/{behaviour}``), as compact JSON
         [bytes]; larger gets HTTP 413. At least 256 kB: a profile the engine hands out reaches about 180 kB at its
@@ -100,11 +108,14 @@ class Settings(BaseSettings):
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
     ingest_threads: int = Field(default=16, ge=1, le=64)
     engine_processes: int = Field(default=1, ge=0, le=64)
+    engine_warmup: bool = True
     token_ttl_s: int = Field(default=30 * 86_400, ge=0)
     token_max_ttl_s: int = Field(default=365 * 86_400, ge=60)
     rate_limit_per_s: float = Field(default=50.0, ge=0.0, allow_inf_nan=False)
     rate_limit_burst: int = Field(default=200, ge=1)
     max_tokens_per_user: int = Field(default=20, ge=1, le=10_000)
+    auth_failures_per_s: float = Field(default=2.0, ge=0.0, allow_inf_nan=False)
+    auth_failures_burst: int = Field(default=50, ge=1)
     max_profile_bytes: int = Field(default=512 * 1024, ge=MIN_PROFILE_BYTES)
     max_profile_versions: int = Field(default=50, ge=1, le=100_000)
     pg_one_statement_writes: bool = True

@@ -35,6 +35,8 @@ from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_b
 from server.security import hash_token
 from server.statecodec import pack_state
 from server.timing import phase, since
+from server.plausibility import STILL_GYRO
+from server.watermarks import advanced, check_after
 
 __all__ = ["SqliteGroupWriter", "Uploader"]
 
@@ -49,6 +51,11 @@ class _Session(NamedTuple):
     version: int
     next_seq: int
     status: str
+    gyr_newest_ns: int | None
+    mag_newest_ns: int | None
+
+    def newest(self) -> dict[str, int | None]:
+        return {"gyr": self.gyr_newest_ns, "mag": self.mag_newest_ns}
 
 
 def _utc_text() -> str:
@@ -57,9 +64,9 @@ def _utc_text() -> str:
     return utcnow().strftime(_DT_FORMAT)
 
 
-def _write_params(session_id: int, version: int, seq: int, fed: Fed) -> dict[str, Any]:
+def _write_params(session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> dict[str, Any]:
     r = fed.resp
-    return {
+    return {"gyr_newest": newest["gyr"], "mag_newest": newest["mag"],
         "sid": session_id, "v0": version, "v1": version + 1, "next_seq": seq + 1, "state": fed.state,
         "behaviour": r["behaviour"], "mode": r["mode"], "sensor_config": json.dumps(r["sensor_config"]),
         "n_new": len(r["positions"]), "seq": seq, "sha": fed.digest, "raw": fed.raw, "n_acc": fed.n_acc,
@@ -71,7 +78,8 @@ _POS_COLS = ("t_ns", "north", "east", "down", "heading_rad", "behaviour", "mode"
 
 _SQLITE_UPDATE = (
     "UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = :state, behaviour = :behaviour, "
-    "mode = :mode, sensor_config = :sensor_config, n_positions = n_positions + :n_new WHERE id = :sid AND version = :v0"
+    "mode = :mode, sensor_config = :sensor_config, n_positions = n_positions + :n_new, gyr_newest_ns = :gyr_newest, "
+    "mag_newest_ns = :mag_newest WHERE id = :sid AND version = :v0"
 )
 _SQLITE_BATCH = (
     "INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at) "
@@ -83,10 +91,10 @@ _SQLITE_POS = (
 _SQLITE_EVENT = "INSERT INTO events (session_id, seq, t_ns, kind, detail) VALUES (?, ?, ?, ?, ?)"
 
 
-def _sqlite_write(cur: Any, job: tuple[int, int, int, Fed]) -> bool:
+def _sqlite_write(cur: Any, job: tuple[int, int, int, Fed, dict[str, int | None]]) -> bool:
     """One upload's rows inside the open transaction; False when the version check failed (nothing written)."""
-    session_id, version, seq, fed = job
-    p = _write_params(session_id, version, seq, fed)
+    session_id, version, seq, fed, newest = job
+    p = _write_params(session_id, version, seq, fed, newest)
     cur.execute(_SQLITE_UPDATE, p)
     if cur.rowcount != 1:
         return False
@@ -117,8 +125,8 @@ class SqliteGroupWriter:
         self._thread: threading.Thread | None = None
         self._start = threading.Lock()
 
-    def write(self, job: tuple[int, int, int, Fed]) -> bool:
-        """Commit ``job`` (session id, read version, seq, fed) durably; False when its version check failed."""
+    def write(self, job: tuple[int, int, int, Fed, dict[str, int | None]]) -> bool:
+        """Commit ``job`` (session id, read version, seq, fed, new stream watermarks) durably; False when its version check failed."""
         if self._thread is None:
             with self._start:
                 if self._thread is None:
@@ -196,7 +204,8 @@ class SqliteGroupWriter:
 _PG_WRITE = """
 WITH u AS (
     UPDATE sessions SET version = %(v1)s, next_seq = %(next_seq)s, engine_state = %(state)s, behaviour = %(behaviour)s,
-        mode = %(mode)s, sensor_config = CAST(%(sensor_config)s AS json), n_positions = n_positions + %(n_new)s
+        mode = %(mode)s, sensor_config = CAST(%(sensor_config)s AS json), n_positions = n_positions + %(n_new)s,
+        gyr_newest_ns = %(gyr_newest)s, mag_newest_ns = %(mag_newest)s
     WHERE id = %(sid)s AND version = %(v0)s
     RETURNING id
 ), b AS (
@@ -215,8 +224,8 @@ SELECT count(*) FROM u
 """
 
 
-def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed) -> bool:
-    p = _write_params(session_id, version, seq, fed)
+def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> bool:
+    p = _write_params(session_id, version, seq, fed, newest)
     ps, es = fed.resp["positions"], fed.resp["events"]
     for key, col in zip(("p_t", "p_n", "p_e", "p_d", "p_h", "p_b", "p_m", "p_l", "p_g"), _POS_COLS):
         p[key] = [x[col] for x in ps]
@@ -248,10 +257,12 @@ class Uploader:
         self.writer = SqliteGroupWriter(db_engine, host.write_lock) if self.sqlite else None
         ph = "?" if self.sqlite else "%s"
         self._read_sql = (
-            "SELECT t.user_id, t.revoked, t.expires_at, s.version, s.next_seq, s.status FROM tokens t "
+            "SELECT t.user_id, t.revoked, t.expires_at, s.version, s.next_seq, s.status, s.gyr_newest_ns, "
+            "s.mag_newest_ns FROM tokens t "
             f"LEFT JOIN sessions s ON s.id = {ph} AND s.user_id = t.user_id WHERE t.token_hash = {ph}"
         )
-        self._session_sql = f"SELECT version, next_seq, status FROM sessions WHERE id = {ph}"
+        self._session_sql = (f"SELECT version, next_seq, status, gyr_newest_ns, mag_newest_ns FROM sessions "
+                             f"WHERE id = {ph}")
         self._state_sql = f"SELECT version, engine_state, engine_mode, profile_in FROM sessions WHERE id = {ph}"
         self._replay_sql = f"SELECT body_sha256, response FROM batches WHERE session_id = {ph} AND seq = {ph}"
 
@@ -298,7 +309,7 @@ class Uploader:
                     batch = decode_batch(body, content_type, max_samples)
                 if row[3] is None:
                     raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
-                sess = _Session(row[3], row[4], row[5])
+                sess = _Session(*row[3:8])
                 busy = self.db_engine.dialect.dbapi.OperationalError  # e.g. SQLite busy beyond its timeout
                 contended = True  # every failed attempt failed through contention (nothing committed)
                 for attempt in range(5):
@@ -332,6 +343,9 @@ class Uploader:
             raise IngestConflict(f"session {session_id} is closed; no more batches accepted", sess.next_seq)
         if seq > sess.next_seq:
             raise IngestConflict(f"sequence {seq} leaves a gap; expected sequence {sess.next_seq}", sess.next_seq)
+        check_after(batch, sess.newest())  # 422: late gyroscope/magnetometer samples (nothing stored)
+        STILL_GYRO.check(batch)  # 422: a gyroscope in deg/s while standing (the engine's check needs motion)
+        newest = advanced(batch, sess.newest())
 
         def load_state() -> tuple[bytes | None, str, Any]:
             # version and state in ONE statement (separate reads need not see the same commit)
@@ -364,10 +378,10 @@ class Uploader:
         fed = fed._replace(state=pack_state(fed.state))
         with phase("write"):
             if self.writer is not None:
-                ok = self.writer.write((session_id, sess.version, seq, fed))
+                ok = self.writer.write((session_id, sess.version, seq, fed, newest))
             else:
                 try:
-                    ok = _pg_write(cur, session_id, sess.version, seq, fed)
+                    ok = _pg_write(cur, session_id, sess.version, seq, fed, newest)
                 except Exception as exc:
                     import psycopg
 

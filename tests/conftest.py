@@ -41,3 +41,8 @@ def gaitmap_dir() -> Path:
 @pytest.fixture(scope="session")
 def gaitmap_mag_dir() -> Path:
     return _require("gaitmap-mag")
+
+
+@pytest.fixture(scope="session")
+def ipin_dir() -> Path:
+    return _require("ipin2023-t3-phone") / "logfiles"

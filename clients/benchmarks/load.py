@@ -38,6 +38,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="SQLAlchemy URL (default: a fresh SQLite file in a temporary folder); for PostgreSQL a "
                         "unique schema is created and dropped")
     p.add_argument("--encoding", choices=("msgpack", "json"), default="msgpack")
+    p.add_argument("--workers", type=int, default=1, help="uvicorn worker processes of the server (default 1)")
+    p.add_argument("--sweep", action="store_true",
+                   help="sweep --sweep-devices x --sweep-workers x --sweep-databases, each run --seconds long, and "
+                        "report devices per core at p99 <= --p99-ms (0 lost, 0 duplicated)")
+    p.add_argument("--sweep-devices", type=int, nargs="+", default=[100, 500, 1000, 2000])
+    p.add_argument("--sweep-workers", type=int, nargs="+", default=[1, 2, 4])
+    p.add_argument("--sweep-databases", nargs="+", default=["postgresql+psycopg://postgres@127.0.0.1:5432/test", "sqlite"],
+                   help="database URLs ('sqlite': a fresh file per run)")
+    p.add_argument("--p99-ms", type=float, default=250.0, help="latency bound of the sweep's capacity figure")
+    p.add_argument("--plot", default=None, help="PNG of p99 latency against devices per database and workers (sweep)")
 
 
 def _proc_stats() -> dict[int, tuple[int, str, float]]:
@@ -58,16 +68,18 @@ def _proc_stats() -> dict[int, tuple[int, str, float]]:
     return out
 
 
-def _cpu_probe(server_pid: int) -> dict[str, float]:
-    """CPU seconds used so far by this load generator, the server process, its descendants (the engine helper)
-    and all postgres processes (on a shared machine the latter include other clients of the database)."""
+def _cpu_probe(server_pid: int, workers: int = 1) -> dict[str, float]:
+    """CPU seconds used so far by this load generator, the server's worker processes (the uvicorn process itself
+    with one worker; its children, plus the supervising parent, with several), their descendants (the engine
+    helpers) and all postgres processes (on a shared machine the latter include other clients of the database)."""
     if not os.path.isdir("/proc"):
         return {}
     st = _proc_stats()
     kids: dict[int, list[int]] = {}
     for pid, (ppid, _, _) in st.items():
         kids.setdefault(ppid, []).append(pid)
-    desc, todo = [], list(kids.get(server_pid, []))
+    top = [server_pid] if workers <= 1 else [server_pid, *kids.get(server_pid, [])]
+    desc, todo = [], [k for p in top for k in kids.get(p, []) if k not in top]
     while todo:
         p = todo.pop()
         desc.append(p)
@@ -75,7 +87,7 @@ def _cpu_probe(server_pid: int) -> dict[str, float]:
     me = os.times()
     return {
         "load_generator": me.user + me.system,  # this process (all its threads)
-        "server_worker": st.get(server_pid, (0, "", 0.0))[2],
+        "server_worker": sum(st.get(p, (0, "", 0.0))[2] for p in top),
         "engine_helpers": sum(st[p][2] for p in desc if p in st),
         "postgres_all": sum(c for _, n, c in st.values() if n.startswith("postgres")),
     }
@@ -111,14 +123,14 @@ def _bodies(seconds: int, rate_hz: float, encoding: str) -> list[tuple[bytes, st
 
 
 class _Server:
-    def __init__(self, database_url: str, schema: str | None) -> None:
+    def __init__(self, database_url: str, schema: str | None, workers: int = 1) -> None:
         self.port = _free_port()
         env = {**os.environ, "PEDNAV_DATABASE_URL": database_url, "PEDNAV_MIGRATE_ON_STARTUP": "true"}
         if schema:
             env["PEDNAV_DB_SCHEMA"] = schema
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "server.app:app_from_env", "--factory", "--host", "127.0.0.1",
-             "--port", str(self.port), "--workers", "1", "--log-level", "warning", "--no-access-log"],
+             "--port", str(self.port), "--workers", str(workers), "--log-level", "warning", "--no-access-log"],
             env=env,
         )
 
@@ -126,19 +138,24 @@ class _Server:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def wait(self, timeout: float = 60.0) -> None:
+    def wait(self, timeout: float = 900.0, workers: int = 1) -> None:
+        """Until ``/healthz`` is 200 (the engines compiled or loaded) on every worker: with several workers each
+        answers for itself and a new connection meets any of them, so 10 answers per worker in a row must be 200."""
         import httpx2
 
         deadline = time.monotonic() + timeout
+        in_a_row = 0
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}")
             try:
-                if httpx2.get(self.url + "/healthz", timeout=1.0).status_code == 200:
-                    return
+                ok = httpx2.get(self.url + "/healthz", timeout=1.0, headers={"Connection": "close"}).status_code == 200
             except httpx2.TransportError:
-                pass
-            time.sleep(0.2)
+                ok = False
+            in_a_row = in_a_row + 1 if ok else 0
+            if in_a_row >= 10 * workers:
+                return
+            time.sleep(0.02 if ok else 0.2)
         raise RuntimeError("server did not start")
 
     def stop(self) -> None:
@@ -253,6 +270,10 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
                 stats["transport_errors"] += 1
                 await asyncio.sleep(0.05 * (attempt + 1))
                 continue
+            if status in (429, 503) and attempt < 4:  # refused, nothing stored: wait as asked, same number
+                stats[f"retried_{status}"] = stats.get(f"retried_{status}", 0) + 1
+                await asyncio.sleep(float(hdrs.get("retry-after", "1")))
+                continue
             if status == 200:
                 lat.append(time.perf_counter() - start)
                 sent.append(start - t0)
@@ -283,8 +304,12 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
             warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
             for k, (body, ctype) in enumerate(bodies[:_SPREAD_S]):  # every phase of the walk (stand, walk, turns)
                 # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
-                r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
-                                     headers={**h, "content-type": ctype}, timeout=600.0)
+                for _ in range(300):  # a worker still warming up answers 503 Retry-After: wait as a device does
+                    r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
+                                         headers={**h, "content-type": ctype}, timeout=600.0)
+                    if r.status_code != 503:
+                        break
+                    await asyncio.sleep(float(r.headers.get("retry-after", "1")))
                 r.raise_for_status()
 
         await asyncio.gather(*[warm_up() for _ in range(_WARM_SESSIONS)])
@@ -328,6 +353,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         "late_sends": stats["late_sends"],
         "transport_errors": stats["transport_errors"],
         "other_statuses": {k: v for k, v in stats.items() if k.startswith("http_")},
+        "retried_after": {k: v for k, v in stats.items() if k.startswith("retried_")},
         "latency_ms": {**pct, "max": float(a.max()) if len(a) else None, "mean": float(a.mean()) if len(a) else None},
         "server_phases_ms": _phase_report(a, timings),
         "latency_p99_ms_by_10s": _by_window(np.array(sent), a, 10.0),
@@ -339,6 +365,76 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.sweep:
+        return _sweep(args)
+    return _run_one(args)
+
+
+def _sweep(args: argparse.Namespace) -> dict[str, Any]:
+    """Every (database, workers, devices) point, one run each; the capacity figure per (database, workers)."""
+    points = []
+    for db in args.sweep_databases:
+        for w in args.sweep_workers:
+            for n in args.sweep_devices:
+                one = argparse.Namespace(**{**vars(args), "devices": n, "workers": w,
+                                            "database_url": None if db == "sqlite" else db})
+                try:
+                    r = _run_one(one)
+                except Exception as exc:  # noqa: BLE001 - a point that could not run is reported, the sweep goes on
+                    points.append({"database": "sqlite" if db == "sqlite" else "postgresql", "workers": w,
+                                   "devices": n, "error": f"{type(exc).__name__}: {exc}"})
+                    continue
+                points.append({k: r[k] for k in ("database", "server_workers", "devices", "acked", "lost_batches",
+                                                 "duplicated_batches", "late_sends", "other_statuses", "throughput_rps",
+                                                 "cpu_ms_per_batch", "loadavg_1_5_15_at_end")}
+                              | {"p50_ms": r["latency_ms"]["p50"], "p99_ms": r["latency_ms"]["p99"],
+                                 "max_ms": r["latency_ms"]["max"], "workers": w})
+    cores = os.cpu_count() or 1
+    capacity = {}
+    for db in {p["database"] for p in points}:
+        for w in args.sweep_workers:
+            ok = [p["devices"] for p in points if p["database"] == db and p["workers"] == w and "error" not in p
+                  and p["p99_ms"] is not None and p["p99_ms"] <= args.p99_ms and p["lost_batches"] == 0
+                  and p["duplicated_batches"] == 0]
+            best = max(ok, default=0)
+            # cores the server could use: each worker has an engine helper; never more than the machine has
+            used = min(cores, 2 * w)
+            capacity[f"{db}/{w}"] = {"devices": best, "cores_usable": used, "devices_per_core": round(best / used, 1)}
+    out = {"p99_bound_ms": args.p99_ms, "seconds_per_point": args.seconds, "rate_hz": args.rate_hz, "cpus": cores,
+           "points": points, "capacity": capacity}
+    if args.plot:
+        _plot(points, args.plot, args.p99_ms)
+        out["plot"] = args.plot
+    return out
+
+
+def _plot(points: list[dict[str, Any]], path: str, bound_ms: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for db in sorted({p["database"] for p in points}):
+        for w in sorted({p["workers"] for p in points}):
+            xs = [(p["devices"], p["p99_ms"]) for p in points if p["database"] == db and p["workers"] == w
+                  and p.get("p99_ms") is not None]
+            if xs:
+                xs.sort()
+                ax.plot([x for x, _ in xs], [y for _, y in xs], marker="o", ls="-" if db == "postgresql" else "--",
+                        label=f"{db}, {w} worker{'s' * (w > 1)}")
+    ax.axhline(bound_ms, color="k", lw=0.8, ls=":")
+    ax.set_xlabel("devices (one 1-s batch of 100 Hz samples per second each)")
+    ax.set_ylabel("p99 upload latency [ms]")
+    ax.set_yscale("log")
+    ax.set_title("pednav bench load --sweep")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _run_one(args: argparse.Namespace) -> dict[str, Any]:
     import tempfile
 
     from server.db import drop_schema, make_engine
@@ -356,9 +452,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tmp = tempfile.TemporaryDirectory(prefix="pednav-load-")
         url = f"sqlite:///{tmp.name}/load.db"
     load_start = os.getloadavg()
-    srv = _Server(url, schema)
+    srv = _Server(url, schema, args.workers)
     try:
-        srv.wait()
+        srv.wait(workers=args.workers)
         settings = Settings(database_url=url, db_schema=schema)
         eng = make_engine(settings)
         from server import crud
@@ -371,7 +467,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             tokens = [crud.create_user(db, f"load-{run_id}-{i}")[1] for i in range(args.devices + 1)]
             db.commit()
         eng.dispose()
-        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid)))
+        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid, args.workers)))
     finally:
         srv.stop()
         if schema:
@@ -388,7 +484,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "encoding": args.encoding,
         "body_bytes": len(bodies[0][0]),
         "database": backend,
-        "server_workers": 1,
+        "server_workers": args.workers,
         "engine_processes": Settings(database_url=url).engine_processes,  # what the server read (env or default)
         "cpus": os.cpu_count(),
         "loadavg_1_5_15_at_start": [round(x, 2) for x in load_start],

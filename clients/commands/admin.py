@@ -68,7 +68,13 @@ def _create_user(args: argparse.Namespace) -> int:
     from sqlalchemy.exc import IntegrityError
 
     from server import crud
+    from server.schemas import check_user_name
 
+    try:
+        check_user_name(args.name)  # as POST /v1/users: "" or a name with blanks or controls was created
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     eng, sm = _db(args)
     try:
         with sm() as db:

@@ -1,4 +1,4 @@
-"""``pednav bench speed|engine|load|state``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
+"""``pednav bench speed|engine|load|state|phone``: benchmarks that prove speed and capacity targets (never timed unit tests)."""
 
 from __future__ import annotations
 
@@ -29,6 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         ("engine", "CPU per batch of the server's engine helper (restore, feed, serialise) on real data"),
         ("load", "many simulated devices against one server worker: latency percentiles, lost batches"),
         ("state", "engine state size and CPU per batch against the time a person stands"),
+        ("coldstart", "a fresh install's first upload, readiness and first accepted batch (empty numba cache)"),
+        ("jobs", "re-processing stored sessions through the job engine (Dramatiq, Dask) with 1, 2, 4 workers"),
+        ("phone", "step-and-heading engine: CPU per step vs the ZUPT-KF's, its MARG filter vs ahrs Madgwick and "
+                  "imufusion (speed and heading accuracy on the IPIN trials), its compute costs per cost class"),
     ):
         try:
             module = importlib.import_module(f"clients.benchmarks.{name}")

@@ -6,6 +6,8 @@ Forms (DESIGN.md "Evaluation contracts")::
     pednav eval gdin DIR --mode {zupt,pdr,auto} [--l0 METERS] [--conventional] [--profile leave-one-out] --json
     pednav eval recordings DIR [--mode {auto,pdr}] --json
 
+``pednav eval ipin DIR --json`` (GetSensorData logfiles with POSI landmarks, :mod:`clients.evaluation.ipin`;
+``--mode {auto,always-on}``, ``--placement``) and ``pednav eval phone-watch --json`` (synthetic, 000 eq. 70).
 Beyond the contracts: ``pednav eval gaitmap [DIR] [--mode M] --json`` (datasets/gaitmap-mocap: stride lengths
 of both feet against optical motion capture, :func:`clients.evaluation.harness.evaluate_gaitmap_recording`),
 ``pednav eval plot DOC.json [DOC.json ...] --out FILE.png`` (energy against accuracy, per recording and mode, from
@@ -603,6 +605,73 @@ def _run_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_ipin(args: argparse.Namespace) -> int:
+    from clients.evaluation.harness import select
+    from clients.evaluation.ipin import evaluate_ipin
+    from clients.importers import list_recordings, load
+
+    directory = Path(args.dir) if args.dir else _default_dir("ipin2023-t3-phone")
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval ipin: data folder not found ({args.dir or 'PEDNAV_DATA/ipin2023-t3-phone'})", file=sys.stderr)
+        return 2
+    files = select(list_recordings(directory), lambda f: f.stem, args.match, args.limit)
+    recs, rows_failed = [], []
+    for f in _progress(files, "ipin load"):
+        try:
+            rec = load(f)
+            if rec.truth is None or rec.truth.t_ns is None or len(rec.truth.t_ns) < 2:
+                raise ValueError(f"{f}: no landmarks (POSI lines): nothing to score")
+            recs.append(rec)
+        except Exception as exc:  # noqa: BLE001 - one broken recording must not hide the others
+            _log_failure(f, exc)
+            rows_failed.append({"name": f.stem, "error": f"{type(exc).__name__}: {exc}"})
+    if len({r.name.rsplit("_repetition", 1)[0] for r in recs}) < 2:
+        print(f"pednav eval ipin: {len(recs)} scorable recording(s) in {directory}; the leave-one-route-out step "
+              "constant needs trials of at least two routes", file=sys.stderr)
+        return 1
+    placement = None if args.placement == "recognise" else args.placement
+    import math
+
+    bound = None if args.max_heading_std_deg is None else math.radians(args.max_heading_std_deg)
+    doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
+                        max_heading_std_rad=bound)
+    doc["trials"] += rows_failed
+
+    def line(r: dict[str, Any]) -> str:
+        return (f"{r['name']:<42} {r['mean_err_m']:>6.2f} {r['p75_err_m']:>6.2f} {r['final_err_m']:>6.2f} "
+                f"{r['path_ratio']:>6.3f} {r['steps']:>5d} {r['energy_ratio']:>6.2f} {r['always_on']['mean_err_m']:>7.2f} "
+                f"{r['baseline']['mean_err_m']:>7.2f}")
+
+    if _print(doc, doc["trials"], args.json, 42, f"{'trial':<42} {'mean m':>6} {'p75 m':>6} {'final':>6} {'path':>6} "
+              f"{'steps':>5} {'energy':>6} {'alw-on':>7} {'basel.':>7}", line):
+        s = doc["summary"]
+        print(f"\n{s['trials']} trials ({args.mode}): median mean error {_fmt(s['mean_err_m']['median'], '.2f')} m "
+              f"(worst {_fmt(s['mean_err_m']['worst'], '.2f')}), median p75 {_fmt(s['p75_err_m']['median'], '.2f')} m, "
+              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')}; always-on "
+              f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
+    return 1 if rows_failed else 0
+
+
+def _run_phone_watch(args: argparse.Namespace) -> int:
+    from clients.evaluation.phone_watch import evaluate_phone_watch
+
+    if args.seeds < 1:
+        print("pednav eval phone-watch: --seeds must be at least 1", file=sys.stderr)
+        return 2
+    doc = evaluate_phone_watch(range(args.seeds))
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"{'seed':>4} {'phone m':>8} {'watch m':>8} {'fused m':>8} {'blended':>8}")
+    for r in doc["recordings"]:
+        print(f"{r['seed']:>4} {r['phone']['mean_err_m']:>8.2f} {r['watch']['mean_err_m']:>8.2f} "
+              f"{r['fused']['mean_err_m']:>8.2f} {r['blended_fraction']:>8.2f}")
+    s = doc["summary"]
+    print(f"\nmedian mean error: phone {s['phone']['mean_err_m']:.2f} m, watch {s['watch']['mean_err_m']:.2f} m, "
+          f"fused {s['fused']['mean_err_m']:.2f} m ({doc['dataset']})")
+    return 0
+
+
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", nargs="?", default=None, help="data folder (default: PEDNAV_DATA or ../shared/datasets)")
     p.add_argument("--json", action="store_true", help="print one JSON document")
@@ -663,6 +732,27 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="also de-sampled to HZ (repeatable), as a sensor set to HZ would deliver it")
     pb.add_argument("--json", action="store_true", help="print one JSON document")
     pb.set_defaults(func=_run_behaviour)
+    pi = esub.add_parser("ipin", help="GetSensorData phone logfiles with surveyed landmarks (IPIN 2023 Track 3): "
+                                      "landmark errors, path ratio, steps, energy against always-on")
+    pi.add_argument("dir", nargs="?", default=None, help="folder of logfiles (default: PEDNAV_DATA/ipin2023-t3-phone)")
+    pi.add_argument("--json", action="store_true", help="print one JSON document")
+    pi.add_argument("--mode", choices=("auto", "always-on"), default="auto",
+                    help="step-and-heading engine mode: auto = energy-aware (default), always-on = every sensor at its full rate")
+    pi.add_argument("--placement", choices=("phone-hand", "phone-pocket", "recognise"), default="phone-hand",
+                    help="placement given to the engine (default phone-hand: the dataset's phones are held in the hand); "
+                         "recognise = let the engine recognise it")
+    pi.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
+    pi.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
+    pi.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pi.add_argument("--max-heading-std-deg", type=float, default=None, metavar="DEG",
+                    help="auto: the heading standard deviation above which the gyroscope is asked for (default: the "
+                         "engine's, 6 deg): the energy / accuracy trade-off")
+    pi.set_defaults(func=_run_ipin)
+    pw = esub.add_parser("phone-watch", help="a phone's and a watch's steps fused (000 eq. 70) on synthetic walks "
+                                             "(no public recording has both)")
+    pw.add_argument("--json", action="store_true", help="print one JSON document")
+    pw.add_argument("--seeds", type=int, default=6, help="synthetic walks (seeds 0..N-1)")
+    pw.set_defaults(func=_run_phone_watch)
     pr = esub.add_parser("recordings", help="your own recordings without truth (any importable format): energy "
                                             "against the always-on ZUPT-KF, modes, behaviours, events, gyroscope timeline")
     pr.add_argument("dir", help="folder of recordings (every file and importable sub-folder in it and below)")

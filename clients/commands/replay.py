@@ -44,13 +44,15 @@ def load_recording(spec: str, mag_scale_ut: float | None = None, columns: str | 
         if m is None or m.__name__ != "clients.importers.gaitmap":
             raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files (gaitmap/Xsens CSV) only")
         return m.load_gaitmap(spec, mag_scale_ut=mag_scale_ut)
+    from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
     from clients.synth import scenario_names, synthesize
 
-    if spec in scenario_names():
+    if spec in scenario_names() or spec in PHONE_SCENARIOS:
         if mag_scale_ut is not None:
             raise ValueError(f"{spec}: --mag-scale-ut applies to normalised-magnetometer files only, not to synthetic scenarios")
-        return synthesize(spec)
-    raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(scenario_names())})")
+        return synthesize(spec) if spec in scenario_names() else synthesize_phone(spec)
+    names = [*scenario_names(), *PHONE_SCENARIOS]
+    raise FileNotFoundError(f"{spec}: no such file and not a synthetic scenario ({', '.join(names)})")
 
 
 def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int) -> dict[str, Any]:
@@ -65,23 +67,25 @@ def _doc(rows: list[tuple[int, float, float, float, str, str, bool]], t0_ns: int
     }
 
 
-def replay_local(rec, batch_seconds: float, mode: str = "auto", anchor=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+def replay_local(rec, batch_seconds: float, mode: str = "auto", anchor=None, spec=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
     """Device emulation through a local engine (no server); with ``anchor`` (:class:`models.geo.Anchor`) the
-    positions geo-referenced as the server serves them."""
-    return replay_local_track(rec, batch_seconds, mode, anchor)[0]
+    positions geo-referenced as the server serves them; ``spec`` (:class:`energy.engines.EngineSpec`) picks the
+    engine as a server session would (default: a foot sensor)."""
+    return replay_local_track(rec, batch_seconds, mode, anchor, spec)[0]
 
 
-def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=None):  # type: ignore[no-untyped-def]
+def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=None, spec=None):  # type: ignore[no-untyped-def]
     """:func:`replay_local`'s document, its :class:`models.geo.GeoTrack` and :class:`models.track_export.TrackLabels`."""
     import numpy as np
 
     from energy.device import replay
-    from energy.engine import Engine
+    from energy.engines import new_engine
     from models.geo import engine_north, georeference, magnetic_north_of
     from models.track_export import TrackLabels
 
-    res = replay(Engine(mode=mode), rec.batch, batch_seconds)  # type: ignore[arg-type]
-    north_in = engine_north(getattr(Engine, "NORTH_REFERENCE", None), res.samples_sent.get("mag", 0) > 0)
+    engine = new_engine(mode, None, spec)
+    res = replay(engine, rec.batch, batch_seconds)
+    north_in = engine_north(getattr(type(engine), "NORTH_REFERENCE", None), res.samples_sent.get("mag", 0) > 0)
     col = {f: np.array([getattr(p, f) for p in res.positions], dtype=float) for f in ("north", "east", "down", "heading_rad")}
     az = magnetic_north_of((e.kind, e.detail) for u in res.updates for e in u.events)
     track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], anchor, north_in, az)
@@ -96,9 +100,11 @@ def replay_local_track(rec, batch_seconds: float, mode: str = "auto", anchor=Non
     return doc, track, labels
 
 
-def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot", anchor=None) -> dict[str, Any]:  # type: ignore[no-untyped-def]
+def replay_server(rec, server: str, token: str, batch_seconds: float, device: str = "foot", anchor=None,  # type: ignore[no-untyped-def]
+                  placement: str | None = "foot") -> dict[str, Any]:
     """The same device emulation, streamed through the HTTP API (lossless msgpack bodies); with ``anchor`` the
-    session is started anchored; the trajectory, geo-referenced by the server, is read back."""
+    session is started anchored; ``placement`` as the client states it (None: recognised by the server); the
+    trajectory, geo-referenced by the server, is read back."""
     from clients.sdk import PednavClient
     from clients.simulators import simulator_for
 
@@ -106,7 +112,9 @@ def replay_server(rec, server: str, token: str, batch_seconds: float, device: st
         "latitude_deg": anchor.latitude_deg, "longitude_deg": anchor.longitude_deg, "altitude_m": anchor.altitude_m,
         "anchor_date": anchor.date.isoformat()}
     with PednavClient(server, token, encoding="msgpack", float_dtype="<f8") as api:
-        res = simulator_for(device, rec, batch_seconds).run(api, start=start)
+        sim = simulator_for(device, rec, batch_seconds, placement)
+        sim.placement = placement
+        res = sim.run(api, start=start)
         traj = api.trajectory(res.session_id)
     pos = traj["positions"]  # as the server serves them: turned to magnetic north once the engine has found it
     rows = [(p["t_ns"], p["north"], p["east"], p["down"], p["behaviour"], p["mode"], p["gyro_on"]) for p in pos]
@@ -160,6 +168,21 @@ def desampled(rec, rate_hz: float):  # type: ignore[no-untyped-def]
     return replace(rec, batch=batch, meta=meta)
 
 
+def _spec(args: argparse.Namespace, rec: Any, anchor: Any) -> Any:
+    """The engine the session gets: device kind (given, else the recording's mount), placement (given, else the
+    kind's own; a phone's recognised), the anchor (the WMM field the compass is weighed against)."""
+    import datetime as dt
+
+    from energy.engines import EngineSpec, check_spec
+
+    device = args.device or (rec.meta.mount if rec.meta.mount in ("foot", "phone", "watch") else "foot")
+    placement = {"recognise": None, None: None if device == "phone" else device}.get(args.placement, args.placement)
+    check_spec(device, placement)
+    where = None if anchor is None else (float(anchor.latitude_deg), float(anchor.longitude_deg), float(anchor.altitude_m))
+    day = anchor.date if anchor is not None else dt.datetime.now(dt.timezone.utc).date()
+    return EngineSpec(device, placement, where, day)
+
+
 def _anchor_date(args: argparse.Namespace, rec) -> Any:  # type: ignore[no-untyped-def]
     """--anchor-date, else the recording's UTC date when its sample times are UTC, else today (UTC)."""
     import datetime as dt
@@ -201,16 +224,27 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if args.rate_hz is not None:
         rec = desampled(rec, args.rate_hz)
-    from clients.recording import require_gyroscope
-
     try:
-        require_gyroscope(rec, args.file)
+        spec = _spec(args, rec, anchor)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if spec.pipeline == "foot":
+        from clients.recording import require_gyroscope
+
+        try:
+            require_gyroscope(rec, args.file)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+    if spec.pipeline != "foot" and len(rec.batch.gyr_t_ns) == 0 and len(rec.batch.mag_t_ns) == 0:
+        # step and heading: steps from the accelerometer, but the heading needs a gyroscope or a magnetometer
+        print(f"error: {args.file}: the recording has no gyroscope samples and no magnetometer samples: nothing "
+              "gives the walking heading (record or export either)", file=sys.stderr)
         return 1
     # a recording whose format says where it was worn (a foot dataset) is taken as it says; any other (a phone app,
     # a generic CSV, an x-io sensor) must show a foot's stance phases before it is navigated as a foot
-    if args.device == "foot" and not args.skip_foot_check and not rec.meta.mount.startswith("foot"):
+    if spec.pipeline == "foot" and not args.skip_foot_check and not rec.meta.mount.startswith("foot"):
         import numpy as np
 
         from models.placement import check_foot
@@ -219,17 +253,18 @@ def _run(args: argparse.Namespace) -> int:
         if np.array_equal(b.acc_t_ns, b.gyr_t_ns):
             verdict = check_foot((b.acc_t_ns - b.acc_t_ns[0]) / 1e9, b.acc, b.gyr)
             if verdict.looks_like_foot is False:
-                print(f"error: {args.file}: {verdict.reason}; replay it with --device phone or --device watch, or pass "
-                      "--skip-foot-check to navigate it as a foot anyway", file=sys.stderr)
+                print(f"error: {args.file}: {verdict.reason}; replay it with --device phone or --placement "
+                      "phone-hand|phone-pocket|watch, or pass --skip-foot-check to navigate it as a foot anyway",
+                      file=sys.stderr)
                 return 1
     if args.server:
         token = args.token or os.environ.get("PEDNAV_TOKEN")
         if not token:
             print("error: --token (or PEDNAV_TOKEN) is required with --server", file=sys.stderr)
             return 2
-        doc = replay_server(rec, args.server, token, args.batch_seconds, args.device, anchor)
+        doc = replay_server(rec, args.server, token, args.batch_seconds, spec.device_kind, anchor, spec.placement)
     else:
-        doc, track, labels = replay_local_track(rec, args.batch_seconds, args.mode, anchor)
+        doc, track, labels = replay_local_track(rec, args.batch_seconds, args.mode, anchor, spec)
         if args.export:
             export_track(track, labels, args.export, f"pednav replay of {rec.name}")
     doc["notes"] = list(rec.meta.notes)  # what the importer repaired or left out
@@ -257,14 +292,20 @@ def _run(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="stream a recording through the API (--server) or a local engine",
                        description="Stream a recording (any importable format) or a synthetic scenario through the "
-                                   "HTTP API or a local engine. Placements navigated today: a foot-mounted sensor.")
+                                   "HTTP API or a local engine; its placement picks the engine (foot: ZUPT-KF / Gait-DR; phone in "
+                                   "the hand or a pocket, watch: step and heading).")
     p.add_argument("file", help="recording file (any importable format) or synthetic scenario name")
     p.add_argument("--server", default=None, help="server URL, e.g. http://127.0.0.1:8000 (default: local engine)")
     p.add_argument("--token", default=None, help="bearer token (default PEDNAV_TOKEN)")
     p.add_argument("--batch-seconds", type=float, default=1.0, help="seconds per uploaded batch (default 1)")
-    p.add_argument("--device", choices=("foot", "phone", "watch"), default="foot", help="device kind of the session")
+    p.add_argument("--device", choices=("foot", "phone", "watch"), default=None,
+                   help="device kind of the session (default: the recording's own, e.g. phone for a phone app's log; else foot)")
+    p.add_argument("--placement", choices=("foot", "phone-hand", "phone-pocket", "watch", "recognise"), default=None,
+                   help="where the device is carried: decides the engine (foot: ZUPT-KF/Gait-DR, the others step and "
+                        "heading); default: the device kind's own, a phone's recognised")
     p.add_argument("--mode", choices=("auto", "zupt", "pdr"), default="auto",
-                   help="local engine mode (the server uses its own configured mode)")
+                   help="local engine mode (the server uses its own configured mode); a phone's zupt = always on, "
+                        "pdr/auto = energy-aware")
     p.add_argument("--mag-scale-ut", type=float, default=None, metavar="UT",
                    help="field [uT] that a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV: the field "
                         "at their calibration site); without it such a magnetometer is left out")

@@ -7,9 +7,10 @@ recordings and are skipped).
 
 Modules: ``vicon`` (University of Toronto .mat), ``sensorconnect`` (MicroStrain CSV, gdin formats A/B),
 ``gdin`` (format C .mat, truth pairing), ``gaitmap`` (gaitmap CSV), ``xio`` (x-io NGIMU / Gait-Tracking CSV),
-``sensor_logger`` and ``phyphox`` (phone apps); each states what it reads in ``FORMAT``. ``generic_csv`` reads any
-other CSV with the columns and units its caller states (never chosen by :func:`load`). A file no importer takes
-is refused with :func:`describe` (what it looks like) and :func:`formats` (what is read).
+``sensor_logger`` and ``phyphox`` (phone apps), ``getsensordata`` (GetSensorData logfiles, the IPIN smartphone
+format); each states what it reads in ``FORMAT``. ``generic_csv`` reads any other CSV with the columns and units its
+caller states (never chosen by :func:`load`). A file no importer takes is refused with :func:`describe` (what it
+looks like) and :func:`formats` (what is read).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ _MODULES: tuple[str, ...] = (
     "clients.importers.xio",
     "clients.importers.sensor_logger",
     "clients.importers.phyphox",
+    "clients.importers.getsensordata",
 )
 
 
@@ -159,7 +161,7 @@ def formats() -> str:
     return "Formats read: " + "; ".join(out)
 
 
-_SUFFIXES = (".mat", ".csv", ".json", ".zip")
+_SUFFIXES = (".mat", ".csv", ".json", ".zip", ".txt")
 
 
 def list_recordings(directory: str | Path, recursive: bool = True) -> list[Path]:

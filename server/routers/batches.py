@@ -13,9 +13,9 @@ from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from models.batch import BatchError
 from server import crud
 from server.auth import authenticate, query_token_refused
-from server.deps import INT64_MAX, CurrentUser, PathId, SessionDep
+from server.deps import ID_MAX, ID_MIN, CurrentUser, PathId, SessionDep
 from server.formats import MSGPACK_TYPE, decode_batch
-from server.ingest import apply_batch
+from server.ingest import EngineUnavailable, apply_batch
 from server.timing import Phases, phase
 from server.schemas import BatchResponse
 
@@ -30,9 +30,26 @@ async def _body(request: Request) -> bytes:
 
 
 def _upload_sync(app: Any, token: str | None, ctype: str | None, session_id: int, seq: int, body: bytes,
-                 queued_at: float) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+                 queued_at: float, client: str | None = None) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     """The whole upload in ONE worker thread: auth, decode, validate, apply, encode (no connection is held
-    while a request waits for a thread). Returns the JSON answer and the extra response headers."""
+    while a request waits for a thread). Returns the JSON answer and the extra response headers. ``client``: the
+    peer address counted by the failed-authentication guard."""
+    if not app.state.host.ready():  # a fresh server compiling its engines: answered now, nothing stored
+        raise EngineUnavailable("the navigation engines are still being compiled or loaded after the server "
+                                "started; this batch was NOT stored: send it again with the same sequence number",
+                                retry_after_s=2)
+    guard = app.state.auth_guard
+    guard.check(client)  # 429 before the token lookup for a client that keeps failing
+    try:
+        return _upload_guarded(app, token, ctype, session_id, seq, body, queued_at)
+    except HTTPException as exc:
+        if exc.status_code == status.HTTP_401_UNAUTHORIZED:
+            guard.failed(client)
+        raise
+
+
+def _upload_guarded(app: Any, token: str | None, ctype: str | None, session_id: int, seq: int, body: bytes,
+                    queued_at: float) -> tuple[bytes, list[tuple[bytes, bytes]]]:
     with Phases() as ph:
         ph.add("queue", time.perf_counter() - queued_at)  # waiting for an ingest thread
         settings = app.state.settings
@@ -90,8 +107,8 @@ class UploadFastPath:
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         m = _UPLOAD_PATH.match(scope["path"]) if scope["type"] == "http" and scope["method"] == "PUT" else None
-        if m is None or not all(-INT64_MAX - 1 <= int(g) <= INT64_MAX for g in m.groups()):
-            # not an upload, or an id beyond int64: the route answers (its validation names the parameter)
+        if m is None or not all(ID_MIN <= int(g) <= ID_MAX for g in m.groups()):
+            # not an upload, or an id beyond the id columns' range: the route answers (its validation names it)
             await self.app(scope, receive, send)
             return
         app = self.fastapi_app
@@ -113,7 +130,8 @@ class UploadFastPath:
             loop = asyncio.get_running_loop()
             content, extra = await loop.run_in_executor(
                 app.state.ingest_pool, _upload_sync, app, _token_of(auth, scope.get("query_string", b"")), ctype,
-                int(m.group(1)), int(m.group(2)), b"".join(chunks), time.perf_counter())
+                int(m.group(1)), int(m.group(2)), b"".join(chunks), time.perf_counter(),
+                (scope.get("client") or (None,))[0])
         except Exception as exc:
             handler = next((app.exception_handlers[t] for t in type(exc).__mro__ if t in app.exception_handlers), None)
             if handler is None:
@@ -143,7 +161,7 @@ async def put_batch(session_id: PathId, seq: PathId, body: Annotated[bytes, Depe
     token = _token_of(request.headers.get("authorization", ""), request.scope.get("query_string", b""))
     content, extra = await loop.run_in_executor(
         request.app.state.ingest_pool, _upload_sync, request.app, token, request.headers.get("content-type"),
-        session_id, seq, body, time.perf_counter())
+        session_id, seq, body, time.perf_counter(), request.client.host if request.client is not None else None)
     return Response(content=content, media_type="application/json", headers={k.decode(): v.decode() for k, v in extra})
 
 

@@ -50,10 +50,11 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Path, status
+from pydantic import AfterValidator
 from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
 
@@ -71,12 +72,16 @@ from server.ingest import (
     json_safe,
 )
 from server.models import SensorLoggerLink, SensorLoggerMessage, TrackSession, User, utcnow
-from server.schemas import SensorLoggerPush
+from server.schemas import SensorLoggerPush, check_text
 from server.statecodec import pack_state
 
 __all__ = ["router", "samples_to_batch", "location_fixes", "close_idle_sessions", "close_link_session"]
 
 router = APIRouter(prefix="/sensorlogger", tags=["sensorlogger"])
+
+SlSessionPath = Annotated[str, Path(min_length=1, max_length=100, json_schema_extra={"pattern": r"^[^\x00-\x1f\x7f]*$"}),
+                          AfterValidator(check_text)]
+"""A Sensor Logger ``sessionId`` in the path: as the push's field (a NUL reached PostgreSQL: HTTP 500)."""
 
 _NAMES = {"accelerometer", "totalacceleration", "gravity", "gyroscope", "magnetometer"}
 
@@ -285,8 +290,8 @@ def _link(db: SessionDep, user: User, push: SensorLoggerPush, settings: Any, hos
         return link, False
     profile = engine_profile_in(db, user)
     engine = host.new(settings.engine_mode, profile)
-    sess = crud.create_session(
-        db, user, device_kind="phone", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
+    sess = crud.create_session(  # the foot engine: a Sensor Logger phone is strapped to a shoe (placement "foot")
+        db, user, device_kind="phone", placement="foot", engine_mode=settings.engine_mode, profile_in=json_safe(profile),
         engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
     )
     link = SensorLoggerLink(user_id=user.id, sl_session_id=push.sessionId, device_id=push.deviceId, session_id=sess.id,
@@ -580,7 +585,7 @@ def close_idle_sessions(sessionmaker: Any, host: Any, settings: Any, now: Any = 
 
 
 @router.post("/{sl_session_id}/flush")
-def flush(sl_session_id: str, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> dict[str, Any]:
+def flush(sl_session_id: SlSessionPath, db: SessionDep, user: CurrentUser, host: HostDep, settings: SettingsDep) -> dict[str, Any]:
     """Feed every held-back sample of a Sensor Logger session now (call before closing the session).
     ``skipped_samples`` / ``skipped`` as for the push. A database busy beyond its retries: 503 with
     ``Retry-After`` (the pieces fed before stay fed; call the flush again)."""

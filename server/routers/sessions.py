@@ -8,9 +8,10 @@ from fastapi import APIRouter, HTTPException, Query, Response, status
 
 from server import crud
 from server.deps import CurrentUser, HostDep, OffsetQuery, PathId, SessionDep, SettingsDep
-from server.ingest import close_session, engine_profile_in, json_safe
+from server.ingest import IngestConflict, apply_known_distance, close_session, engine_profile_in, json_safe, session_spec
+from server.models import utcnow
 from server.reprocess import ReprocessConflict, reprocess_session
-from server.schemas import ReprocessIn, ReprocessOut, SessionCreate, SessionOut, SessionPatch
+from server.schemas import DistanceIn, EventOut, ReprocessIn, ReprocessOut, SessionCreate, SessionOut, SessionPatch
 from server.statecodec import pack_state
 
 __all__ = ["router"]
@@ -20,21 +21,33 @@ router = APIRouter(prefix="/sessions", tags=["sessions"])
 
 @router.post("", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
 def start_session(body: SessionCreate, db: SessionDep, user: CurrentUser, settings: SettingsDep, host: HostDep) -> Any:
-    """Start a session; the user's current calibration profiles are handed to its engine."""
+    """Start a session; its placement picks the engine, the user's current calibration profiles for that engine
+    are handed to it."""
     if body.device_id is not None:
         dev = crud.get_device(db, user, body.device_id)
         if dev is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"device_id: device {body.device_id} not found")
     if (body.latitude_deg is None) != (body.longitude_deg is None):
         raise HTTPException(422, "latitude_deg: latitude and longitude must be given together")
-    profile = engine_profile_in(db, user)
-    engine = host.new(settings.engine_mode, profile)
+    from energy.engines import check_spec
+
+    try:
+        check_spec(body.device_kind, body.placement)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    placement = body.placement if body.placement is not None or body.device_kind == "phone" else body.device_kind
+    created = utcnow()
+    spec = session_spec(body.device_kind, placement, body.latitude_deg, body.longitude_deg, body.altitude_m,
+                        body.anchor_date or created)
+    profile = engine_profile_in(db, user, spec.pipeline)
+    engine = host.new(settings.engine_mode, profile, spec)
     sess = crud.create_session(
-        db, user, device_kind=body.device_kind, device_id=body.device_id, latitude_deg=body.latitude_deg,
-        longitude_deg=body.longitude_deg, altitude_m=body.altitude_m, anchor_date=body.anchor_date,
-        anchor_accuracy_m=body.anchor_accuracy_m,
+        db, user, device_kind=body.device_kind, placement=placement, device_id=body.device_id,
+        latitude_deg=body.latitude_deg, longitude_deg=body.longitude_deg, altitude_m=body.altitude_m,
+        anchor_date=body.anchor_date, anchor_accuracy_m=body.anchor_accuracy_m,
         anchor_source="user" if body.latitude_deg is not None else None, engine_mode=settings.engine_mode,
         profile_in=json_safe(profile), engine_state=pack_state(engine.to_bytes()), sensor_config=engine.sensor_config.to_dict(),
+        created_at=created,
     )
     db.commit()
     return sess
@@ -107,6 +120,24 @@ def close(session_id: PathId, db: SessionDep, user: CurrentUser, host: HostDep, 
     if sess is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
     return sess
+
+
+@router.post("/{session_id}/distance", response_model=EventOut)
+def known_distance(session_id: PathId, body: DistanceIn, db: SessionDep, user: CurrentUser, host: HostDep) -> Any:
+    """A distance walked between two times (user-entered, a foot sensor's or GNSS's): a phone or watch session's
+    step length is calibrated on the steps between them (stored in the profile at the close). 422 when the times
+    hold too few steps or the session is a foot sensor's; 409 when the session is closed."""
+    if body.t1_ns <= body.t0_ns:
+        raise HTTPException(422, "t1_ns: must be after t0_ns")
+    try:
+        ev = apply_known_distance(db, host, user, session_id, body.t0_ns, body.t1_ns, body.distance_m)
+    except IngestConflict as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, exc.message) from None
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    if ev is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"session {session_id} not found")
+    return ev
 
 
 @router.post("/{session_id}/reprocess", response_model=ReprocessOut)

@@ -38,7 +38,8 @@ def track_of(db: Session, sess: TrackSession, host: EngineHost) -> tuple[GeoTrac
 
     rows = [{f: getattr(p, f) for f in _FIELDS} for p in crud.positions_of(db, sess.id)]
     col = {f: np.array([r[f] for r in rows], dtype=float) for f in ("north", "east", "down", "heading_rad")}
-    north_in = engine_north(getattr(host.engine_cls, "NORTH_REFERENCE", None), crud.has_magnetometer(db, sess.id))
+    cls = host.engine_class_of(sess.placement, sess.device_kind)
+    north_in = engine_north(getattr(cls, "NORTH_REFERENCE", None), crud.has_magnetometer(db, sess.id))
     az = magnetic_north_of((e.kind, e.detail) for e in crud.events_of(db, sess.id))
     track = georeference(col["north"], col["east"], col["down"], col["heading_rad"], session_anchor(sess), north_in, az)
     labels = TrackLabels([r["t_ns"] for r in rows], [r["behaviour"] for r in rows], [r["mode"] for r in rows],

@@ -37,3 +37,17 @@ def test_engine_bench_sessions_start_apart_and_keep_time_increasing_over_the_loo
     for s in sess:
         ts = np.concatenate([b["acc_t_ns"] for b in s])
         assert np.all(np.diff(ts) > 0) and ts.size == 8 * 100
+
+
+def test_load_bench_bounded_run_loses_and_duplicates_nothing(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """CI's bounded version of ``pednav bench load`` (the full sweep: ``pednav bench load --sweep``): a real server
+    with its engine helper, 5 devices for 3 s on SQLite; every batch acknowledged, stored once."""
+    import argparse
+
+    from clients.benchmarks.load import run
+
+    args = argparse.Namespace(devices=5, seconds=3.0, rate_hz=100.0, database_url=None, encoding="msgpack", workers=1,
+                              sweep=False)
+    r = run(args)
+    assert r["requests_sent"] == 15 and r["acked"] == 15 and r["stored"] == 15
+    assert r["lost_batches"] == 0 and r["duplicated_batches"] == 0 and r["other_statuses"] == {}

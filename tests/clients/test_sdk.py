@@ -37,7 +37,7 @@ def batches(draw: st.DrawFn) -> SensorBatch:
 @given(batches(), st.sampled_from([("msgpack", "<f8"), ("msgpack", "<f4"), ("json", "<f8")]))
 def test_sdk_encoding_round_trips_through_the_server_decoder(batch: SensorBatch, enc: tuple[str, str]) -> None:
     body, ctype = encode_batch(batch, enc[0], enc[1])  # type: ignore[arg-type]
-    back = decode_batch(body, ctype, 10**6)
+    back = decode_batch(body, ctype, 10**6, allow_empty=True)
     for name in ("acc", "gyr", "mag"):
         assert np.array_equal(back.stream(name)[0], batch.stream(name)[0])
         assert np.array_equal(back.stream(name)[1], batch.stream(name)[1])  # float32 values: lossless in <f4
@@ -141,15 +141,15 @@ def test_a_busy_database_is_waited_out_as_retry_after_says_and_the_batch_applied
                                                                                        monkeypatch) -> None:
     """The server answers 503 with ``Retry-After: 1`` when another worker holds the database through all its
     retries (nothing stored; it was a 500, which the SDK does not retry): the SDK waits Retry-After and sends the
-    same sequence number again, applied once. Busy for longer than its retries, the batch stays queued in the
-    stream and goes out later under its number."""
+    same sequence number again, applied once. Such waits use up no attempt until they add up to ``wait_s``; busy
+    for longer than that and its retries, the batch stays queued in the stream and goes out later under its number."""
     import clients.sdk as sdk
     from tests.server.conftest import app_with, database_locked, short_lock_waits
 
     _, tok = make_user()
     with app_with(settings) as (a, c):
         short_lock_waits(a)
-        api = PednavClient(token=tok, http=c, retries=3, backoff_s=0.0)
+        api = PednavClient(token=tok, http=c, retries=3, backoff_s=0.0, wait_s=2.0)
         sid = api.start_session("foot")["id"]
         stream = api.stream(sid)
         assert [r["seq"] for r in stream.send(still_batch(T0))] == [0]
@@ -158,12 +158,13 @@ def test_a_busy_database_is_waited_out_as_retry_after_says_and_the_batch_applied
             monkeypatch.setattr(sdk, "time", clock)
             got = stream.send(still_batch(T0 + 10**9, seed=1))
         assert [r["seq"] for r in got] == [1] and not stream.pending
-        assert clock.slept == [1.0, 0.0]  # Retry-After, then the backoff before the second attempt
+        assert clock.slept == [1.0]  # Retry-After (no attempt used up)
         with database_locked(settings, sid):
             clock = _Time(lambda s: None)
             monkeypatch.setattr(sdk, "time", clock)
-            assert stream.send(still_batch(T0 + 2 * 10**9, seed=2)) == []  # 4 attempts, all 503: queued
-        assert clock.slept == [1.0, 0.0] * 3  # Retry-After after each 503 but the last, backoff before each retry
+            assert stream.send(still_batch(T0 + 2 * 10**9, seed=2)) == []  # wait_s, then 3 retries, all 503: queued
+        # two Retry-After waits within wait_s = 2 s, then each retry waits backoff (0) plus Retry-After
+        assert clock.slept == [1.0] * 5
         assert [seq for seq, _, _ in stream.pending] == [2]
         assert [b["seq"] for b in api._json("GET", f"/v1/sessions/{sid}/batches")] == [0, 1]
         got = stream.send(still_batch(T0 + 3 * 10**9, seed=3))

@@ -391,12 +391,19 @@ def test_sensor_logger_push_out_of_order_and_duplicated(client, make_user) -> No
     messy, answers = _push_all(client, tok, shuffled, "messy")
     assert sum(a["duplicate"] for a in answers) == 4
     assert answers[-1]["late_samples"] == 0
+    from models.geo import magnetic_north_of, to_true_north
+
     eng = Engine(mode="auto")
-    local = eng.feed(b).positions + eng.flush().positions
+    ups = [eng.feed(b), eng.flush()]
+    local = [p for u in ups for p in u.positions]
     assert len(in_order) == len(local) > 3
+    # the server serves the trajectory turned onto magnetic north once the engine has announced it
+    az = magnetic_north_of((e.kind, e.detail) for u in ups for e in u.events) or 0.0
+    n, e_, _ = to_true_north(np.array([p.north for p in local]), np.array([p.east for p in local]),
+                             np.zeros(len(local)), -az)
     for got in (in_order, messy):
         g = np.array([[p["t_ns"], p["north"], p["east"], p["down"]] for p in got])
-        ref = np.array([[p.t_ns, p.north, p.east, p.down] for p in local])
+        ref = np.array([[p.t_ns, n[i], e_[i], p.down] for i, p in enumerate(local)])
         assert g.shape == ref.shape and np.array_equal(g[:, 0], ref[:, 0])
         assert np.max(np.abs(g[:, 1:] - ref[:, 1:])) <= 1e-9
 

@@ -1,6 +1,7 @@
 """Fixtures of the service tests: settings and app per database backend, client, user tokens.
 
-Engines run in the test process (``engine_processes=0``) to keep the run fast; the helper-process path that
+Engines run in the test process (``engine_processes=0``, no warm-up at start: test_coldstart.py checks it) to keep
+the run fast; the helper-process path that
 the server uses by default is checked against it in test_durability.py.
 
 The PostgreSQL leg uses a unique schema per test run (dropped afterwards) on
@@ -54,11 +55,11 @@ def settings(backend: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator
     if backend == "sqlite":
         path: Path = tmp_path_factory.mktemp("db") / "pednav.db"
         yield Settings(database_url=f"sqlite:///{path}", max_body_bytes=2_000_000, max_samples_per_stream=20_000,
-                       engine_processes=0)
+                       engine_processes=0, engine_warmup=False)
         return
     schema = f"t_{uuid.uuid4().hex[:12]}"
     s = Settings(database_url=PG_URL, db_schema=schema, max_body_bytes=2_000_000, max_samples_per_stream=20_000,
-                 engine_processes=0)
+                 engine_processes=0, engine_warmup=False)
     yield s
     eng = make_engine(Settings(database_url=PG_URL))
     drop_schema(eng, schema)

@@ -472,7 +472,7 @@ def test_profiles_replace_read_reset_history_and_isolation(client, make_user) ->
     [
         ("walk", {"n_steps": -1}, "data"),
         ("walk", {"bogus": 1}, "data"),
-        ("swim", {}, "behaviour"),
+        ("swim", {}, "path.behaviour"),
         # accepted before, and then every session start of the user answered 500 (the engine could not load them)
         ("walk", {**_calibration(), "heading_deviation_rad": "0.1"}, "data: heading_deviation_rad"),
         ("walk", {**_calibration(), "heading_deviation_var": [0.01]}, "data: heading_deviation_var"),

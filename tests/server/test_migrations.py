@@ -117,7 +117,8 @@ def _fks(eng: Engine) -> dict[str, list[tuple[Any, ...]]]:
 
 
 # columns added after revision 0005 (left out where a structure is compared with revision 0004's)
-_LATER_COLUMNS = {"anchor_date", "anchor_accuracy_m", "anchor_source", "last_push_at"}
+_LATER_COLUMNS = {"anchor_date", "anchor_accuracy_m", "anchor_source", "last_push_at", "gyr_newest_ns", "mag_newest_ns",
+                  "placement"}
 
 
 def _structure(eng: Engine, skip: frozenset[str] | set[str] = frozenset()) -> dict[str, Any]:

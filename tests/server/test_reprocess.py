@@ -3,6 +3,8 @@ replaces it atomically, the session continues correctly afterwards, and refusals
 
 from __future__ import annotations
 
+import math
+
 import dataclasses
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -151,9 +153,10 @@ def test_newer_engine_replaces_the_trajectory_and_dry_run_stores_nothing(setting
         assert r.json()["engine"].endswith("ShiftedEngine") and r.json()["stored"] is True
     shifted = _snapshot(client, app, tok, sid)[0]
     assert len(shifted) == len(before[0])
-    for a, b in zip(before[0], shifted):
-        assert b["north"] == pytest.approx(a["north"] + 1.0, abs=1e-12)
-        assert {k: v for k, v in a.items() if k != "north"} == {k: v for k, v in b.items() if k != "north"}
+    for a, b in zip(before[0], shifted):  # 1 m north in the engine's frame, served turned onto magnetic north
+        assert math.hypot(b["north"] - a["north"], b["east"] - a["east"]) == pytest.approx(1.0, abs=1e-9)
+        moved = ("north", "east")
+        assert {k: v for k, v in a.items() if k not in moved} == {k: v for k, v in b.items() if k not in moved}
     # and back with the server's own engine: the original trajectory again
     assert client.post(f"/v1/sessions/{sid}/reprocess", headers=auth(tok)).json()["identical"] is False
     back = _snapshot(client, app, tok, sid)

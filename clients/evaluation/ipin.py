@@ -1,0 +1,304 @@
+"""``pednav eval ipin``: the step-and-heading engine on GetSensorData logfiles with surveyed landmarks
+(datasets/ipin2023-t3-phone, DESIGN.md "Evaluation contracts").
+
+Scoring (datasets/ipin2023-t3-phone/ABOUT.md): the estimate starts at the first landmark: the track is translated
+so that its position at the first landmark's time is that landmark (NED at the first landmark); no truth sets the
+heading (the engine's own, magnetic north, turned to true north by the WMM declination at the anchor as
+geo-referencing does, :func:`models.geo.to_true_north`; the anchor is the first landmark's latitude and longitude,
+as a phone app would know its building, on the logfile's date). The estimate at a time is interpolated linearly between
+the step positions around it (the origin before the first step). Per trial: the horizontal error at every later
+landmark, their mean and 75th percentile (the competition's metric), the error at the last landmark (the trials
+return to the first: the loop error), the path ratio (sum of the step lengths between the first and last
+landmark over the surveyed path, the sum of landmark-to-landmark distances; the walk between landmarks is not
+guaranteed straight, so the surveyed path is a lower bound), the steps between the two, and the energy ratio
+(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`).
+
+Fitted on the data, and so left out per trial (leave-one-route-out: the two repetitions of a route are one
+walker's same walk, both are left out): the Weinberg constant of the engine and of the baseline, each as the
+surveyed path length over the sum of the model's unscaled step lengths of the other routes' trials.
+
+The baseline (the issue's "simple baseline"): steps from the accelerometer magnitude (2nd-order Butterworth at
+3 Hz applied forward and backward, peaks 0.7 m/s^2 above g at least 0.35 s apart), Weinberg step length with one
+constant, and the phone's own rotation vector (the logfile's AHRS quaternion) for the heading of its forward
+axis plus the declination. Offline (it sees the whole file), so it is a lower bar than a causal engine.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from clients.recording import Recording
+
+__all__ = ["LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
+           "baseline_track", "evaluate_ipin", "ipin_summary", "TRIAL_FIELDS"]
+
+TRIAL_FIELDS = ("name", "mean_err_m", "p75_err_m", "final_err_m", "path_ratio", "steps", "energy_ratio")
+POWER_PROFILE = "phone-bmi270"
+
+
+@dataclass(frozen=True)
+class LandmarkErrors:
+    """Landmark errors of one track (see the module docstring)."""
+
+    errors_m: np.ndarray
+    mean_err_m: float
+    p75_err_m: float
+    final_err_m: float
+    path_ratio: float
+    steps: int
+
+    def row(self) -> dict[str, Any]:
+        return {"mean_err_m": self.mean_err_m, "p75_err_m": self.p75_err_m, "final_err_m": self.final_err_m,
+                "path_ratio": self.path_ratio, "steps": self.steps}
+
+
+def landmark_errors(truth_t_ns: np.ndarray, truth_ne: np.ndarray, pos_t_ns: np.ndarray, pos_ne: np.ndarray,
+                    step_m: np.ndarray) -> LandmarkErrors:
+    """Errors of a step track at the landmarks.
+
+    Parameters
+    ----------
+    truth_t_ns : ndarray of int64, shape (K,)
+        Landmark times [ns].
+    truth_ne : ndarray, shape (K, 2)
+        Landmark positions (north, east) [m].
+    pos_t_ns : ndarray of int64, shape (N,)
+        Step times [ns].
+    pos_ne : ndarray, shape (N, 2)
+        Positions after each step (north, east) [m].
+    step_m : ndarray, shape (N,)
+        Each step's length [m].
+    """
+    T = np.asarray(truth_t_ns, dtype=np.int64)
+    L = np.asarray(truth_ne, dtype=float).reshape(-1, 2)
+    t = np.asarray(pos_t_ns, dtype=np.int64)
+    p = np.asarray(pos_ne, dtype=float).reshape(-1, 2)
+    if len(T) < 2:
+        raise ValueError("truth: at least two landmarks are needed")
+    if len(t) == 0:
+        est = np.zeros((len(T), 2))
+    else:
+        tt = np.concatenate([[t[0] - 1], t]).astype(float)
+        pp = np.vstack([np.zeros((1, 2)), p])
+        est = np.column_stack([np.interp(T.astype(float), tt, pp[:, 0]), np.interp(T.astype(float), tt, pp[:, 1])])
+    est = est - est[0] + L[0]
+    err = np.linalg.norm(est[1:] - L[1:], axis=1)
+    inside = (t > T[0]) & (t <= T[-1])
+    truth_len = float(np.sum(np.linalg.norm(np.diff(L, axis=0), axis=1)))
+    ratio = float(np.sum(np.asarray(step_m, dtype=float)[inside]) / truth_len) if truth_len > 0 else math.nan
+    return LandmarkErrors(err, float(np.mean(err)), float(np.percentile(err, 75)), float(err[-1]), ratio,
+                          int(inside.sum()))
+
+
+def route_of(name: str) -> str:
+    """The route a trial walks: its name without the repetition (``IPIN2023_T3_TrainingTrial03_repetition01`` ->
+    ``IPIN2023_T3_TrainingTrial03``)."""
+    return name.rsplit("_repetition", 1)[0]
+
+
+def _anchor_and_date(rec: Recording) -> tuple[tuple[float, float, float], _dt.date | None]:
+    assert rec.truth is not None
+    lat, lon = rec.truth.extra["origin_deg"]
+    day = (rec.aux.get("device") or {}).get("date")
+    return (float(lat), float(lon), 0.0), (_dt.date.fromisoformat(day) if day else None)
+
+
+def phone_energy(res: Any, t_end_ns: int) -> Any:
+    """Energy of a replay (:func:`energy.device.replay`) on the phone power profile ``phone-bmi270``, with the
+    step-and-heading engine's measured compute costs (``compute_costs.json``, engine ``phone``)."""
+    from energy.power import Timeline, account, load_compute_costs, load_profile
+
+    prof = load_profile(POWER_PROFILE, compute=load_compute_costs().for_engine("phone"))
+    return account(Timeline.from_replay(res, t_end_ns), prof)
+
+
+@dataclass
+class TrialResult:
+    """One replay of a trial: its positions, step lengths and energy."""
+
+    t_ns: np.ndarray
+    ne: np.ndarray
+    step_m: np.ndarray
+    energy_mj: float
+    gyro_on_fraction: float
+    events: dict[str, int] = field(default_factory=dict)
+
+
+def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
+              batch_seconds: float = 1.0, max_heading_std_rad: float | None = None) -> TrialResult:
+    """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
+    (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's)."""
+    from dataclasses import replace
+
+    from energy.device import replay
+    from energy.phone_engine import PhoneEngine, PhoneEngineConfig
+
+    anchor, day = _anchor_and_date(rec)
+    base = PhoneEngineConfig()
+    cfg = replace(base, step_length=replace(base.step_length, weinberg_k=float(weinberg_k)))
+    if max_heading_std_rad is not None:
+        cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
+    eng = PhoneEngine(mode=mode, config=cfg, device_kind="phone", placement=placement, anchor=anchor, date=day)
+    res = replay(eng, rec.batch, batch_seconds)
+    t_end = int(rec.batch.t_end_ns or 0) + 1
+    report = phone_energy(res, t_end)
+    ev: dict[str, int] = {}
+    for u in res.updates:
+        for e in u.events:
+            ev[e.kind] = ev.get(e.kind, 0) + 1
+    pos = res.positions
+    from models.geo import to_true_north
+
+    _, decl = _declination(rec)  # the engine's north is magnetic: turned as geo-referencing turns it
+    n, e, _h = to_true_north(np.array([p.north for p in pos]), np.array([p.east for p in pos]),
+                             np.array([p.heading_rad for p in pos]), decl)
+    return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.column_stack([n, e]).reshape(-1, 2),
+                       np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev)
+
+
+def baseline_track(rec: Recording, weinberg_k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The simple baseline's track: ``(t_ns, positions NE, step lengths, unscaled Weinberg features)``."""
+    from scipy.signal import butter, filtfilt, find_peaks
+
+    b = rec.batch
+    ahrs = rec.aux.get("ahrs")
+    if ahrs is None:
+        raise ValueError(f"{rec.name}: the baseline needs the phone's rotation vector (AHRS lines)")
+    t = b.acc_t_ns
+    a = np.linalg.norm(b.acc, axis=1)
+    fs = b.rate_hz("acc")
+    bb, aa = butter(2, 3.0 / (fs / 2.0))
+    af = filtfilt(bb, aa, a)
+    pk, _ = find_peaks(af, height=9.80665 + 0.7, distance=max(1, int(round(0.35 * fs))))
+    feat = np.empty(len(pk))
+    for i, k in enumerate(pk):
+        k0 = pk[i - 1] if i > 0 else max(0, k - int(round(0.5 * fs)))
+        seg = af[k0:k + 1]
+        feat[i] = (seg.max() - seg.min()) ** 0.25  # 000 eq. (35)
+    sl = weinberg_k * feat
+    # forward axis of the rotation vector (Android: body -> ENU), up x x_body, azimuth from north, + declination
+    q = np.asarray(ahrs["quat_xyz"], dtype=float)
+    w = np.sqrt(np.clip(1.0 - np.sum(q * q, axis=1), 0.0, 1.0))
+    x, y, z = q[:, 0], q[:, 1], q[:, 2]
+    x_e, x_n = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z)  # body x axis in ENU (east, north)
+    az = np.arctan2(-x_n, x_e)  # up x x_body = (-x_n, x_e) in (east, north): azimuth atan2(east, north)
+    _, decl = _declination(rec)
+    i = np.clip(np.searchsorted(ahrs["t_ns"], t[pk]), 0, len(az) - 1)
+    head = np.unwrap(az[i]) + decl
+    ne = np.cumsum(np.column_stack([sl * np.cos(head), sl * np.sin(head)]), axis=0)
+    return t[pk], ne.reshape(-1, 2), sl, feat
+
+
+def _declination(rec: Recording) -> tuple[Any, float]:
+    """The WMM's elements and declination [rad] at the first landmark on the logfile's date."""
+    from models.geo import Anchor, magnetic_elements
+
+    (lat, lon, alt), day = _anchor_and_date(rec)
+    el = magnetic_elements(Anchor(lat, lon, alt, **({"date": day} if day else {})))
+    return el, el.declination_rad
+
+
+def _loo_k(name: str, totals: dict[str, tuple[float, float]]) -> float:
+    """Surveyed length over unscaled step lengths of the trials of the other routes."""
+    num = sum(d for n, (d, _) in totals.items() if route_of(n) != route_of(name))
+    den = sum(s for n, (_, s) in totals.items() if route_of(n) != route_of(name))
+    if not den > 0:
+        raise ValueError(f"{name}: no other route to fit the Weinberg constant on")
+    return num / den
+
+
+def _truth(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    if rec.truth is None or rec.truth.positions is None or rec.truth.t_ns is None:
+        raise ValueError(f"{rec.name}: no landmarks (POSI lines)")
+    return rec.truth.t_ns, rec.truth.positions[:, :2]
+
+
+def _window_sum(rec: Recording, t_ns: np.ndarray, values: np.ndarray) -> float:
+    T, _ = _truth(rec)
+    inside = (t_ns > T[0]) & (t_ns <= T[-1])
+    return float(np.sum(values[inside]))
+
+
+def _surveyed(rec: Recording) -> float:
+    _, L = _truth(rec)
+    return float(np.sum(np.linalg.norm(np.diff(L, axis=0), axis=1)))
+
+
+def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
+                  batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
+                  max_heading_std_rad: float | None = None) -> dict[str, Any]:
+    """The ``pednav eval ipin`` document for loaded recordings (see the module docstring).
+
+    Every trial is replayed always-on (the energy baseline; its steps also fit the Weinberg constant of the
+    others) and, with ``mode="auto"``, energy-aware; the trial's row reports ``mode``'s track; ``always_on``
+    and ``baseline`` hold the same metrics of the always-on replay and of the simple baseline.
+    """
+    from energy.phone_engine import PhoneEngineConfig
+
+    k0 = PhoneEngineConfig().step_length.weinberg_k
+    always: dict[str, TrialResult] = {}
+    totals: dict[str, tuple[float, float]] = {}
+    base_totals: dict[str, tuple[float, float]] = {}
+    for rec in recs:  # pass 1: features for the leave-one-route-out constants (independent of the constant)
+        if progress:
+            progress(rec.name)
+        r = run_phone(rec, "always-on", k0, placement, batch_seconds)
+        always[rec.name] = r
+        totals[rec.name] = (_surveyed(rec), _window_sum(rec, r.t_ns, r.step_m / k0))
+        bt, _, _, feat = baseline_track(rec, 1.0)
+        base_totals[rec.name] = (_surveyed(rec), _window_sum(rec, bt, feat))
+    trials = []
+    for rec in recs:
+        if progress:
+            progress(rec.name)
+        T, L = _truth(rec)
+        k = _loo_k(rec.name, totals)
+        on = run_phone(rec, "always-on", k, placement, batch_seconds)
+        run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad)
+        e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
+        e_on = landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
+        kb = _loo_k(rec.name, base_totals)
+        bt, bne, bsl, _ = baseline_track(rec, kb)
+        e_b = landmark_errors(T, L, bt, bne, bsl)
+        row = {"name": rec.name, **e.row(), "energy_ratio": run.energy_mj / on.energy_mj,
+               "accuracy_ratio": e.mean_err_m / e_on.mean_err_m if e_on.mean_err_m > 0 else None,
+               "gyro_on_fraction": run.gyro_on_fraction, "weinberg_k": k, "landmarks": int(len(T)),
+               "phone": (rec.aux.get("device") or {}).get("Model"), "events": run.events,
+               "always_on": {**e_on.row(), "energy_mj": on.energy_mj},
+               "baseline": {**e_b.row(), "weinberg_k": kb}}
+        trials.append(row)
+    doc = {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}
+    if max_heading_std_rad is not None:
+        doc["max_heading_std_rad"] = max_heading_std_rad
+    return doc
+
+
+def _stats(values: list[float], worst: str) -> dict[str, Any]:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    if not v:
+        return {"median": None, "worst": None, "n": 0}
+    w = max(v) if worst == "max" else min(v) if worst == "min" else max(v, key=lambda x: abs(x - 1.0))
+    return {"median": float(np.median(v)), "worst": float(w), "n": len(v)}
+
+
+def ipin_summary(trials: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Median and worst of every metric (worst: the largest error / ratio, the path ratio farthest from 1), for
+    the evaluated mode, the always-on replay and the baseline; path ratios per phone model too."""
+    ok = [t for t in trials if "error" not in t]
+    out: dict[str, Any] = {"trials": len(ok)}
+    for k in ("mean_err_m", "p75_err_m", "final_err_m", "energy_ratio", "accuracy_ratio", "gyro_on_fraction"):
+        out[k] = _stats([t.get(k) for t in ok], "max")
+    out["path_ratio"] = _stats([t["path_ratio"] for t in ok], "far")
+    out["steps"] = _stats([t["steps"] for t in ok], "max")
+    for part in ("always_on", "baseline"):
+        out[part] = {k: _stats([t[part][k] for t in ok], "max") for k in ("mean_err_m", "p75_err_m", "final_err_m")}
+        out[part]["path_ratio"] = _stats([t[part]["path_ratio"] for t in ok], "far")
+    phones = sorted({str(t.get("phone")) for t in ok})
+    out["path_ratio_by_phone"] = {p: _stats([t["path_ratio"] for t in ok if str(t.get("phone")) == p], "far") for p in phones}
+    return out

@@ -1,0 +1,583 @@
+"""The step-and-heading engine: phones (in the hand, in a pocket) and watches (DESIGN.md, "Placement").
+
+Same contract as :class:`energy.engine.Engine` (DESIGN.md, "The engine contract"): ``feed(batch) -> Update``
+with one position per detected step, events and the sensor configuration the device should use next;
+``flush()``; deterministic and chunk-invariant; complete state to bytes and back; a per-user profile in and
+out. What it does per step (003 Figure 5, eq. 24):
+
+1. the front end (:mod:`models.pdr`) runs the MARG filter, the step detector and the walking-direction
+   statistics over the merged samples, in time order, up to the newest time every stream has reached (a
+   stream more than ``stream_wait_s`` behind, e.g. a gyroscope that is off, is not waited for);
+2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
+   walking direction: the device's forward axis held in front, the horizontal acceleration's principal
+   direction otherwise;
+3. the walking heading (:mod:`models.walk_heading`) is the MARG filter's (whose compass updates it carries)
+   once the gyroscope has carried it for ``gyro_min_steps`` steps; in the first steps after the gyroscope was off
+   it moves by the gyroscope's increment and takes the filter's heading with that filter's variance; with the
+   gyroscope off it holds and follows the compass, taking a compass change beyond its gate as a turn;
+4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
+   take out the heading's drift on straight stretches along them (003 Section 6.1);
+5. the step length (:mod:`models.pdr_step_length`, Weinberg 000 eq. 35 or 003 eq. 28), calibrated per user and
+   placement from known distances (:meth:`PhoneEngine.calibrate_distance`), places the step.
+
+Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (first steps, until the compass's
+noise is known; after a turn; whenever the heading's standard deviation one step ahead without it would exceed
+``max_heading_std_rad``); standing, the accelerometer and magnetometer run at their low rates and the gyroscope
+is off. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
+North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
+geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
+Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from energy import codec
+from energy.types import Event, Position, SensorConfig, Update
+from models.batch import STREAMS, BatchError, SensorBatch
+from models.dominant_directions import DominantDirections, DominantDirectionsConfig
+from models.marg import MargConfig, MargState, merge_streams
+from models.pdr import STEP_RECORD, PdrState, run_pdr
+from models.pdr_step_length import PdrStepLength, StepLengthConfig
+from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
+from models.step_detector import StepDetectorConfig
+from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
+
+__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_MODES", "PROFILE_KEY"]
+
+PHONE_MODES: tuple[str, ...] = ("auto", "always-on")
+PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (energy.profile.PROFILE_BEHAVIOURS)
+_STATE_VERSION = 1
+_F = {k: i for i, k in enumerate(STEP_RECORD)}
+_LOG_STEPS = 4000  # steps kept for a known-distance calibration (about 40 min of walking)
+# a mean angular rate over a step above this [rad/s] is a device waved about, not carried along (hand-held walking:
+# 0.3 rad/s on the IPIN trials; their calibration manoeuvre: 3-7 rad/s)
+_WAVED_RAD_S = 1.5
+
+
+def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | None) -> np.ndarray:
+    """The World Magnetic Model's field at the anchor in the engine's magnetic-north NED frame [uT]
+    (:func:`models.geo.magnetic_elements`: no east component)."""
+    from models.geo import Anchor, magnetic_elements
+
+    kw = {"date": date} if date is not None else {}
+    el = magnetic_elements(Anchor(anchor[0], anchor[1], anchor[2], **kw))
+    return np.asarray(el.field_magnetic_ned_ut, dtype=float)
+
+
+@dataclass(frozen=True)
+class PhoneEngineConfig:
+    """Configuration of :class:`PhoneEngine` (rates in Hz, times in s, angles in rad).
+
+    Attributes
+    ----------
+    marg, steps, step_length, heading, placement, directions
+        The parts' own configurations (``directions``: None switches the dominant directions off).
+    acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
+        Full rates (the always-on baseline: a phone's usual 50 / 100 / 50 Hz).
+    walk_mag_rate_hz : float
+        Magnetometer rate while walking in ``auto`` (the compass is read every ``marg.compass_interval_s``).
+    stand_acc_rate_hz, stand_mag_rate_hz : float
+        Rates while standing in ``auto``.
+    stand_after_s : float
+        No step for this long with a still accelerometer: standing.
+    max_heading_std_rad : float
+        ``auto`` asks for the gyroscope when the heading's standard deviation one step ahead without it would
+        exceed this.
+    gyro_min_steps : int
+        Once on, the gyroscope stays on for at least this many steps (and this many compass innovations measure
+        the compass's noise before it may go off at all).
+    batch_s : float
+        Upload period asked of the device.
+    stream_wait_s : float
+        How long the accelerometer waits for a lagging gyroscope or magnetometer stream.
+    run_step_hz : float
+        Steps at this frequency or faster are labelled ``run``.
+    """
+
+    marg: MargConfig = field(default_factory=MargConfig)
+    steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
+    step_length: StepLengthConfig = field(default_factory=StepLengthConfig)
+    heading: WalkHeadingConfig = field(default_factory=WalkHeadingConfig)
+    placement: PlacementConfig = field(default_factory=PlacementConfig)
+    directions: DominantDirectionsConfig | None = field(default_factory=DominantDirectionsConfig)
+    acc_rate_hz: float = 50.0
+    gyr_rate_hz: float = 100.0
+    mag_rate_hz: float = 50.0
+    walk_mag_rate_hz: float = 25.0
+    stand_acc_rate_hz: float = 25.0
+    stand_mag_rate_hz: float = 10.0
+    stand_after_s: float = 2.0
+    max_heading_std_rad: float = math.radians(6.0)
+    gyro_min_steps: int = 6
+    batch_s: float = 1.0
+    stream_wait_s: float = 0.5
+    run_step_hz: float = 2.4
+
+    def __post_init__(self) -> None:
+        for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "stand_acc_rate_hz",
+                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
+        if int(self.gyro_min_steps) < 1:
+            raise ValueError("PhoneEngineConfig: gyro_min_steps must be >= 1")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PhoneEngineConfig:
+        d = dict(d)
+        parts = {"marg": MargConfig.from_dict, "steps": StepDetectorConfig.from_dict,
+                 "step_length": StepLengthConfig.from_dict, "heading": WalkHeadingConfig.from_dict,
+                 "placement": lambda x: PlacementConfig(**x), "directions": DominantDirectionsConfig.from_dict}
+        for k, f in parts.items():
+            if d.get(k) is not None:
+                d[k] = f(d[k])
+        d["gyro_min_steps"] = int(d.get("gyro_min_steps", 6))
+        return cls(**d)
+
+
+class _Streams:
+    """Samples waiting until every stream has reached their time (the merge horizon)."""
+
+    def __init__(self) -> None:
+        self.t = {n: np.zeros(0, dtype=np.int64) for n in STREAMS}
+        self.v = {n: np.zeros((0, 3)) for n in STREAMS}
+        self.last = {n: -(2 ** 62) for n in STREAMS}  # newest time received [ns]
+        self.done = -(2 ** 62)  # everything up to here was processed [ns]
+        self.dropped = 0  # samples that came after their time had been processed
+
+    def push(self, batch: SensorBatch) -> None:
+        for n in STREAMS:
+            t, v = batch.stream(n)
+            if not len(t):
+                continue
+            keep = t > self.done
+            self.dropped += int(len(t) - keep.sum())
+            t, v = t[keep], v[keep]
+            if len(t):
+                self.t[n] = np.concatenate([self.t[n], t])
+                self.v[n] = np.concatenate([self.v[n], v])
+                self.last[n] = max(self.last[n], int(t[-1]))
+
+    def horizon(self, wait_ns: int) -> int:
+        la = self.last["acc"]
+        h = la
+        for n in ("gyr", "mag"):
+            h = min(h, max(self.last[n], la - wait_ns))
+        return h
+
+    def take(self, upto_ns: int | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        out = {}
+        for n in STREAMS:
+            t = self.t[n]
+            k = len(t) if upto_ns is None else int(np.searchsorted(t, upto_ns, side="right"))
+            out[n] = (t[:k], self.v[n][:k])
+            self.t[n], self.v[n] = t[k:], self.v[n][k:]
+            if k:
+                self.done = max(self.done, int(t[k - 1]))
+        if upto_ns is not None:
+            self.done = max(self.done, upto_ns)
+        return out
+
+    def get_state(self) -> dict[str, Any]:
+        return {"t": {n: self.t[n] for n in STREAMS}, "v": {n: self.v[n] for n in STREAMS}, "last": dict(self.last),
+                "done": self.done, "dropped": self.dropped}
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any]) -> _Streams:
+        obj = cls()
+        for n in STREAMS:
+            obj.t[n] = np.asarray(d["t"][n], dtype=np.int64).reshape(-1)
+            obj.v[n] = np.asarray(d["v"][n], dtype=np.float64).reshape(-1, 3)
+            obj.last[n] = int(d["last"][n])
+        obj.done, obj.dropped = int(d["done"]), int(d["dropped"])
+        return obj
+
+
+class PhoneEngine:
+    """One step-and-heading navigation session (see the module docstring).
+
+    ``NORTH_REFERENCE = "magnetic"``: positions and headings are in NED about the first step with magnetic north
+    (the compass's), as :func:`models.geo.engine_north` reads it.
+
+    Parameters
+    ----------
+    mode : {"auto", "always-on"}
+        Energy-aware sensor scheduling, or every sensor at its full rate.
+    config : PhoneEngineConfig, optional
+    profile : dict, optional
+        The user's calibration profile (``behaviours["pdr"]``: step length per placement).
+    device_kind : {"phone", "watch"}
+    placement : str, optional
+        Given by the client; None: recognised (a phone: hand or pocket).
+    anchor : (latitude_deg, longitude_deg, altitude_m), optional
+        The session's geodetic start: the WMM field there weighs the compass (north stays magnetic).
+    date : datetime.date, optional
+        Date for the WMM (default: today, UTC).
+    trace : bool
+        Keep the positions in :attr:`trace` (evaluation); not part of the state.
+    """
+
+    NORTH_REFERENCE = "magnetic"
+
+    def __init__(
+        self,
+        mode: str = "auto",
+        config: PhoneEngineConfig | None = None,
+        profile: dict[str, Any] | None = None,
+        device_kind: str = "phone",
+        placement: str | None = None,
+        anchor: tuple[float, float, float] | None = None,
+        date: _dt.date | None = None,
+        trace: bool = False,
+    ) -> None:
+        if mode not in PHONE_MODES:
+            raise ValueError(f"mode: expected one of {PHONE_MODES}, got {mode!r}")
+        if device_kind not in ("phone", "watch"):
+            raise ValueError(f"device_kind: the step-and-heading engine serves phones and watches, got {device_kind!r}")
+        if placement is not None and (placement not in STEP_AND_HEADING or (device_kind == "watch") != (placement == "watch")):
+            raise ValueError(f"placement: the step-and-heading engine serves a {device_kind} as "
+                             f"{'watch' if device_kind == 'watch' else 'phone-hand or phone-pocket'}, got {placement!r}")
+        self.mode = mode
+        self.config = config or PhoneEngineConfig()
+        self.trace = _new_trace() if trace else None
+        self.anchor = None if anchor is None else tuple(float(x) for x in anchor)
+        self.date = date
+        ref = None if self.anchor is None else _magnetic_reference(self.anchor, date)
+        self.declination_rad = 0.0  # magnetic north: the declination is applied when geo-referenced
+        self._pdr = PdrState.new(MargState.new(self.config.marg, ref, 0.0))
+        self._placement = PlacementRecognizer(device_kind, placement, self.config.placement)
+        self._profile_in = profile
+        self._lengths = {p: self._new_length(p, profile) for p in STEP_AND_HEADING}
+        self._heading = WalkHeading(self.config.heading)
+        self._directions = None if self.config.directions is None else DominantDirections(self.config.directions)
+        self._streams = _Streams()
+        self._t0_ns: int | None = None
+        self._pos = np.zeros(2)  # [north, east] m
+        self._prev_dir = math.nan  # the gyroscope-carried walking direction of the previous step [rad]
+        self._prev_gyro = False
+        self._gyro_run = 0  # consecutive gyroscope-carried steps
+        self._cadence = 0  # consecutive steps of a steady gait
+        self._last_compass = math.nan  # compass walking direction of the latest step [rad]
+        self._last_step_s = -math.inf
+        self._gyro_want = True
+        self._gyro_steps = 0  # steps since the gyroscope was last asked for
+        self._behaviour = "other"  # not known before the first step or stand
+        self._started = False
+        self._log: list[list[float]] = []  # [t_ns, unscaled length, placement index] of the latest steps
+        self._config_now = self._sensor_config()
+
+    # ------------------------------------------------------------------ contract
+    @property
+    def sensor_config(self) -> SensorConfig:
+        """The configuration the device must use for its next batch."""
+        return self._config_now
+
+    @property
+    def placement(self) -> str:
+        return self._placement.placement
+
+    def feed(self, batch: SensorBatch) -> Update:
+        """Consume one batch.
+
+        Raises
+        ------
+        models.batch.BatchError
+            Malformed batch (non-finite values, timestamps not increasing, implausible units, or accelerometer
+            samples older than ones already processed); the engine is then unchanged.
+        """
+        batch.validate()
+        t_acc = batch.acc_t_ns
+        if len(t_acc) and int(t_acc[0]) <= self._streams.done:
+            raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._streams.done} ns)")
+        if self._t0_ns is None and batch.t_start_ns is not None:
+            self._t0_ns = int(batch.t_start_ns)
+        self._streams.push(batch)
+        if not len(self._streams.t["acc"]):
+            return self._update([], [])
+        return self._process(self._streams.take(self._streams.horizon(int(self.config.stream_wait_s * 1e9))))
+
+    def flush(self) -> Update:
+        """End of the session: process what waits for lagging streams."""
+        return self._process(self._streams.take(None))
+
+    def profile_dict(self) -> dict[str, Any]:
+        """The user's profile with this session's step-length calibration, JSON-serialisable."""
+        placements = {p: L.calibration() for p, L in self._lengths.items() if L.calibrated}
+        base = ((self._profile_in or {}).get("behaviours") or {}).get(PROFILE_KEY) or {}
+        stored = dict((base.get("step_model") or {}).get("placements") or {})
+        stored.update(placements)
+        n = int(sum(v.get("n_steps", 0) for v in stored.values()))
+        cal = {"step_model": {"placements": stored, "height_m": self.config.step_length.height_m,
+                              "model": self.config.step_length.model},
+               "sigma_d_m": float("nan"), "heading_deviation_rad": 0.0, "heading_deviation_var": float("nan"),
+               "n_steps": n, "calibrated": bool(stored)}
+        return {"version": 1, "behaviours": {PROFILE_KEY: cal} if stored else {}}
+
+    def calibrate_distance(self, t0_ns: int, t1_ns: int, distance_m: float) -> Event:
+        """A known distance [m] walked between two times [ns] (user-entered, a foot-sensor session, a GNSS
+        stretch): calibrates the step length of the placement of those steps (000 Section 5.2: "by walking a
+        distance"). Returns the ``calibration`` event.
+
+        Raises
+        ------
+        ValueError
+            Bad distance or times, or too few steps between the times.
+        """
+        if not t1_ns > t0_ns:
+            raise ValueError(f"t1_ns: must be after t0_ns ({t0_ns}), got {t1_ns}")
+        rows = [r for r in self._log if t0_ns < r[0] <= t1_ns]
+        if not rows:
+            raise ValueError("steps: no step of this session lies between t0_ns and t1_ns")
+        placement = STEP_AND_HEADING[int(np.bincount([int(r[2]) for r in rows]).argmax())]
+        out = self._lengths[placement].calibrate(float(distance_m), np.array([r[1] for r in rows]))
+        return Event(int(t1_ns), "calibration", {"placement": placement, "distance_m": float(distance_m), **out})
+
+    # ------------------------------------------------------------------ processing
+    def _new_length(self, placement: str, profile: dict[str, Any] | None) -> PdrStepLength:
+        cal = ((profile or {}).get("behaviours") or {}).get(PROFILE_KEY) or {}
+        stored = ((cal.get("step_model") or {}).get("placements") or {}).get(placement)
+        return PdrStepLength(self.config.step_length, stored if isinstance(stored, dict) else None)
+
+    def _process(self, streams: dict[str, tuple[np.ndarray, np.ndarray]]) -> Update:
+        events: list[Event] = []
+        positions: list[Position] = []
+        if not self._started and self._t0_ns is not None:
+            self._started = True
+            events.append(Event(self._t0_ns, "heading_reference", {
+                "north": "magnetic", "wmm_field": self.anchor is not None, "placement": self.placement,
+                "recognised": not self._placement.fixed}))
+        t, kind, v = merge_streams(streams["acc"], streams["gyr"], streams["mag"])
+        if len(t) and self._t0_ns is not None:
+            ts = (t - self._t0_ns).astype(np.float64) * 1e-9
+            recs = run_pdr(self._pdr, self.config.marg.as_array(), self.config.steps.as_array(), ts, kind, v)
+            for r in recs:
+                self._step(r, positions, events)
+            last_acc = streams["acc"][0]
+            if len(last_acc):
+                self._stand_check(float((int(last_acc[-1]) - self._t0_ns) * 1e-9), events)
+        return self._update(positions, events)
+
+    def _direction(self, r: np.ndarray) -> tuple[float, float]:
+        """Walking direction of a step in the filter's frame and as the compass sees it [rad]."""
+        if self.placement == "phone-hand":
+            d = float(r[_F["fwd_az"]])
+        else:
+            d = float(r[_F["pca_az"]])
+            if not math.isfinite(d):
+                d = float(r[_F["fwd_az"]])
+            elif r[_F["pca_sign"]] < 0 or (r[_F["pca_sign"]] == 0 and math.isfinite(self._prev_dir)
+                                           and abs(wrap(d - self._prev_dir)) > math.pi / 2):
+                d = wrap(d + math.pi)
+        fa = float(r[_F["field_az"]])
+        compass = wrap(d + self.declination_rad - fa) if math.isfinite(fa) and r[_F["n_mag"]] > 0 else math.nan
+        return d, compass
+
+    def _step(self, r: np.ndarray, positions: list[Position], events: list[Event]) -> None:
+        assert self._t0_ns is not None
+        t_s = float(r[_F["t_s"]])
+        t_ns = self._t0_ns + int(round(t_s * 1e9))
+        changed = self._placement.step(float(r[_F["tilt_r"]]), float(r[_F["rate_rad_s"]]))
+        if changed is not None:
+            events.append(Event(t_ns, "placement_changed", {"placement": changed}))
+            self._prev_dir = math.nan  # the direction's source changed: no increment across it
+        period = float(r[_F["period_s"]])
+        f_hz = 1.0 / period if math.isfinite(period) and period > 0 else math.nan
+        direction, compass = self._direction(r)
+        gyro = bool(r[_F["gyro_frac"]] >= 0.9)
+        # a steady gait: a walking cadence, and a device that is not being waved about (a calibration wave's
+        # "steps" turn the device with the compass, which then looks perfect)
+        rate = float(r[_F["rate_rad_s"]])
+        steady = math.isfinite(period) and 0.3 <= period <= 1.0 and not (math.isfinite(rate) and rate > _WAVED_RAD_S)
+        self._cadence = self._cadence + 1 if steady else 0
+        walking = self._cadence >= 2
+        stood = t_s - self._last_step_s >= self.config.stand_after_s
+        hd = self._heading
+        if not hd.initialised:
+            if gyro and float(r[_F["yaw_std"]]) < 1.0:
+                hd.set(direction, float(r[_F["yaw_std"]]) ** 2)
+            else:
+                hd.update(compass)
+        elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
+            hd.predict(wrap(direction - self._prev_dir))
+            if walking:
+                hd.update(compass, apply=False)  # the compass's noise, measured on a walk
+            var = float(r[_F["yaw_std"]]) ** 2
+            if self._gyro_run >= self.config.gyro_min_steps:
+                hd.set(direction, var)  # the MARG filter has carried it for a while: its heading is the heading
+            else:
+                hd.observe(direction, var)  # the gyroscope was off: the filter's heading is catching up
+        elif stood and math.isfinite(compass) and math.isfinite(self._last_compass):
+            # the first step after a stand without the gyroscope: whatever the walker turned standing is the
+            # compass's change at one place, where the building's error is the same before and after
+            hd.predict(None)
+            hd.set(hd.heading + wrap(compass - self._last_compass), hd.var)
+        elif self._directions is not None and self._directions.locked:
+            # straight along the building's dominant direction: the heading holds unless the compass turns
+            hd.predict(None)
+            hd.hold(compass)
+            if hd.turned:
+                events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass change"}))
+        else:
+            hd.predict(None)
+            hd.update(compass)
+            if hd.turned:
+                events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass"}))
+        if math.isfinite(compass):
+            self._last_compass = compass
+        self._prev_dir = direction if gyro else math.nan
+        self._prev_gyro = gyro
+        self._gyro_run = self._gyro_run + 1 if gyro else 0
+        self._gyro_steps += 1
+        if not hd.initialised:
+            return  # no heading yet: neither gyroscope nor compass has said anything
+        L = self._lengths[self.placement]
+        length = L.length(float(r[_F["a_max"]]), float(r[_F["a_min"]]), f_hz)
+        self._log.append([float(t_ns), L.unscaled(float(r[_F["a_max"]]), float(r[_F["a_min"]]), f_hz),
+                          float(STEP_AND_HEADING.index(self.placement))])
+        if len(self._log) > _LOG_STEPS:
+            del self._log[: len(self._log) - _LOG_STEPS]
+        heading = hd.heading if self._directions is None else self._directions.step(hd.heading, compass, walking)
+        self._pos += length * np.array([math.cos(heading), math.sin(heading)])
+        self._behaviour = "run" if math.isfinite(f_hz) and f_hz >= self.config.run_step_hz else "walk"
+        self._last_step_s = t_s
+        p = Position(t_ns, float(self._pos[0]), float(self._pos[1]), 0.0, float(heading), self._behaviour, "pdr",
+                     float(length), gyro)
+        positions.append(p)
+        if self.trace is not None:
+            self.trace.append(np.array([t_ns], dtype=np.int64), np.array([[p.north, p.east, 0.0]]),
+                              np.array([p.behaviour]), np.array(["pdr"]), np.array([gyro]))
+        self._schedule(t_ns, events)
+
+    def _schedule(self, t_ns: int, events: list[Event]) -> None:
+        """Gyroscope on demand (``auto``): after each step."""
+        if self.mode != "auto":
+            return
+        c = self.config
+        hd = self._heading
+        locked = self._directions is not None and self._directions.locked
+        want = (hd.turned or hd.n_noise < c.gyro_min_steps
+                or (hd.forecast_std() > c.max_heading_std_rad and not locked)
+                or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))
+        if want != self._gyro_want:
+            reason = ("turn" if hd.turned else "compass noise unknown" if hd.n_noise < c.gyro_min_steps
+                      else "heading uncertain" if want else "straight along the building" if locked
+                      else "compass consistent")
+            events.append(Event(t_ns, "gyro", {"on": want, "reason": reason, "heading_std_rad": hd.std(),
+                                               "compass_std_rad": math.sqrt(hd.compass_var)}))
+            self._gyro_want = want
+            self._gyro_steps = 0
+
+    def _stand_check(self, now_s: float, events: list[Event]) -> None:
+        """Standing: no step for ``stand_after_s`` with a still accelerometer."""
+        from models import marg as M
+
+        still = bool(self._pdr.marg.s[M.S_STILL] > 0.5)
+        standing = still and now_s - self._last_step_s >= self.config.stand_after_s
+        if standing and self._behaviour != "stand":
+            self._behaviour = "stand"
+        elif not standing and self._behaviour == "stand" and now_s - self._last_step_s < self.config.stand_after_s:
+            self._behaviour = "walk"
+
+    def _sensor_config(self) -> SensorConfig:
+        c = self.config
+        if self.mode == "always-on":
+            return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz, c.batch_s)
+        if self._behaviour == "stand":
+            return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
+        if self._gyro_want:
+            return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
+        return SensorConfig(False, c.acc_rate_hz, 0.0, c.walk_mag_rate_hz, c.batch_s)
+
+    def _update(self, positions: list[Position], events: list[Event]) -> Update:
+        self._config_now = self._sensor_config()
+        mode = "idle" if self._behaviour == "stand" else "pdr"
+        return Update(positions, events, self._config_now, self._behaviour, mode)
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> dict[str, Any]:
+        return {
+            "version": _STATE_VERSION,
+            "engine": "step-and-heading",
+            "mode": self.mode,
+            "config": self.config.to_dict(),
+            "anchor": None if self.anchor is None else list(self.anchor),
+            "date": None if self.date is None else self.date.isoformat(),
+            "declination_rad": self.declination_rad,
+            "pdr": self._pdr.get_state(),
+            "placement": self._placement.get_state(),
+            "profile_in": self._profile_in,
+            "lengths": {p: L.get_state() for p, L in self._lengths.items()},
+            "heading": self._heading.get_state(),
+            "directions": None if self._directions is None else self._directions.get_state(),
+            "streams": self._streams.get_state(),
+            "t0_ns": self._t0_ns,
+            "pos": self._pos,
+            "prev_dir": self._prev_dir,
+            "prev_gyro": self._prev_gyro,
+            "gyro_run": self._gyro_run,
+            "cadence": self._cadence,
+            "last_compass": self._last_compass,
+            "last_step_s": self._last_step_s,
+            "gyro_want": self._gyro_want,
+            "gyro_steps": self._gyro_steps,
+            "behaviour": self._behaviour,
+            "started": self._started,
+            "log": np.asarray(self._log, dtype=np.float64).reshape(-1, 3),
+        }
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any], trace: bool = False) -> PhoneEngine:
+        if d.get("engine") != "step-and-heading" or d.get("version") != _STATE_VERSION:
+            raise ValueError(f"not a step-and-heading engine state of version {_STATE_VERSION}")
+        pl = d["placement"]
+        date = None if d["date"] is None else _dt.date.fromisoformat(d["date"])
+        obj = cls(mode=d["mode"], config=PhoneEngineConfig.from_dict(d["config"]), profile=None,
+                  device_kind=pl["device_kind"], placement=None, anchor=None, date=date, trace=trace)
+        obj.anchor = None if d["anchor"] is None else tuple(float(x) for x in d["anchor"])
+        obj.declination_rad = float(d["declination_rad"])
+        obj._pdr = PdrState.from_state(d["pdr"])
+        obj._placement = PlacementRecognizer.from_state(pl)
+        obj._profile_in = d["profile_in"]
+        obj._lengths = {p: PdrStepLength.from_state(s) for p, s in d["lengths"].items()}
+        obj._heading = WalkHeading.from_state(d["heading"])
+        obj._directions = None if d["directions"] is None else DominantDirections.from_state(d["directions"])
+        obj._streams = _Streams.from_state(d["streams"])
+        obj._t0_ns = None if d["t0_ns"] is None else int(d["t0_ns"])
+        obj._pos = np.asarray(d["pos"], dtype=float).reshape(2).copy()
+        obj._prev_dir = float(d["prev_dir"])
+        obj._prev_gyro = bool(d["prev_gyro"])
+        obj._gyro_run = int(d["gyro_run"])
+        obj._cadence = int(d["cadence"])
+        obj._last_compass = float(d["last_compass"])
+        obj._last_step_s = float(d["last_step_s"])
+        obj._gyro_want = bool(d["gyro_want"])
+        obj._gyro_steps = int(d["gyro_steps"])
+        obj._behaviour = str(d["behaviour"])
+        obj._started = bool(d["started"])
+        obj._log = np.asarray(d["log"], dtype=np.float64).reshape(-1, 3).tolist()
+        obj._config_now = obj._sensor_config()
+        return obj
+
+    def to_bytes(self) -> bytes:
+        """Complete state as bytes (safe codec, no pickle)."""
+        return codec.dumps(self.get_state())
+
+    @classmethod
+    def from_bytes(cls, blob: bytes, trace: bool = False) -> PhoneEngine:
+        return cls.from_state(codec.loads(blob), trace=trace)
+
+
+def _new_trace() -> Any:
+    from energy.engine import Trace
+
+    return Trace()

@@ -1,0 +1,171 @@
+"""The step-and-heading engine keeps the engine contract (DESIGN.md): chunk invariance, state round trip, profile
+in and out, sensor configuration out; it navigates synthetic phones and, where present, the IPIN trials."""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
+from energy.device import replay
+from energy.engines import EngineSpec, engine_from_bytes, new_engine, profile_for
+from energy.phone_engine import PROFILE_KEY, PhoneEngine
+from models.batch import BatchError, SensorBatch
+
+ANCHOR = (49.4612, 11.1113, 300.0)
+
+
+@lru_cache(maxsize=None)
+def _rec(name: str, seed: int = 1):  # type: ignore[no-untyped-def]
+    return synthesize_phone(name, seed=seed)
+
+
+def _positions(engine: PhoneEngine, batches: list[SensorBatch]) -> np.ndarray:
+    rows = []
+    for b in batches:
+        rows += [[p.t_ns, p.north, p.east, p.heading_rad, p.step_length_m] for p in engine.feed(b).positions]
+    rows += [[p.t_ns, p.north, p.east, p.heading_rad, p.step_length_m] for p in engine.flush().positions]
+    return np.array(rows)
+
+
+def _cut(batch: SensorBatch, fractions: list[float]) -> list[SensorBatch]:
+    t0, t1 = int(batch.t_start_ns), int(batch.t_end_ns) + 1
+    edges = [t0] + sorted(int(t0 + f * (t1 - t0)) for f in fractions) + [t1]
+    return [batch.time_slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+@settings(max_examples=8, deadline=None)
+@given(fractions=st.lists(st.floats(0.001, 0.999), min_size=1, max_size=12))
+def test_chunk_invariance(fractions: list[float]) -> None:
+    rec = _rec("phone-walk")
+    whole = _positions(PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR), [rec.batch])
+    parts = _positions(PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR), _cut(rec.batch, fractions))
+    assert whole.shape == parts.shape and len(whole) > 50
+    np.testing.assert_allclose(parts, whole, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("cut", [0.13, 0.5, 0.87])
+def test_state_round_trip_mid_walk(cut: float) -> None:
+    rec = _rec("phone-pocket-walk")
+    first, second = _cut(rec.batch, [cut])
+    ref = _positions(PhoneEngine("auto", anchor=ANCHOR), [first, second])
+    e = PhoneEngine("auto", anchor=ANCHOR)
+    a = [[p.t_ns, p.north, p.east, p.heading_rad, p.step_length_m] for p in e.feed(first).positions]
+    blob = e.to_bytes()
+    e2 = engine_from_bytes(blob)
+    assert isinstance(e2, PhoneEngine) and e2.to_bytes() == blob
+    rest = _positions(e2, [second])
+    got = np.array(a + rest.tolist())
+    np.testing.assert_allclose(got, ref, atol=1e-9, rtol=0)
+
+
+def test_works_with_what_the_device_sends() -> None:
+    """No gyroscope at all (a cheap phone, or one that is off), a lower accelerometer rate, a gap: steps still
+    come, headed by the compass."""
+    rec = _rec("phone-walk")
+    b = rec.batch
+    keep = (b.acc_t_ns < b.acc_t_ns[0] + 15_000_000_000) | (b.acc_t_ns > b.acc_t_ns[0] + 16_000_000_000)  # 1-s gap
+    slim = SensorBatch(acc_t_ns=b.acc_t_ns[keep][::2], acc=b.acc[keep][::2], mag_t_ns=b.mag_t_ns, mag=b.mag)
+    pos = _positions(PhoneEngine("auto", placement="phone-hand", anchor=ANCHOR), [slim])
+    truth = rec.truth
+    assert len(pos) >= 0.9 * len(truth.t_ns)
+    assert not any(np.isnan(pos).ravel())
+
+
+def test_sensor_configuration_follows_behaviour() -> None:
+    rec = _rec("phone-walk")
+    on = replay(PhoneEngine("always-on", anchor=ANCHOR), rec.batch, 1.0)
+    assert all(c.gyro_on and c.acc_rate_hz == 50.0 and c.mag_rate_hz == 50.0 for _, c in on.configs)
+    auto = replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0)
+    cfgs = [c for _, c in auto.configs]
+    standing = [c for c, u in zip(cfgs[1:], auto.updates) if u.behaviour == "stand"]
+    assert standing and all(not c.gyro_on and c.acc_rate_hz == 25.0 and c.mag_rate_hz == 10.0 for c in standing)
+    assert any(c.gyro_on for c in cfgs)  # the first steps learn the compass's noise with the gyroscope on
+    assert auto.gyro_on_fraction < on.gyro_on_fraction
+
+
+def test_synthetic_walks_are_navigated() -> None:
+    """Closing error and path of the synthetic square walk held in the hand (compass clean, a gyroscope bias)."""
+    rec = _rec("phone-walk")
+    res = replay(PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR), rec.batch, 1.0)
+    p = np.array([[q.north, q.east] for q in res.positions])
+    truth = rec.truth.positions[:, :2]
+    length = sum(q.step_length_m for q in res.positions)
+    assert length == pytest.approx(rec.truth.extra["path_m"], rel=0.08)  # default Weinberg constant, no calibration
+    assert np.linalg.norm((p[-1] - p[0]) - (truth[-1] - truth[0])) < 0.05 * rec.truth.extra["path_m"]
+
+
+def test_pocket_is_recognised_as_an_event() -> None:
+    res = replay(PhoneEngine("always-on", anchor=ANCHOR), _rec("phone-pocket-walk").batch, 1.0)
+    ev = [e for u in res.updates for e in u.events if e.kind == "placement_changed"]
+    assert ev and ev[0].detail["placement"] == "phone-pocket"
+    given = replay(PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR), _rec("phone-pocket-walk").batch, 1.0)
+    assert not [e for u in given.updates for e in u.events if e.kind == "placement_changed"]
+
+
+def test_profile_in_and_out() -> None:
+    rec = _rec("phone-walk")
+    e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
+    res = replay(e, rec.batch, 1.0)
+    walked = sum(q.step_length_m for q in res.positions)
+    t0, t1 = res.positions[0].t_ns - 1, res.positions[-1].t_ns
+    ev = e.calibrate_distance(t0, t1, 1.1 * walked)  # the user says: 10 % more than I thought
+    assert ev.kind == "calibration" and ev.detail["placement"] == "phone-hand"
+    prof = e.profile_dict()
+    cal = prof["behaviours"][PROFILE_KEY]
+    assert cal["calibrated"] and cal["step_model"]["placements"]["phone-hand"]["k"] > e.config.step_length.weinberg_k
+    again = replay(PhoneEngine("always-on", profile=prof, placement="phone-hand", anchor=ANCHOR), rec.batch, 1.0)
+    assert sum(q.step_length_m for q in again.positions) == pytest.approx(1.1 * walked, rel=0.03)
+    # the foot engine gets none of it, the phone none of the foot's
+    assert profile_for(prof, "foot") is None
+    assert profile_for({"version": 1, "behaviours": {"walk": {}}}, "step-and-heading") is None
+    with pytest.raises(ValueError, match="steps"):
+        e.calibrate_distance(t1 + 1, t1 + 2, 5.0)
+
+
+def test_refusals() -> None:
+    e = PhoneEngine("auto")
+    b = _rec("phone-walk").batch
+    e.feed(b.time_slice(None, int(b.t_start_ns) + 5_000_000_000))
+    with pytest.raises(BatchError, match="acc_t_ns"):
+        e.feed(b.time_slice(None, int(b.t_start_ns) + 1_000_000_000))
+    with pytest.raises(ValueError, match="mode"):
+        PhoneEngine("zupt")
+    with pytest.raises(ValueError, match="placement"):
+        PhoneEngine("auto", device_kind="watch", placement="phone-pocket")
+    with pytest.raises(ValueError, match="placement"):
+        new_engine("auto", None, EngineSpec("watch", "phone-hand"))
+
+
+@pytest.mark.parametrize("name", sorted(PHONE_SCENARIOS))
+def test_synthesiser_is_physical(name: str) -> None:
+    """At rest the specific force reads g and the field the Earth's; the device never teleports."""
+    rec = _rec(name)
+    b = rec.batch
+    still = b.acc_t_ns < b.acc_t_ns[0] + 2_000_000_000
+    assert np.linalg.norm(b.acc[still], axis=1).mean() == pytest.approx(9.80665, abs=0.05)
+    assert np.linalg.norm(b.mag, axis=1).mean() == pytest.approx(math.hypot(20.30, 1.43, 44.60), abs=0.5)
+    steps = np.diff(rec.truth.positions[:, :2], axis=0)
+    assert np.all(np.linalg.norm(steps, axis=1) < 1.0)
+
+
+def test_ipin_trial_beats_standing_still(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """One IPIN trial, always-on, the default constant: the walk is followed (far better than never leaving the
+    first landmark) and its length is right to a few percent."""
+    from clients.evaluation.ipin import landmark_errors, run_phone
+    from clients.importers import load
+
+    rec = load(ipin_dir / "IPIN2023_T3_TrainingTrial24_repetition01.txt")
+    run = run_phone(rec, "always-on", PhoneEngine().config.step_length.weinberg_k)
+    T, L = rec.truth.t_ns, rec.truth.positions[:, :2]
+    e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
+    standing = float(np.mean(np.linalg.norm(L[1:] - L[0], axis=1)))
+    assert e.mean_err_m < 0.35 * standing
+    assert e.path_ratio == pytest.approx(1.0, abs=0.08)
+
+

@@ -1,0 +1,245 @@
+"""Step-and-heading models: step detection at phone rates, MARG filter (compass, quasi-static-field bias), walking
+direction, step length calibration, walking heading, placement."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from models.marg import KIND_ACC, KIND_GYR, KIND_MAG, MargConfig, MargFilter, merge_streams
+from models.pdr_step_length import HEIGHT_RATIO, WEINBERG_FEATURE_TYP, PdrStepLength, StepLengthConfig
+from models.placement import PlacementRecognizer, default_placement
+from models.step_detector import StepDetector
+from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
+from models.walking_direction import forward_azimuth, forward_sign, principal_direction
+
+G = 9.80665
+
+
+def _walk_acc(rate: float, seconds: float = 20.0, step_hz: float = 1.8, jitter: float = 0.0, seed: int = 0):
+    """|f| of a walk: 3 m/s^2 of bounce at the step frequency, on a phone pitched 50 deg."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds, 1.0 / rate) + rng.uniform(-jitter, jitter, int(np.ceil(seconds * rate)))[: int(np.ceil(seconds * rate))] / rate
+    t = np.sort(t)
+    a = G + 3.0 * np.cos(2 * np.pi * step_hz * t) + 0.05 * rng.standard_normal(t.size)
+    th = math.radians(50)
+    acc = np.column_stack([np.zeros(t.size), a * math.sin(th), a * math.cos(th)])
+    return t, acc
+
+
+@pytest.mark.parametrize("rate", [25.0, 50.0, 100.0])
+@pytest.mark.parametrize("jitter", [0.0, 0.3])
+def test_steps_found_at_every_phone_rate(rate: float, jitter: float) -> None:
+    t, acc = _walk_acc(rate, jitter=jitter)
+    steps = StepDetector().process(t, acc)
+    # 20 s at 1.8 steps/s, the first one needs the filter to settle
+    assert 34 <= len(steps) <= 36
+    period = np.nanmedian(steps[:, 3])
+    assert period == pytest.approx(1 / 1.8, abs=1.5 / rate)
+    assert np.all(steps[1:, 1] - steps[1:, 2] > 4.0)  # peak-to-valley of a 3 m/s^2 bounce, filtered (the first
+    # peak comes before any valley: the signal starts at its top)
+
+
+def test_step_times_agree_across_rates() -> None:
+    """The filter is exact for the held samples: 25 Hz and 100 Hz sampling of one walk give the same steps to
+    within the coarser sampling interval."""
+    s25 = StepDetector().process(*_walk_acc(25.0))
+    s100 = StepDetector().process(*_walk_acc(100.0))
+    n = min(len(s25), len(s100))
+    assert abs(len(s25) - len(s100)) <= 1
+    np.testing.assert_allclose(s25[-n + 2:, 0], s100[-n + 2:, 0], atol=0.041)
+
+
+def test_no_steps_standing() -> None:
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 30, 0.02)
+    acc = np.tile([0.0, 7.5, 6.3], (t.size, 1)) + 0.2 * rng.standard_normal((t.size, 3))
+    assert len(StepDetector().process(t, acc)) == 0
+
+
+@settings(max_examples=15, deadline=None)
+@given(cuts=st.lists(st.integers(1, 999), min_size=1, max_size=6, unique=True))
+def test_step_detector_chunk_invariant(cuts: list[int]) -> None:
+    t, acc = _walk_acc(50.0, seconds=20.0, jitter=0.3)
+    whole = StepDetector().process(t, acc)
+    det = StepDetector()
+    parts = []
+    edges = [0] + sorted(cuts) + [t.size]
+    for a, b in zip(edges[:-1], edges[1:]):
+        parts.append(det.process(t[a:b], acc[a:b]))
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+
+
+# ---------------------------------------------------------------------------------------------- MARG
+REF = np.array([20.30, 1.43, 44.60])  # NED field [uT], declination 4.0 deg
+
+
+def _still_device(heading_deg: float, seconds: float, bias=(0.0, 0.0, 0.0), rng=None):
+    """A flat device (x forward) at rest pointing ``heading_deg``: its streams at 50/100/50 Hz."""
+    rng = rng or np.random.default_rng(0)
+    psi = math.radians(heading_deg)
+    C = np.array([[math.cos(psi), -math.sin(psi), 0], [math.sin(psi), math.cos(psi), 0], [0, 0, 1.0]])  # body -> NED
+    ta, tg, tm = np.arange(0, seconds, 0.02), np.arange(0, seconds, 0.01), np.arange(0.005, seconds, 0.02)
+    acc = np.tile(C.T @ np.array([0, 0, -G]), (ta.size, 1)) + 0.03 * rng.standard_normal((ta.size, 3))
+    gyr = np.tile(bias, (tg.size, 1)) + 0.003 * rng.standard_normal((tg.size, 3))
+    mag = np.tile(C.T @ REF, (tm.size, 1)) + 0.2 * rng.standard_normal((tm.size, 3))
+    return merge_streams((ta, acc), (tg, gyr), (tm, mag))
+
+
+def _yaw(q: np.ndarray) -> float:
+    w, x, y, z = q
+    return math.atan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
+
+
+@pytest.mark.parametrize("heading", [0.0, 75.0, -130.0])
+def test_compass_heading_with_declination(heading: float) -> None:
+    f = MargFilter(MargConfig(), REF, math.atan2(REF[1], REF[0]))
+    q = f.process(*_still_device(heading, 120.0))
+    assert math.degrees(wrap(_yaw(q[-1]) - math.radians(heading))) == pytest.approx(0.0, abs=2.0)
+
+
+def test_quasi_static_field_finds_the_vertical_gyro_bias_in_a_disturbed_field() -> None:
+    """Standing in a field far from the Earth's (no compass to speak of), the field's unchanging azimuth shows
+    the vertical gyroscope bias (0.3 deg/s here)."""
+    cfg = MargConfig(compass_sigma_rad=0.0)  # no absolute compass at all
+    bias = (0.0, 0.0, math.radians(0.3))
+    f = MargFilter(cfg)
+    f.process(*_still_device(20.0, 90.0, bias))
+    assert f.state.b[2] == pytest.approx(bias[2], abs=math.radians(0.03))
+    # without the quasi-static update the bias stays unknown
+    f2 = MargFilter(MargConfig(compass_sigma_rad=0.0, qsf_sigma_rad=1e3))
+    f2.process(*_still_device(20.0, 90.0, bias))
+    assert abs(f2.state.b[2] - bias[2]) > math.radians(0.2)
+
+
+def test_merge_order_and_kinds() -> None:
+    t, k, _ = merge_streams((np.array([1, 3]), np.zeros((2, 3))), (np.array([1, 2]), np.ones((2, 3))),
+                            (np.array([3]), np.ones((1, 3))))
+    assert list(t) == [1, 1, 2, 3, 3] and list(k) == [KIND_ACC, KIND_GYR, KIND_GYR, KIND_ACC, KIND_MAG]
+
+
+# ---------------------------------------------------------------------------------------------- direction
+@pytest.mark.parametrize("heading", [0.0, 45.0, 170.0, -100.0])
+@pytest.mark.parametrize("pitch", [0.0, 50.0, 85.0])
+def test_forward_azimuth_of_a_held_phone(heading: float, pitch: float) -> None:
+    th, psi = math.radians(pitch), math.radians(heading)
+    c0 = np.array([[0.0, math.cos(th), -math.sin(th)], [1.0, 0.0, 0.0], [0.0, -math.sin(th), -math.cos(th)]])
+    rz = np.array([[math.cos(psi), -math.sin(psi), 0], [math.sin(psi), math.cos(psi), 0], [0, 0, 1.0]])
+    assert math.degrees(wrap(forward_azimuth(rz @ c0) - psi)) == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("walk_deg", [10.0, 100.0, -150.0])
+def test_principal_direction_and_its_sign(walk_deg: float) -> None:
+    """Forward acceleration a quarter step after the upward one (gait): the sign statistic picks the walking
+    direction out of the principal axis."""
+    f = 1.8
+    t = np.arange(0, 2.0, 0.02)
+    a_up = -3.0 * np.cos(2 * np.pi * f * t)  # highest point (largest downward acceleration) at t = 0
+    a_fwd = 1.0 * np.sin(2 * np.pi * f * t)  # forward speed lowest at the top
+    psi = math.radians(walk_deg)
+    w = np.column_stack([t, a_fwd * math.cos(psi), a_fwd * math.sin(psi), -(a_up + G)])
+    th, ratio = principal_direction(w)
+    assert ratio > 100
+    assert abs(wrap(2 * (th - psi))) < 1e-6  # modulo pi
+    s_right = forward_sign(w, psi, 1 / f)
+    s_wrong = forward_sign(w, psi + math.pi, 1 / f)
+    assert s_right > 0 > s_wrong
+
+
+# ---------------------------------------------------------------------------------------------- step length
+def test_new_user_constant_from_height() -> None:
+    sl = PdrStepLength(StepLengthConfig(height_m=1.80))
+    assert sl.k == pytest.approx(HEIGHT_RATIO * 1.80 / WEINBERG_FEATURE_TYP)
+    assert sl.length(9.81 + 3.0, 9.81 - 2.0, 1.8) == pytest.approx(sl.k * 5.0 ** 0.25)
+
+
+def test_known_distance_calibrates_and_bad_input_is_refused() -> None:
+    sl = PdrStepLength(StepLengthConfig(weinberg_k=0.45))
+    u = np.full(40, 1.3)
+    out = sl.calibrate(40 * 0.60, u)  # the user's true K: 0.60 / 1.3 = 0.4615
+    assert out["k_observed"] == pytest.approx(0.60 / 1.3)
+    assert 0.45 < sl.k < 0.4615 + 1e-9 and sl.calibrated
+    for _ in range(5):
+        sl.calibrate(40 * 0.60, u)
+    assert sl.k == pytest.approx(0.60 / 1.3, rel=0.005)  # repeated evidence wins over the population prior
+    with pytest.raises(ValueError, match="distance_m"):
+        sl.calibrate(-1.0, u)
+    with pytest.raises(ValueError, match="steps"):
+        sl.calibrate(5.0, u[:3])
+    restored = PdrStepLength(StepLengthConfig(), sl.calibration())
+    assert restored.k == sl.k and restored.calibrated
+
+
+def test_height_frequency_model_is_a_typical_step() -> None:
+    sl = PdrStepLength(StepLengthConfig(model="height_freq", height_m=1.75))
+    assert sl.length(0.0, 0.0, 1.79) == pytest.approx(0.70, abs=1e-9)
+    assert sl.length(0.0, 0.0, 2.1) > sl.length(0.0, 0.0, 1.6)
+    with pytest.raises(ValueError, match="height_m"):
+        StepLengthConfig(model="height_freq")
+
+
+# ---------------------------------------------------------------------------------------------- walk heading
+def test_gyroscope_off_holds_the_heading_and_a_compass_jump_is_a_turn() -> None:
+    cfg = WalkHeadingConfig()
+    h = WalkHeading(cfg)
+    h.set(0.3, math.radians(1.0) ** 2)
+    rng = np.random.default_rng(2)
+    for _ in range(40):  # gyroscope-carried steps measure the compass noise (8 deg)
+        h.predict(0.0)
+        h.update(0.3 + math.radians(8.0) * rng.standard_normal(), apply=False)
+    assert math.degrees(math.sqrt(h.compass_var)) == pytest.approx(8.0, rel=0.4)
+    std_before = h.forecast_std()
+    h.predict(None)
+    h.update(0.3 + math.radians(5.0))
+    assert not h.turned and abs(h.heading - 0.3) < math.radians(5.0)
+    assert h.forecast_std() >= std_before * 0.5
+    h.predict(None)
+    h.update(0.3 + math.radians(90.0))
+    assert h.turned and h.heading == pytest.approx(0.3 + math.radians(90.0))
+
+
+def test_forecast_grows_without_a_useful_compass() -> None:
+    h = WalkHeading(WalkHeadingConfig(compass_prior_rad=math.radians(60.0)))
+    h.set(0.0, math.radians(2.0) ** 2)
+    stds = []
+    for _ in range(10):
+        stds.append(h.forecast_std())
+        h.predict(None)
+        h.update(math.nan)
+    assert all(b > a for a, b in zip(stds, stds[1:]))
+
+
+# ---------------------------------------------------------------------------------------------- placement
+def test_placement_recognition_needs_consecutive_steps() -> None:
+    r = PlacementRecognizer("phone")
+    assert r.placement == default_placement("phone") == "phone-hand"
+    changes = [r.step(0.96, 1.8) for _ in range(8)]
+    assert changes[:-1] == [None] * 7 and changes[-1] == "phone-pocket"
+    assert r.step(0.999, 0.3) is None and r.placement == "phone-pocket"  # one steady step is not a change
+    assert PlacementRecognizer("phone", "phone-hand").step(0.9, 3.0) is None  # given by the client: kept
+    assert PlacementRecognizer("watch").placement == "watch"
+    with pytest.raises(ValueError, match="placement"):
+        PlacementRecognizer("phone", "foot")
+
+
+# ---------------------------------------------------------------------------------------------- fusion
+def test_step_fusion_blends_agreeing_steps_and_keeps_the_primary_otherwise() -> None:
+    from models.step_fusion import StepFusionConfig, fuse_steps
+
+    t = np.arange(10) * 0.55
+    la, ha = np.full(10, 0.70), np.full(10, 0.5)
+    lb, hb = np.full(10, 0.66), np.full(10, 0.5 + math.radians(10.0))
+    lb[3] = 0.2  # a false short step of the secondary: the 000 Table 7 ratio gate keeps it out
+    hb[4] = 0.5 + math.radians(90.0)  # a heading the primary disagrees with by far
+    length, head, blended = fuse_steps(t, la, ha, t + 0.05, lb, hb)
+    assert length[0] == pytest.approx(0.68) and head[0] == pytest.approx(0.5 + math.radians(5.0))  # 000 eq. (70)
+    assert length[3] == 0.70 and head[4] == 0.5 and blended.all()
+    # nothing to pair with: the primary as it is
+    length, head, blended = fuse_steps(t, la, ha, t + 50.0, lb, hb)
+    assert not blended.any() and np.array_equal(length, la)
+    with pytest.raises(ValueError):
+        StepFusionConfig(ratio_low=1.1)
