@@ -158,6 +158,8 @@ def formats() -> str:
             continue
         if hasattr(m, "FORMAT"):
             out.append(str(m.FORMAT))
+        elif m.__doc__:  # an importer that does not state it: its docstring's first line
+            out.append(m.__doc__.strip().splitlines()[0].rstrip("."))
     return "Formats read: " + "; ".join(out)
 
 
