@@ -42,6 +42,7 @@ __all__ = [
     "LSM9DS1",
     "LSM9DS1_SHOE",
     "LSM9DS1_TYPICAL",
+    "LSM9DS1_CLIPPING",
     "IMU_ERRORS",
     "scenario_names",
     "get_scenario",
@@ -88,9 +89,14 @@ GAITS: dict[str, GaitParams] = {
     "walk": GaitParams(1.15, 0.50, 1.35, 0.10, 6.5),
     "walk_fast": GaitParams(1.02, 0.46, 1.60, 0.12, 8.0),
     "run": GaitParams(0.74, 0.25, 2.30, 0.18, 10.5),
+    # An elite sprint: 4.4 m strides in 0.5 s with the foot flat for a fifth of it; the minimum-jerk swing then peaks
+    # at 1.875 L / T = 21 m/s foot speed and 5.77 L / T^2 = 16.2 g, the foot pitches at up to 40 rad/s = 2290 deg/s
+    # (sprinters' feet: 20-40 rad/s): beyond a +-16 g / +-2000 deg/s sensor's range (SensorErrors.acc_range_ms2).
+    "sprint": GaitParams(0.50, 0.20, 4.40, 0.30, 40.0),
 }
 
-BEHAVIOUR_OF: dict[str, str] = {"walk_slow": "walk", "walk": "walk", "walk_fast": "walk", "run": "run", "stand": "stand"}
+BEHAVIOUR_OF: dict[str, str] = {"walk_slow": "walk", "walk": "walk", "walk_fast": "walk", "run": "run", "sprint": "run",
+                                "stand": "stand"}
 
 
 @dataclass(frozen=True)
@@ -157,6 +163,9 @@ class SensorErrors:
         biases and noise are added: ``f = T_a f_b``, ``w = T_g w_b``. The diagonal of ``M`` holds the
         scale-factor errors, the off-diagonal terms the cross-axis sensitivities. A property of the device, like
         the iron. Identity = none.
+    acc_range_ms2, gyr_range_rads : float
+        Full scale of the accelerometer [m/s^2] and gyroscope [rad/s] per axis: a reading beyond it is clipped to
+        it, as the part's output register saturates (e.g. +-16 g, +-2000 deg/s). ``inf`` = never clips.
     """
 
     acc_noise_density: float
@@ -171,6 +180,8 @@ class SensorErrors:
     mag_soft_iron: tuple[float, ...] = _IDENTITY
     acc_scale_misalignment: tuple[float, ...] = _IDENTITY
     gyr_scale_misalignment: tuple[float, ...] = _IDENTITY
+    acc_range_ms2: float = float("inf")
+    gyr_range_rads: float = float("inf")
 
     @property
     def has_iron(self) -> bool:
@@ -225,6 +236,10 @@ LSM9DS1_TYPICAL = dataclasses.replace(
     gyr_scale_misalignment=(1.010, 0.006, -0.005, -0.004, 0.992, 0.007, 0.006, -0.005, 1.009),
 )
 
+# The typical part at the ranges of most foot-mounted IMUs (VN-200, LSM6DSO and MPU-9250 at their widest settings):
+# +-16 g and +-2000 deg/s. A sprint (GAITS["sprint"]) drives both beyond them, and the part clips.
+LSM9DS1_CLIPPING = dataclasses.replace(LSM9DS1_TYPICAL, acc_range_ms2=16.0 * G, gyr_range_rads=2000.0 * DEG)
+
 # Names of the error models for command lines (`pednav energy simulate --imu-errors NAME`).
 IMU_ERRORS: dict[str, SensorErrors] = {"noise-only": LSM9DS1, "typical-part": LSM9DS1_TYPICAL, "shoe-iron": LSM9DS1_SHOE}
 
@@ -243,6 +258,9 @@ _SCENARIOS: dict[str, Scenario] = {
         _s([Segment("stand", 5.0), Segment("walk", 30.0, 90.0), Segment("walk", 30.0, -90.0), Segment("stand", 5.0)]),
     ),
     "run": Scenario("run", _s([Segment("stand", 5.0), Segment("run", 40.0, 90.0), Segment("stand", 5.0)])),
+    # a 100-m dash and back, with a jog to the start line: synthesize("sprint", errors=LSM9DS1_CLIPPING) clips
+    "sprint": Scenario("sprint", _s([Segment("stand", 5.0), Segment("run", 10.0), Segment("sprint", 12.0),
+                                     Segment("stand", 5.0), Segment("sprint", 12.0, 180.0), Segment("stand", 5.0)])),
     "demo": Scenario(
         "demo",
         _s(
@@ -563,6 +581,9 @@ def synthesize(
         s_iron = np.asarray(errors.mag_soft_iron, dtype=np.float64).reshape(3, 3)
         m_b = m_b @ s_iron.T + np.asarray(errors.mag_hard_iron_ut, dtype=np.float64)
     m_meas = m_b + rng.standard_normal((n, 3)) * errors.mag_noise_rms
+    # the output registers saturate at the part's full scale (after noise and bias: what the part would report)
+    np.clip(f_meas, -errors.acc_range_ms2, errors.acc_range_ms2, out=f_meas)
+    np.clip(w_meas, -errors.gyr_range_rads, errors.gyr_range_rads, out=w_meas)
 
     t_ns = np.round(t * 1e9).astype(np.int64)
     mag_step = max(1, int(round(rate_hz / mag_rate_hz))) if mag_rate_hz else 1

@@ -16,8 +16,9 @@ import numpy as np
 from models import _zupt_kernel as _k
 from models.attitude import align_at_rest
 from models.rotations import dcm_to_quat
+from models.saturation import SAT_ACC, SAT_GYR, ClipRepair, SaturationConfig
 
-__all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator"]
+__all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator", "SAT_ACC", "SAT_GYR"]
 
 
 @dataclass(frozen=True)
@@ -57,12 +58,24 @@ class ZuptConfig:
     and pitch (same equations on the quasi-still foot), heading from the field with ``mag_on``, else 0 (the
     heading of a frame without a compass is arbitrary); the gyro bias starts at 0 with sigma ``p0_bg_walk``
     [rad/s] (a stance's mean rate is the foot's roll-over, not the bias). The strides before it are lost.
-    Gyro range clipping: once a sample's largest single-axis |rate| is at least ``gyr_sat_min`` [rad/s] and
-    within ``gyr_sat_frac`` of the largest |rate| seen so far (a clipped gyro sits at its range, e.g. 8.7 rad/s
-    = 500 deg/s on the gdin MicroStrain), the rotation it missed is unknown: the tilt variance grows by
-    ``(gyr_sat_sigma * dt)^2`` [rad^2] per such sample so the next ZUPT re-levels the attitude and, through the
-    covariance, corrects the velocity and position the wrong tilt caused (0 = off). Unclipped sensors pay only
-    a slightly larger tilt variance at their largest rates.
+    Fastest rotation: a sample whose largest single-axis |rate| is at least ``gyr_sat_min`` [rad/s] and within
+    ``gyr_sat_frac`` of the largest seen so far grows the tilt variance by ``(gyr_sat_sigma * dt)^2`` [rad^2] (0 =
+    off): the rate's error grows with it (latency, scale factor, bandwidth), and the next ZUPT re-levels.
+    Range clipping (sensor saturation, :mod:`models.saturation`): a sample's axis sits at the sensor's full scale
+    where ``|value|`` is within ``clip_flat`` of the range the device gives (``clip_acc_range`` [m/s^2],
+    ``clip_gyr_range`` [rad/s]; 0 = not known) or, not known, where it is at least ``clip_acc_min`` [m/s^2] /
+    ``clip_gyr_min`` [rad/s] (no part's range is smaller), within ``clip_frac`` of the largest |value| of that axis
+    and sign so far, and a neighbouring sample holds the same value within ``clip_flat`` (a plateau at the extreme;
+    VICON's gyroscope clips at 9.1-9.7 rad/s, gdin's at 8.7). A clipped run is repaired by the quadratic through
+    ``clip_fit_n`` unclipped samples on either side (runs up to ``clip_max_s`` [s]; the samples are held back until
+    it is decided), and each clipped value gets a 1-sigma error of ``clip_rel_sigma`` times what the repair added,
+    at least ``clip_acc_sigma`` [m/s^2] / ``clip_gyr_sigma`` [rad/s]. That error persists over the run, so it
+    becomes variance growing with the run's length along the clipped body axis in the navigation frame: velocity
+    for the accelerometer; for the gyroscope tilt, which the next ZUPT re-levels (correcting velocity and position
+    through the covariance), and heading, which no ZUPT observes: that part is kept out of the filter (in it, the
+    ZUPTs turned the heading on velocity errors of other causes: gdin exp42 stride error 1.5 -> 2.4 m) and only
+    reported, with the position error it causes over the distance travelled since (``NavOutput.heading_sigma``,
+    ``pos_sigma``; each sample's clipped axes in ``NavOutput.saturated``).
     Inter-sensor latency: ``gyr_delay_s`` [s] >= 0 is how much the gyroscope's output lags the accelerometer's;
     the mechanisation then pairs each specific force with the rate read that much later (linear interpolation;
     the streaming look-ahead grows by it). Default 5 ms, measured without any truth: on level floors the foot
@@ -147,6 +160,17 @@ class ZuptConfig:
     gyr_sat_frac: float = 0.97
     gyr_sat_min: float = 4.0
     gyr_sat_sigma: float = 5.0
+    clip_acc_range: float = 0.0
+    clip_gyr_range: float = 0.0
+    clip_acc_min: float = 19.0
+    clip_gyr_min: float = 4.0
+    clip_frac: float = 0.985
+    clip_flat: float = 0.02
+    clip_fit_n: int = 3
+    clip_max_s: float = 0.06
+    clip_rel_sigma: float = 0.5
+    clip_acc_sigma: float = 1.0
+    clip_gyr_sigma: float = 1.0
     gyr_delay_s: float = 0.005
     align_swing_rate: float = 2.0
     align_stance_min_s: float = 0.02
@@ -166,6 +190,14 @@ class ZuptConfig:
             out[idx] = float(getattr(self, name))
         return out
 
+    def saturation(self) -> SaturationConfig:
+        """The range-clipping settings as :class:`models.saturation.SaturationConfig`."""
+        return SaturationConfig(
+            acc_range=self.clip_acc_range, gyr_range=self.clip_gyr_range, acc_min=self.clip_acc_min,
+            gyr_min=self.clip_gyr_min, frac=self.clip_frac, flat=self.clip_flat, fit_n=self.clip_fit_n,
+            max_s=self.clip_max_s, rel_sigma=self.clip_rel_sigma, acc_sigma=self.clip_acc_sigma,
+            gyr_sigma=self.clip_gyr_sigma)
+
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first implausible setting."""
         for f in fields(self):
@@ -181,6 +213,7 @@ class ZuptConfig:
             raise ValueError("ZuptConfig.gyr_delay_s: must be within 0..0.1 s (the gyro lagging the accelerometer)")
         if not 0.0 < self.gyr_sat_frac <= 1.0:
             raise ValueError("ZuptConfig.gyr_sat_frac: must be in (0, 1]")
+        self.saturation()  # raises ValueError naming the setting
         if self.gap_factor != 0.0 and self.gap_factor <= 1.0:
             raise ValueError("ZuptConfig.gap_factor: must be 0 (off) or > 1 (times the nominal sampling interval)")
         for name in ("align_swing_rate", "align_stance_min_s", "p0_bg_walk", "gap_acc_sigma", "gap_gyr_sigma",
@@ -209,6 +242,11 @@ class Stance:
         Largest speed in the swing before this stance [m/s].
     samples : int
         Stance samples. ``mag_used``: a magnetic heading update was applied at this stance.
+    heading_sigma, pos_sigma : float
+        1-sigma uncertainty of the heading [rad] and of the horizontal position [m] at the end of the stance
+        (from the filter's covariance; NaN where not known).
+    clipped : int
+        Samples since the previous stance with an axis at the sensor's range (:class:`ZuptConfig`, range clipping).
     """
 
     t_start_s: float
@@ -219,6 +257,9 @@ class Stance:
     peak_speed: float
     samples: int
     mag_used: bool
+    heading_sigma: float = math.nan
+    pos_sigma: float = math.nan
+    clipped: int = 0
 
     @property
     def step_length(self) -> float:
@@ -226,11 +267,21 @@ class Stance:
         return float(math.hypot(self.delta[0], self.delta[1]))
 
 
+def _none_u8() -> np.ndarray:
+    return np.zeros(0, dtype=np.uint8)
+
+
+def _none_f() -> np.ndarray:
+    return np.zeros(0)
+
+
 @dataclass
 class NavOutput:
     """Per processed sample: ``t_s (n,)`` [s], ``pos (n,3)`` NED [m], ``vel (n,3)`` [m/s], ``heading (n,)``
     [rad] (NaN before alignment), ``zupt (n,)`` bool, ``statistic (n,)`` detector value; plus the stances
-    that ended in this call."""
+    that ended in this call; ``saturated (n,)`` uint8 the axes at the sensor's range (bits 0-2 accelerometer x, y,
+    z, bits 3-5 gyroscope x, y, z: :data:`SAT_ACC`, :data:`SAT_GYR`), ``heading_sigma (n,)`` [rad] and
+    ``pos_sigma (n,)`` [m] the 1-sigma heading and horizontal position uncertainty (NaN before alignment)."""
 
     t_s: np.ndarray
     pos: np.ndarray
@@ -239,6 +290,9 @@ class NavOutput:
     zupt: np.ndarray
     statistic: np.ndarray
     stances: list[Stance] = field(default_factory=list)
+    saturated: np.ndarray = field(default_factory=_none_u8)
+    heading_sigma: np.ndarray = field(default_factory=_none_f)
+    pos_sigma: np.ndarray = field(default_factory=_none_f)
 
     @staticmethod
     def empty() -> NavOutput:
@@ -258,6 +312,9 @@ class NavOutput:
             np.concatenate([p.zupt for p in parts]),
             np.concatenate([p.statistic for p in parts]),
             [s for p in parts for s in p.stances],
+            np.concatenate([p.saturated for p in parts]),
+            np.concatenate([p.heading_sigma for p in parts]),
+            np.concatenate([p.pos_sigma for p in parts]),
         )
 
 
@@ -307,8 +364,11 @@ class ZuptNavigator:
         self._ba = np.zeros((0, 3))
         self._bg = np.zeros((0, 3))
         self._bm = np.zeros((0, 3))
+        self._bs = np.zeros(0, dtype=np.uint8)  # clipped axes per sample
+        self._bsig = np.zeros((0, 6))  # ... and the 1-sigma errors of their (repaired) values
         self._next = 0  # index in the buffer of the first unprocessed sample
         self._t_last = -math.inf
+        self._clip = ClipRepair(self.config.saturation())
 
     # ---- public state ---------------------------------------------------------------------------------
     @property
@@ -404,14 +464,24 @@ class ZuptNavigator:
         if n == 0:
             return NavOutput.empty()
         self._t_last = float(t[-1])
+        self._append(*self._clip.push(t, acc, gyr, mag))
+        return self._run(final=False)
+
+    def _append(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
+                sig: np.ndarray) -> None:
+        """Samples the clipping repair has decided join the kernel's buffer."""
         self._bt = np.concatenate([self._bt, t])
         self._ba = np.concatenate([self._ba, acc])
         self._bg = np.concatenate([self._bg, gyr])
         self._bm = np.concatenate([self._bm, mag])
-        return self._run(final=False)
+        self._bs = np.concatenate([self._bs, sat])
+        self._bsig = np.concatenate([self._bsig, sig])
 
     def flush(self) -> NavOutput:
-        """End of recording: process the samples held back for the detector's look-ahead."""
+        """End of recording: process the samples held back for the detector's look-ahead (and the clipping
+        repair's)."""
+        e = np.zeros((0, 3))
+        self._append(*self._clip.push(np.zeros(0), e, e, e, final=True))
         return self._run(final=True)
 
     def _run(self, final: bool) -> NavOutput:
@@ -424,10 +494,13 @@ class ZuptNavigator:
         o_head = np.empty(m)
         o_zupt = np.zeros(m, dtype=np.bool_)
         o_stat = np.empty(m)
+        o_sat = np.zeros(m, dtype=np.uint8)
+        o_hsig = np.empty(m)
+        o_psig = np.empty(m)
         st = np.empty((m // 2 + 2, _k.N_ST))
         nxt, n_st = _k.run_kernel(
-            self._bt, self._ba, self._bg, self._bm, self._next, final, self._x, self._P, self._fs, self._is,
-            self._par, o_pos, o_vel, o_head, o_zupt, o_stat, st,
+            self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig, self._next, final, self._x, self._P, self._fs, self._is,
+            self._par, o_pos, o_vel, o_head, o_zupt, o_stat, o_sat, o_hsig, o_psig, st,
         )
         k = nxt - self._next
         out = NavOutput(
@@ -435,10 +508,11 @@ class ZuptNavigator:
             [
                 Stance(
                     float(r[0]), float(r[1]), r[2:5].copy(), float(r[5]), r[6:9].copy(), float(r[9]), int(r[10]),
-                    bool(r[11]),
+                    bool(r[11]), float(r[12]), float(r[13]), int(r[14]),
                 )
                 for r in st[:n_st]
             ],
+            o_sat[:k], o_hsig[:k], o_psig[:k],
         )
         self._next = nxt
         self._trim()
@@ -461,6 +535,8 @@ class ZuptNavigator:
             self._ba = self._ba[keep:].copy()
             self._bg = self._bg[keep:].copy()
             self._bm = self._bm[keep:].copy()
+            self._bs = self._bs[keep:].copy()
+            self._bsig = self._bsig[keep:].copy()
             self._next -= keep
 
     def run(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
@@ -533,6 +609,9 @@ class ZuptNavigator:
         self._ba = np.zeros((0, 3))
         self._bg = np.zeros((0, 3))
         self._bm = np.zeros((0, 3))
+        self._bs = np.zeros(0, dtype=np.uint8)
+        self._bsig = np.zeros((0, 6))
+        self._clip.reset()
         self._next = 0
         for name in ("in_stance", "has_prev", "has_prev_stance"):
             self._is[_k.IS[name]] = 0
@@ -552,6 +631,9 @@ class ZuptNavigator:
             "buf_acc": self._ba.copy(),
             "buf_gyr": self._bg.copy(),
             "buf_mag": self._bm.copy(),
+            "buf_sat": self._bs.copy(),
+            "buf_sat_sigma": self._bsig.copy(),
+            "clip": self._clip.get_state(),
             "next": int(self._next),
             "t_last": float(self._t_last) if math.isfinite(self._t_last) else None,
         }
@@ -574,6 +656,12 @@ class ZuptNavigator:
         nav._ba = np.array(d["buf_acc"], dtype=np.float64).reshape(-1, 3)
         nav._bg = np.array(d["buf_gyr"], dtype=np.float64).reshape(-1, 3)
         nav._bm = np.array(d["buf_mag"], dtype=np.float64).reshape(-1, 3)
+        n = nav._bt.shape[0]
+        # states saved before range clipping was repaired: nothing flagged, nothing held back
+        nav._bs = np.array(d.get("buf_sat", np.zeros(n)), dtype=np.uint8).reshape(n)
+        nav._bsig = np.array(d.get("buf_sat_sigma", np.zeros((n, 6))), dtype=np.float64).reshape(n, 6)
+        if "clip" in d:
+            nav._clip = ClipRepair.from_state(nav.config.saturation(), d["clip"])
         nav._next = int(d["next"])
         nav._t_last = -math.inf if d["t_last"] is None else float(d["t_last"])
         return nav

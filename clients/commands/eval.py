@@ -26,6 +26,10 @@ without truth (:mod:`clients.evaluation.recordings`). A file that cannot be impo
 stderr and a row with ``"error"``; exit status 0 when at least one recording ran, 1 when none did (nothing
 importable, or every one failed), 2 when DIR is not a folder or an option is wrong.
 
+``pednav eval behaviour [ROOT] [--rate-hz HZ ...] --json``: the behaviour recogniser against labels derived from the
+recordings' truth (:mod:`clients.evaluation.behaviour`). ``eval recordings`` takes ``--columns``/``--units`` (the
+CSVs of DIR read with the stated columns and units, :mod:`clients.importers.generic_csv`).
+
 Common options: ``--plot OUT_DIR`` (one PNG per recording), ``--limit N`` and ``--match TEXT`` (repeatable:
 keep recordings whose name contains TEXT) for quick CI smoke runs, ``--batch-seconds S``. A progress bar
 goes to stderr. Exit status 0 when every selected recording was evaluated, 1 when any failed (the failure is
@@ -485,6 +489,35 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     return 1 if failed or not items else 0
 
 
+def _run_behaviour(args: argparse.Namespace) -> int:
+    from clients.datasets import data_root
+    from clients.evaluation import behaviour
+
+    root = Path(args.dir) if args.dir else data_root()
+    if root is None or not root.is_dir():
+        print(f"pednav eval behaviour: data folder not found ({args.dir or 'PEDNAV_DATA'})", file=sys.stderr)
+        return 2
+    rates = [None] + [float(r) for r in (args.rate_hz or [])]
+    if any(r is not None and not r > 0 for r in rates):
+        print("pednav eval behaviour: --rate-hz must be a positive rate in Hz", file=sys.stderr)
+        return 2
+    doc = {"dataset": "behaviour", "labels": str(behaviour.LABEL_TABLE), **behaviour.evaluate(root, rates)}
+    if not any(v["recordings"] for v in doc["rates"].values()):
+        print(f"pednav eval behaviour: no labelled recording found under {root}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(doc))
+        return 0
+    for rate, v in doc["rates"].items():
+        s = v["summary"]
+        print(f"{rate:>9} Hz  walk/run share mean {_fmt(s['walk_run_share_mean'], '.3f')} worst "
+              f"{_fmt(s['walk_run_share_worst'], '.3f')} ({s['worst_recording']}), other share "
+              f"{_fmt(s['other_share_mean'], '.3f')}, stand left {_fmt(s['stand_left_median_abs_s'], '.2f')} s / "
+              f"entered {_fmt(s['stand_entered_median_abs_s'], '.2f')} s (median |latency|, "
+              f"{s['stand_boundaries']} boundaries, {s['stand_boundaries_missed']} missed)")
+    return 0
+
+
 def _run_recordings(args: argparse.Namespace) -> int:
     from clients.evaluation.recordings import candidates, evaluate_recording, recordings_summary
     from clients.importers import ImporterError, load
@@ -492,6 +525,9 @@ def _run_recordings(args: argparse.Namespace) -> int:
     directory = Path(args.dir)
     if not directory.is_dir():
         print(f"pednav eval recordings: {args.dir}: not a folder", file=sys.stderr)
+        return 2
+    if (args.columns is None) != (args.units is None):
+        print("pednav eval recordings: --columns and --units go together", file=sys.stderr)
         return 2
     try:
         accounting = _accounting(args, "recordings")
@@ -503,7 +539,12 @@ def _run_recordings(args: argparse.Namespace) -> int:
     for f in _progress(candidates(directory), f"recordings {args.mode}"):
         name = str(f.relative_to(directory))
         try:
-            rec = load(f)
+            if args.columns is not None and f.suffix.lower() == ".csv":
+                from clients.importers.generic_csv import load_generic_csv
+
+                rec = load_generic_csv(f, args.columns, args.units)
+            else:
+                rec = load(f)
             ev = evaluate_recording(rec, runner, args.mode, accounting)
         except Exception as exc:  # noqa: BLE001 - one line per file that cannot be used, never a traceback
             reason = str(exc) if isinstance(exc, (ImporterError, ValueError)) else f"{type(exc).__name__}: {exc}"
@@ -684,6 +725,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     _common(pm)
     _energy_options(pm)
     pm.set_defaults(func=_run_gaitmap)
+    pb = esub.add_parser("behaviour", help="stand/walk/run/other recognition (accelerometer only) against the labels "
+                                           "derived from the recordings' truth (clients/evaluation/behaviour_labels.csv)")
+    pb.add_argument("dir", nargs="?", default=None, help="datasets root (default: PEDNAV_DATA or ../shared/datasets)")
+    pb.add_argument("--rate-hz", type=float, action="append", default=None, metavar="HZ",
+                    help="also de-sampled to HZ (repeatable), as a sensor set to HZ would deliver it")
+    pb.add_argument("--json", action="store_true", help="print one JSON document")
+    pb.set_defaults(func=_run_behaviour)
     pi = esub.add_parser("ipin", help="GetSensorData phone logfiles with surveyed landmarks (IPIN 2023 Track 3): "
                                       "landmark errors, path ratio, steps, energy against always-on")
     pi.add_argument("dir", nargs="?", default=None, help="folder of logfiles (default: PEDNAV_DATA/ipin2023-t3-phone)")
@@ -715,6 +763,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--device-batching", action="store_true", help="upload as long as the engine asks")
     pr.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
                     help="change one engine setting (repeatable)")
+    pr.add_argument("--columns", default=None, metavar="SPEC",
+                    help="read every CSV in DIR with these columns (as pednav replay --columns); needs --units")
+    pr.add_argument("--units", default=None, metavar="SPEC", help="units of the --columns streams (as pednav replay --units)")
     _energy_options(pr, ("auto", "pdr"), "auto")
     pr.set_defaults(func=_run_recordings)
     pp = esub.add_parser("plot", help="energy against accuracy per recording and mode, from saved --json documents "

@@ -20,11 +20,21 @@ __all__ = ["register", "load_recording", "desampled", "replay_local", "replay_lo
 EXPORT_SUFFIXES = {".geojson": "geojson", ".gpx": "gpx", ".kml": "kml", ".csv": "csv"}
 
 
-def load_recording(spec: str, mag_scale_ut: float | None = None):  # type: ignore[no-untyped-def]
+def load_recording(spec: str, mag_scale_ut: float | None = None, columns: str | None = None,  # type: ignore[no-untyped-def]
+                   units: str | None = None):
     """A file of any importable format, or a synthetic scenario name (``clients.synth.scenario_names()``).
 
     ``mag_scale_ut``: the field [uT] a normalised magnetometer's 1.0 stands for (gaitmap/Xsens CSV files, whose
-    magnetometer is otherwise left out); a ValueError for any other recording."""
+    magnetometer is otherwise left out); a ValueError for any other recording. ``columns`` and ``units`` (both or
+    neither): any CSV read with the stated columns and units (:mod:`clients.importers.generic_csv`)."""
+    if (columns is None) != (units is None):
+        raise ValueError("--columns and --units go together: state the columns and the unit of each stream")
+    if columns is not None and units is not None:
+        if not Path(spec).is_file():
+            raise FileNotFoundError(f"{spec}: no such file (--columns/--units read a CSV file)")
+        from clients.importers.generic_csv import load_generic_csv
+
+        return load_generic_csv(spec, columns, units)
     if Path(spec).exists():
         from clients.importers import importer_for, load
 
@@ -203,7 +213,7 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError("--export writes a local replay; with --server use 'pednav export SESSION --format F'")
         if args.anchor_date and not args.anchor:
             raise ValueError("--anchor-date needs --anchor LAT,LON[,ALT]")
-        rec = load_recording(args.file, args.mag_scale_ut)
+        rec = load_recording(args.file, args.mag_scale_ut, args.columns, args.units)
         # --anchor, else where the recording says it started (a phone's first good location fix)
         anchor = parse_anchor(args.anchor, _anchor_date(args, rec), source="replay") if args.anchor else rec.meta.anchor
         if args.export and Path(args.export).suffix.lower() != ".csv" and anchor is None:
@@ -232,6 +242,21 @@ def _run(args: argparse.Namespace) -> int:
         print(f"error: {args.file}: the recording has no gyroscope samples and no magnetometer samples: nothing "
               "gives the walking heading (record or export either)", file=sys.stderr)
         return 1
+    # a recording whose format says where it was worn (a foot dataset) is taken as it says; any other (a phone app,
+    # a generic CSV, an x-io sensor) must show a foot's stance phases before it is navigated as a foot
+    if spec.pipeline == "foot" and not args.skip_foot_check and not rec.meta.mount.startswith("foot"):
+        import numpy as np
+
+        from models.placement import check_foot
+
+        b = rec.batch
+        if np.array_equal(b.acc_t_ns, b.gyr_t_ns):
+            verdict = check_foot((b.acc_t_ns - b.acc_t_ns[0]) / 1e9, b.acc, b.gyr)
+            if verdict.looks_like_foot is False:
+                print(f"error: {args.file}: {verdict.reason}; replay it with --device phone or --placement "
+                      "phone-hand|phone-pocket|watch, or pass --skip-foot-check to navigate it as a foot anyway",
+                      file=sys.stderr)
+                return 1
     if args.server:
         token = args.token or os.environ.get("PEDNAV_TOKEN")
         if not token:
@@ -297,5 +322,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="date of the declination (default: the recording's UTC date, else today)")
     p.add_argument("--export", default=None, metavar="FILE",
                    help="write the local replay's track to FILE: .geojson, .gpx, .kml (need --anchor) or .csv")
+    p.add_argument("--columns", default=None, metavar="SPEC",
+                   help="read FILE as a CSV with these columns: 'time=COL,acc=COL:COL:COL[,gyr=...][,mag=...]', COL a "
+                        "header name or #N (1-based); needs --units")
+    p.add_argument("--units", default=None, metavar="SPEC",
+                   help="units of the --columns streams: 'time=s|ms|us|ns,acc=m/s^2|g|mg,gyr=rad/s|deg/s,"
+                        "mag=uT|nT|mT|G|mG'")
+    p.add_argument("--skip-foot-check", action="store_true",
+                   help="navigate as a foot even a recording of a phone app, x-io sensor or --columns CSV that shows "
+                        "no stance phases at a stride's rhythm (models.placement: a phone or a wrist, or a foot that "
+                        "did not walk); recordings of foot datasets are not checked")
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.set_defaults(func=_run)

@@ -44,7 +44,9 @@ from clients.importers._common import (
 )
 from clients.recording import Recording, RecordingMeta, Truth
 
-__all__ = ["KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
+__all__ = ["FORMAT", "KNOWN_RATES_HZ", "MOCAP_RATE_HZ", "sniff", "sensor_feet", "load", "load_gaitmap"]
+
+FORMAT = "gaitmap CSV (columns acc_x, acc_y, acc_z, gyr_x, gyr_y, gyr_z[, mag_x ...])"
 
 log = logging.getLogger(__name__)
 

@@ -49,6 +49,7 @@ from clients.importers.sensorconnect import sniff as sniff_sensorconnect
 from clients.recording import Recording, RecordingMeta, Truth
 
 __all__ = [
+    "FORMAT",
     "GdinEntry",
     "sniff",
     "load",
@@ -59,6 +60,8 @@ __all__ = [
     "load_gdin",
     "experiment_number",
 ]
+
+FORMAT = "gdin format C .mat (variables imu_data, timestamps); its SensorConnect CSVs and truth files in the gdin layout"
 
 _EXP = re.compile(r"SensorConnectData_(\d+)")
 

@@ -37,7 +37,9 @@ from clients.importers._common import (
 )
 from clients.recording import Recording, RecordingMeta
 
-__all__ = ["sniff", "load", "load_phyphox"]
+__all__ = ["FORMAT", "sniff", "load", "load_phyphox"]
+
+FORMAT = "phyphox export (CSV header \"Time (s)\",\"Acceleration x (m/s^2)\",...; folder or zip)"
 
 log = logging.getLogger(__name__)
 

@@ -14,6 +14,19 @@ Logger's ``Accelerometer`` is on iOS and often on Android). A gravity-carrying s
 reads about 1.0 is in units of g and is converted (x 9.80665) and said so.
 Gyroscope [rad/s] and magnetometer [uT] are used as recorded.
 
+Platform conventions (github.com/tszheichoi/awesome-sensor-logger, UNITS.md, COORDINATES.md, CROSSPLATFORM.md),
+read from the export's ``Metadata.csv`` (columns ``platform``: ``android``/``ios``, ``standardisation``:
+``true``/``false``; the JSON export's ``Metadata`` record):
+
+- Android, or "Standardise Units & Frames" on: acceleration and gravity are Android's (specific force: lying
+  flat on its back the phone reads +9.81 m/s^2 on z); ``TotalAcceleration`` (Android only) is used as is.
+- iOS with standardisation off (the app's default): ``Accelerometer`` (user acceleration, m/s^2) and ``Gravity``
+  are the NEGATIVE of Android's on all three axes (CoreMotion reports the inertial force: flat on its back the
+  gravity vector reads -z): their sum is negated to the specific force. The gyroscope's axes and sign agree on
+  both platforms and are used as recorded, as is the magnetometer (uT).
+- No Metadata.csv (a bare CSV, or an export with it deleted): the platform is unknown; Android's convention is
+  used and a note says so (an iOS export read that way stands upside down: keep its Metadata.csv).
+
 Damaged files follow the sample policy of :mod:`clients.importers._common`: a line cut mid-write is skipped,
 an empty cell drops that sample, a header-only file (a sensor that delivered nothing) leaves its stream out;
 all noted. Only the accelerometer is required.
@@ -42,7 +55,9 @@ from clients.importers._common import (
 )
 from clients.recording import Recording, RecordingMeta
 
-__all__ = ["sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
+__all__ = ["FORMAT", "sniff", "load", "load_sensor_logger", "SENSOR_FILES"]
+
+FORMAT = ("Sensor Logger export, Android or iOS (folder, zip or JSON; CSVs named Accelerometer, TotalAcceleration, Gravity, Gyroscope, ... with header time,seconds_elapsed,z,y,x; Metadata.csv)")
 
 SENSOR_FILES = ("TotalAcceleration", "Accelerometer", "Gravity", "Gyroscope", "Magnetometer")
 _HEADER = ["time", "seconds_elapsed", "z", "y", "x"]
@@ -121,14 +136,19 @@ def _read_csv_text(text: str, where: str) -> tuple[np.ndarray, np.ndarray, list[
     return t, v, notes
 
 
-def _read_json(obj: object, where: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def _read_json(obj: object, where: str) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str]:
+    """Streams by sensor name and the platform (its ``Metadata`` record, ``unknown`` without one)."""
     if not isinstance(obj, list):
         raise ImporterError(where, "file", "Sensor Logger JSON export must be a list of records")
     per: dict[str, list[tuple[int, float, float, float]]] = {}
+    platform = "unknown"
     for i, rec in enumerate(obj):
         if not isinstance(rec, dict) or "sensor" not in rec:
             continue
         name = str(rec["sensor"])
+        if name.lower() == "metadata":
+            platform = _platform_of(rec)
+            continue
         if name not in SENSOR_FILES:
             continue
         try:
@@ -140,7 +160,7 @@ def _read_json(obj: object, where: str) -> dict[str, tuple[np.ndarray, np.ndarra
     for name, rows in per.items():
         a = np.array(rows, dtype=object)
         out[name] = (a[:, 0].astype(np.int64), a[:, 1:].astype(np.float64))
-    return out
+    return out, platform
 
 
 def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list[str], str, Path]:
@@ -171,7 +191,8 @@ def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list
             obj = json.loads(path.read_text(encoding="utf-8-sig"))
         except (OSError, ValueError) as exc:
             raise ImporterError(path, "file", f"not readable JSON ({exc})") from None
-        return _read_json(obj, str(path)), notes, platform, path
+        streams, platform = _read_json(obj, str(path))
+        return streams, notes, platform, path
     folder = path if path.is_dir() else path.parent
     for name in SENSOR_FILES:
         f = folder / f"{name}.csv"
@@ -184,8 +205,15 @@ def _collect(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], list
 
 
 def _platform(text: str) -> str:
+    """``android``, ``ios`` or ``ios-standardised`` from Metadata.csv (``unknown`` when it says nothing)."""
     rows = list(csv.DictReader(io.StringIO(text)))
-    return str(rows[0].get("platform", "unknown")).lower() if rows else "unknown"
+    return _platform_of(rows[0]) if rows else "unknown"
+
+
+def _platform_of(row: dict[str, object]) -> str:
+    plat = str(row.get("platform") or "unknown").strip().lower()
+    std = str(row.get("standardisation") or "false").strip().lower() == "true"
+    return "ios-standardised" if plat == "ios" and std else plat
 
 
 def _median_norm(v: np.ndarray) -> float:
@@ -285,6 +313,18 @@ def load_sensor_logger(path: str | Path) -> Recording:
                                 "or Gravity file to restore it; export with TotalAcceleration on")
     else:
         raise ImporterError(src, "TotalAcceleration", "no accelerometer file with samples (TotalAcceleration.csv or Accelerometer.csv)")
+    if platform == "ios":
+        acc = -acc
+        conv["acc axes"] = ("iOS, standardisation off: CoreMotion's sign (inertial force) -> specific force "
+                            "(x -1 on every axis; Metadata.csv)")
+        notes.append("iOS export without 'Standardise Units & Frames': acceleration and gravity negated to the "
+                     "specific force (gyroscope and magnetometer agree on both platforms, used as recorded)")
+    elif platform in ("android", "ios-standardised"):
+        notes.append(f"{platform}: Android's axis and sign convention (specific force), used as recorded")
+    else:
+        notes.append("platform unknown (no Metadata.csv): Android's convention (specific force) assumed; an iOS "
+                     "export read this way stands upside down, keep its Metadata.csv")
+        log.warning("%s: %s", src, notes[-1])
     gyr_t = gyr = mag_t = mag = None
     if "Gyroscope" in streams:
         gyr_t, gyr = clean("Gyroscope")

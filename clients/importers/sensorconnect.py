@@ -43,7 +43,9 @@ from clients.importers._common import (
 )
 from clients.recording import Recording, RecordingMeta
 
-__all__ = ["sniff", "load", "load_sensorconnect", "read_header"]
+__all__ = ["FORMAT", "sniff", "load", "load_sensorconnect", "read_header"]
+
+FORMAT = ("MicroStrain SensorConnect CSV (header Time,...:scaledAccelX,... or estCompensatedAccelX,...; gdin formats A/B)")
 
 log = logging.getLogger(__name__)
 

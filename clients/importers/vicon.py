@@ -28,7 +28,9 @@ from clients.importers._common import (
 )
 from clients.recording import Recording, RecordingMeta, Truth
 
-__all__ = ["sniff", "load", "load_vicon"]
+__all__ = ["FORMAT", "sniff", "load", "load_vicon"]
+
+FORMAT = "University of Toronto VICON .mat (variables imu, ts[, gt])"
 
 _IMU_COLUMNS = ["imu[:,0] acc_x", "imu[:,1] acc_y", "imu[:,2] acc_z", "imu[:,3] gyr_x", "imu[:,4] gyr_y", "imu[:,5] gyr_z"]
 

@@ -562,7 +562,8 @@ def test_vicon_file_without_truth_loads_for_replay_and_is_refused_for_evaluation
 def test_an_unknown_table_is_refused_with_its_first_line(tmp_path: Path) -> None:
     p = tmp_path / "walk.csv"
     p.write_text("zeit;beschleunigung\n0,0;9,81\n")
-    with pytest.raises(ImporterError, match="no importer recognises this file; its first line: 'zeit;beschleunigung'"):
+    with pytest.raises(ImporterError, match="no importer recognises this file: a semicolon-separated table whose "
+                                            "first line has 2 field\\(s\\): 'zeit', 'beschleunigung'"):
         load(p)
 
 

@@ -99,6 +99,63 @@ def test_sensor_logger_export_round_trip(tmp_path: Path, style: str, container: 
     assert any("accelerometer:" in n for n in rec.meta.notes)
 
 
+def _ios_export(b: SensorBatch, standardised: bool) -> dict[str, str]:
+    """An iOS export: Accelerometer (user acceleration) and Gravity, no TotalAcceleration; without
+    standardisation CoreMotion's sign, the negative of Android's on every axis (awesome-sensor-logger
+    COORDINATES.md); the gyroscope agrees on both platforms."""
+    grav = np.array([0.3, 6.5, 7.3])
+    sign = 1.0 if standardised else -1.0
+    return {"Accelerometer": _csv(b.acc_t_ns, sign * (b.acc - grav)),
+            "Gravity": _csv(b.acc_t_ns, sign * np.tile(grav, (len(b.acc), 1))),
+            "Gyroscope": _csv(b.gyr_t_ns, b.gyr), "Magnetometer": _csv(b.mag_t_ns, b.mag),
+            "Metadata": ("version,device name,recording epoch time,recording time,recording timezone,platform,"
+                         "appVersion,device id,sensors,sampleRateMs,standardisation,platform version\n"
+                         f"3,iPhone 15,1698000000000,2024-01-01_10-00-00,UTC,ios,1.40,abc,Accelerometer|Gravity,"
+                         f"10|10,{str(standardised).lower()},17.2\n")}
+
+
+@pytest.mark.parametrize("standardised", [False, True])
+@pytest.mark.parametrize("container", ["folder", "zip", "json"])
+def test_sensor_logger_ios_export_is_read_with_its_platform_convention(tmp_path: Path, standardised: bool,
+                                                                       container: str) -> None:
+    b = _phone_batch(seed=3)
+    files = _ios_export(b, standardised)
+    if container == "folder":
+        path = _write_folder(tmp_path, files)
+    elif container == "zip":
+        path = tmp_path / "ios.zip"
+        with zipfile.ZipFile(path, "w") as zf:
+            for k, v in files.items():
+                zf.writestr(f"rec/{k}.csv", v)
+    else:
+        recs: list[dict[str, str]] = [{"sensor": "Metadata", "platform": "ios",
+                                       "standardisation": str(standardised).lower()}]
+        for k, text in files.items():
+            if k == "Metadata":
+                continue
+            for line in text.splitlines()[1:]:
+                t, el, z, y, x = line.split(",")
+                recs.append({"sensor": k, "time": t, "seconds_elapsed": el, "z": z, "y": y, "x": x})
+        path = tmp_path / "ios.json"
+        path.write_text(json.dumps(recs))
+    rec = load_any(path)
+    assert np.allclose(rec.batch.acc, b.acc, atol=1e-9)  # specific force: +9.8 up at rest, as Android reads it
+    assert np.array_equal(rec.batch.gyr, b.gyr)
+    if standardised:
+        assert not any(k == "acc axes" for k in rec.meta.units_converted)
+    else:
+        assert "x -1" in rec.meta.units_converted["acc axes"]
+
+
+def test_sensor_logger_without_metadata_says_the_platform_is_unknown(tmp_path: Path) -> None:
+    b = _phone_batch(seed=4)
+    files = _export(b, "user+gravity")
+    del files["Metadata"]
+    rec = load_sensor_logger(_write_folder(tmp_path, files))
+    assert np.allclose(rec.batch.acc, b.acc, atol=1e-9)
+    assert any("platform unknown" in n and "Metadata.csv" in n for n in rec.meta.notes)
+
+
 @pytest.mark.parametrize("style", ["total", "user+gravity"])
 def test_sensor_logger_in_g_is_converted_and_reported(tmp_path: Path, style: str) -> None:
     b = _phone_batch(seed=1)

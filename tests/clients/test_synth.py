@@ -285,3 +285,17 @@ def test_energy_cli_offers_every_error_model():
         assert parser.parse_args(["energy", "simulate", "--imu-errors", name]).imu_errors == name
     with pytest.raises(SystemExit):
         parser.parse_args(["energy", "simulate", "--imu-errors", "perfect"])
+
+
+def test_a_sprint_drives_a_16_g_2000_deg_s_part_beyond_its_range_and_it_clips() -> None:
+    from clients.synth import LSM9DS1_CLIPPING, LSM9DS1_TYPICAL
+
+    rec = synthesize("sprint", errors=LSM9DS1_CLIPPING)
+    f, w = rec.truth.extra["specific_force_true"], rec.truth.extra["angular_rate_true"]
+    assert np.abs(f).max() > 16 * 9.80665 and np.abs(w).max() > np.radians(2000)  # the motion exceeds the range
+    assert np.abs(rec.batch.acc).max() == pytest.approx(16 * 9.80665)  # the part reports its range, no more
+    assert np.abs(rec.batch.gyr).max() == pytest.approx(np.radians(2000))
+    assert set(rec.truth.extra["behaviour"]) == {"stand", "run"}
+    free = synthesize("sprint", errors=LSM9DS1_TYPICAL)  # same draws without the range: identical below it
+    inside = (np.abs(free.batch.gyr) < np.radians(2000)).all(axis=1) & (np.abs(free.batch.acc) < 16 * 9.80665).all(axis=1)
+    np.testing.assert_array_equal(rec.batch.gyr[inside], free.batch.gyr[inside])

@@ -647,3 +647,30 @@ def test_device_id_beyond_int64_is_422_and_starts_nothing(client, make_user) -> 
     r = client.post("/v1/sessions", json={"device_kind": "foot", "device_id": BIG}, headers=auth(a))
     assert r.status_code == 422 and r.json()["field"] == "device_id", r.text
     assert client.get("/v1/sessions", headers=auth(a)).json() == []
+
+
+@pytest.mark.parametrize("rate_hz", [200.0, 800.0])
+def test_a_clipping_sprint_is_taken_batch_by_batch_and_a_steady_g_batch_refused(client, make_user, rate_hz) -> None:  # type: ignore[no-untyped-def]
+    """Sprint batches whose median |a| passes 5 g (16 g peaks, 2000 deg/s at the part's range) were refused as
+    'median |a| = 56 m/s^2 is implausible' and lost. They are physically possible: all are stored. A batch in g
+    whose foot stands still is still refused, naming the field, the samples and why, and nothing of it is stored."""
+    from clients.synth import LSM9DS1_CLIPPING, synthesize
+
+    rec = synthesize("sprint", rate_hz=rate_hz, errors=LSM9DS1_CLIPPING)
+    b = rec.batch
+    t0 = int(b.acc_t_ns[0])
+    seconds = [b.time_slice(t0 + k * 10**9, t0 + (k + 1) * 10**9) for k in (0, 1, 2, 16, 17, 18)]  # stand, then sprint
+    seconds = [SensorBatch(acc_t_ns=s.acc_t_ns + T0, acc=s.acc, gyr_t_ns=s.gyr_t_ns + T0, gyr=s.gyr) for s in seconds]
+    assert max(float(np.median(np.linalg.norm(s.acc, axis=1))) for s in seconds) > 50.0
+    _, a = make_user()
+    sid = _start(client, a)
+    for seq, s in enumerate(seconds):
+        r = _put(client, a, sid, seq, s)
+        assert r.status_code == 200, r.text
+    still_in_g = still_batch(T0 + 30 * 10**9, rate_hz=rate_hz)
+    still_in_g = SensorBatch(acc_t_ns=still_in_g.acc_t_ns, acc=still_in_g.acc / 9.81)
+    r = _put(client, a, sid, len(seconds), still_in_g)
+    assert r.status_code == 422 and r.json()["field"] == "acc", r.text
+    assert "samples 0-" in r.json()["detail"] and "looks like g" in r.json()["detail"]
+    assert client.get(f"/v1/sessions/{sid}", headers=auth(a)).json()["next_seq"] == len(seconds)
+    assert len(client.get(f"/v1/sessions/{sid}/batches", headers=auth(a)).json()) == len(seconds)
