@@ -14,7 +14,6 @@ from energy.config import EngineConfig
 from energy.codec import dumps, loads
 from energy.gait_dr import GaitPipeline
 from models.heading_deviation import wrap_angle
-from models.heading_deviation import wrap_angle
 from models.step_length import StepFeatures
 from models.steps import StepEvent
 from models.zupt_nav import Stance

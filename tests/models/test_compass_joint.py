@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
 from clients.synth import synthesize
 from energy.device import DeviceEmulator

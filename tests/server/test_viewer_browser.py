@@ -10,7 +10,6 @@ from __future__ import annotations
 import base64
 import os
 import struct
-import time
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
