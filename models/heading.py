@@ -43,6 +43,11 @@ def wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def _wrap_all(a: np.ndarray) -> np.ndarray:
+    """:func:`wrap` element-wise (the same arithmetic on an array)."""
+    return np.remainder(a + math.pi, 2.0 * math.pi) - math.pi
+
+
 @dataclass(frozen=True)
 class HeadingConfig:
     """Parameters of the heading estimator (units in the names; angles in radians).
@@ -202,6 +207,8 @@ class HeadingEstimator:
         self.x = np.zeros((2, self.N))  # per model: [theta, c0, d] [rad]
         self.p = np.zeros((2, self.N, self.N))  # per model: covariance [rad^2]
         self.mu = np.array([1.0, 0.0])  # model probabilities (straight, turn)
+        self._comb_key = b""  # the state _comb was computed for
+        self._comb: tuple[np.ndarray, np.ndarray] = (np.zeros(self.N), np.zeros((self.N, self.N)))
         self.started = False
         self.offset_known = False  # c0 has been initialised (prior or first compass reading)
         self.turn_prob = 0.0  # probability that the last stride turned (gyroscope off) [-]
@@ -234,21 +241,26 @@ class HeadingEstimator:
     def _moments(w: np.ndarray, x: np.ndarray, p: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean and covariance of the mixture of Gaussians ``(x[i], p[i])`` with weights ``w`` (angles: the
         differences to ``ref`` are wrapped)."""
-        d = np.vectorize(wrap)(x - ref[None, :])
+        d = _wrap_all(x - ref[None, :])
         m = w @ d
         cov = np.zeros_like(p[0])
         for i in range(len(w)):
             e = d[i] - m
             cov += w[i] * (p[i] + np.outer(e, e))
-        return np.vectorize(wrap)(ref + m), cov
+        return _wrap_all(ref + m), cov
 
     def combined(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean ``[theta, c0, d]`` [rad] and covariance [rad^2] of the estimate (the models' mixture)."""
         return self._combine()
 
     def _combine(self) -> tuple[np.ndarray, np.ndarray]:
-        """Moment-matched mean and covariance of the mixture of the models."""
-        return self._moments(self.mu, self.x, self.p, self.x[_STRAIGHT])
+        """Moment-matched mean and covariance of the mixture of the models (computed once per state: every
+        stride asks for it several times)."""
+        key = self.x.tobytes() + self.p.tobytes() + self.mu.tobytes()
+        if key != self._comb_key:
+            self._comb = self._moments(self.mu, self.x, self.p, self.x[_STRAIGHT])
+            self._comb_key = key
+        return self._comb
 
     def start(self, theta: float, theta_var: float = 0.0) -> None:
         """Define the session frame: heading ``theta`` [rad] with variance ``theta_var`` [rad^2]; the compass
@@ -356,7 +368,7 @@ class HeadingEstimator:
     def _kalman(self, j: int, h: np.ndarray, nu: float, s: float) -> None:
         """Kalman update of model ``j`` with observation row ``h``, innovation ``nu`` and its variance ``s``."""
         k = self.p[j] @ h / s
-        self.x[j] = np.vectorize(wrap)(self.x[j] + k * nu)
+        self.x[j] = _wrap_all(self.x[j] + k * nu)
         self.p[j] = self.p[j] - np.outer(k, h @ self.p[j])
 
     def _observe_clean(self, field_anomaly: float) -> None:
