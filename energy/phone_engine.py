@@ -56,7 +56,7 @@ from models.pdr_step_length import PdrStepLength, StepLengthConfig
 from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
 from models.step_detector import StepDetectorConfig
 
-__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_MODES", "PROFILE_KEY"]
+__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_HEADING", "PHONE_MODES", "PROFILE_KEY", "steady_step"]
 
 PHONE_MODES: tuple[str, ...] = ("auto", "always-on")
 PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (energy.profile.PROFILE_BEHAVIOURS)
@@ -69,6 +69,13 @@ _WAVED_RAD_S = 1.5
 _FIELD_STEPS = 50  # steps whose fields are the reference without an anchor (about 25 s of walking)
 
 
+def steady_step(period_s: float, rate_rad_s: float) -> bool:
+    """A step of a steady gait: a walking cadence (period 0.3-1 s), and a device that is not being waved about (a
+    calibration wave's "steps" turn the device with the compass, which then looks perfect)."""
+    return (math.isfinite(period_s) and 0.3 <= period_s <= 1.0
+            and not (math.isfinite(rate_rad_s) and rate_rad_s > _WAVED_RAD_S))
+
+
 def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | None) -> np.ndarray:
     """The World Magnetic Model's field at the anchor in the engine's magnetic-north NED frame [uT]
     (:func:`models.geo.magnetic_elements`: no east component)."""
@@ -79,21 +86,23 @@ def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | Non
     return np.asarray(el.field_magnetic_ned_ut, dtype=float)
 
 
-# The heading estimator's parameters for a hand-held phone, per step (models.heading.HeadingConfig). Statistics of
-# the IPIN 2023 T3 dev trials (16 walks, 8 routes; clients.evaluation.phone_heading, leave-one-route-out ranges in
-# its report): the MARG filter's walking-direction change per step between the first and last landmark, and the
-# compass's walking direction against the MARG filter's (whose gyroscope carries the heading over the step).
+# The heading estimator's parameters for a hand-held phone, per step (models.heading.HeadingConfig): statistics of
+# the sensors on the IPIN 2023 T3 dev trials (16 walks, 8 routes, steps between the first and last landmark; no
+# landmark position used), each within the range of its leave-one-route-out folds (in brackets), reproduced by
+# `python -m clients.evaluation.phone_heading` (its docstring gives the definitions).
 PHONE_HEADING = HeadingConfig(
-    straight_sigma_rad=math.radians(3.3),  # robust SD of steps turning < 10 deg: 3.35 deg (folds 3.16-3.68)
-    turn_sigma_rad=math.radians(50.0),  # RMS of steps turning more: 49 deg (folds 45-52)
-    p_turn_start=0.07,  # straight step followed by a turning one: 0.066 (folds 0.058-0.072)
-    p_turn_stay=0.2,  # turning step followed by another: 0.20 (folds 0.19-0.21): hand-held turns take 1-2 steps
+    straight_sigma_rad=math.radians(3.4),  # MARG direction change of steps turning < 10 deg: robust SD 3.41 [3.27, 3.74]
+    turn_sigma_rad=math.radians(52.0),  # RMS of the steps turning more: 52.6 deg [51.1, 54.6]
+    p_turn_start=0.06,  # a straight step followed by a turning one: 0.063 [0.055, 0.068]
+    p_turn_stay=0.52,  # a turning step followed by another: 0.52 [0.51, 0.53] (a turn takes two steps)
     gyro_sigma_rad=math.radians(0.5),  # vertical gyroscope drift unseen by the filter: 0.25-0.42 deg/s x 0.55 s/step (docs/phone.md)
     gyro_scale=0.01,  # a MEMS gyroscope's scale-factor error (the foot's)
-    deflection_walk_rad=math.radians(4.0),  # the compass error as an AR(1) process: 11 deg SD, 0.9 correlation per step
-    deflection_floor_rad=math.radians(28.0),  # ... a random walk of 4 deg/step held by "no deflection" at 28 deg
+    # compass minus MARG direction as an AR(1) process (11.2 deg SD, correlation 0.91 per step) is a random walk of
+    # 3.9 deg [3.6, 4.2] per step held by the pseudo-observation "no deflection" at 28.7 deg [26.1, 33.1]
+    deflection_walk_rad=math.radians(3.9),
+    deflection_floor_rad=math.radians(28.0),
     offset_prior_rad=0.0,  # the compass reads in the heading's own frame (magnetic north): no frame offset
-    compass_floor_rad=math.radians(2.0),  # the white part: compass minus MARG changes by 3.3 deg (robust) step to step
+    compass_floor_rad=math.radians(2.0),  # the white part, at most lag-1 change / sqrt(2): 2.18 deg [2.07, 2.35]
     consistency_window=24,  # steps (12 strides, the foot's 12)
     consistency_max_var=math.radians(5.0) ** 2,  # a heading the gyroscope carries: the estimator's 3-5 deg
     outlier_sigmas=3.0,
@@ -125,9 +134,10 @@ class PhoneEngineConfig:
         the compass's noise before it may go off at all); the MARG filter's heading changes count as the
         gyroscope's after this many steps with it.
     marg_settled_std_rad : float
-        ... and while the MARG filter's heading standard deviation is below this (walking always-on its 95th
-        percentile is 14 deg on the IPIN trials; converging after the gyroscope was off it starts at 30-75 deg,
-        and its changes are then its compass corrections, not the walker's turns).
+        ... and while the MARG filter's heading standard deviation is below this: above its settled range (walking
+        with the gyroscope, its 95th percentile is 14.7 deg on the IPIN trials, 14.4-15.1 leaving out each route);
+        converging after the gyroscope was off it starts at 30-75 deg, and its changes are then its compass
+        corrections, not the walker's turns.
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -433,11 +443,7 @@ class PhoneEngine:
         f_hz = 1.0 / period if math.isfinite(period) and period > 0 else math.nan
         direction, compass = self._direction(r)
         gyro = bool(r[_F["gyro_frac"]] >= 0.9)
-        # a steady gait: a walking cadence, and a device that is not being waved about (a calibration wave's
-        # "steps" turn the device with the compass, which then looks perfect)
-        rate = float(r[_F["rate_rad_s"]])
-        steady = math.isfinite(period) and 0.3 <= period <= 1.0 and not (math.isfinite(rate) and rate > _WAVED_RAD_S)
-        self._cadence = self._cadence + 1 if steady else 0
+        self._cadence = self._cadence + 1 if steady_step(period, float(r[_F["rate_rad_s"]])) else 0
         walking = self._cadence >= 2
         stood = t_s - self._last_step_s >= self.config.stand_after_s
         self._track(r, direction, compass, gyro, walking, stood, t_ns, events)
