@@ -20,7 +20,7 @@ __all__ = ["Calibrated", "router"]
 
 router = APIRouter(prefix="/profiles", tags=["profiles"])
 
-Calibrated = Literal["walk", "run"]
+Calibrated = Literal["walk", "run", "pdr"]
 """The behaviours that have a calibration (``energy.profile.PROFILE_BEHAVIOURS``; a test keeps them in step), an enum in the published
 schema (it was a free string there although only these are taken)."""
 BehaviourPath = Annotated[Calibrated, Path(description="a behaviour with a calibration")]
