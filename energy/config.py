@@ -10,6 +10,7 @@ with :meth:`EngineConfig.override`, by dotted path: ``cfg.override({"scheduler.l
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import math
 import re
@@ -269,6 +270,8 @@ class EngineConfig:
 
     def override(self, values: dict[str, Any]) -> EngineConfig:
         """A copy with ``{"section.field": value}`` changed (validated; an unknown path is refused by name)."""
+        if not values:
+            return self
         out: EngineConfig = self
         for path, value in values.items():
             parts = path.split(".")
@@ -281,17 +284,36 @@ class EngineConfig:
     def changes(self) -> dict[str, Any]:
         """``{"section.field": value}`` of the settings that differ from the defaults (what an engine state
         stores: the whole tree is 3 kB, the usual difference none); ``EngineConfig().override`` restores it."""
+        return dict(_changes(self))
+
+    def _changes(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         _flatten(self.to_dict(), "", out)
         ref: dict[str, Any] = {}
-        _flatten(EngineConfig().to_dict(), "", ref)
+        _flatten(_default().to_dict(), "", ref)
         return {k: v for k, v in out.items() if ref.get(k) != v}
+
+    @classmethod
+    def default(cls) -> EngineConfig:
+        """The default configuration, built and validated once (frozen: safe to share)."""
+        return _default()
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> EngineConfig:
         flat: dict[str, Any] = {}
         _flatten(d, "", flat)
         return cls().override(flat)
+
+
+@functools.lru_cache(maxsize=1)
+def _default() -> EngineConfig:
+    return EngineConfig()
+
+
+@functools.lru_cache(maxsize=16)
+def _changes(config: EngineConfig) -> dict[str, Any]:
+    """:meth:`EngineConfig.changes`, once per configuration (every stored engine state asks for it)."""
+    return {} if config is _default() else config._changes()
 
 
 def _replace_path(obj: Any, parts: list[str], value: Any, path: str) -> Any:

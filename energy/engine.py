@@ -280,7 +280,7 @@ class Engine:
         if mode not in _MODES:
             raise ValueError(f"mode: expected one of {_MODES}, got {mode!r}")
         self.mode: EngineMode = mode
-        self.config = config or EngineConfig()
+        self.config = config or EngineConfig.default()
         self.trace = Trace() if trace else None
         self._t0_ns: int | None = None
         self._last_acc_t: int | None = None
@@ -369,8 +369,8 @@ class Engine:
         Raises
         ------
         models.batch.BatchError
-            Malformed batch (non-finite values, timestamps not increasing, implausible units, or
-            accelerometer samples older than ones already processed).
+            Malformed batch (non-finite values, timestamps not increasing, implausible units, or samples of a
+            stream not after the last one of it already received).
         """
         batch.validate()
         t_acc, acc = batch.acc_t_ns, batch.acc
@@ -382,6 +382,12 @@ class Engine:
             and int(g_t[-1]) >= int(t_acc[-1]) - int(self.config.segments.gyro_off_s * 1e9))
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")
+        for name, pairing in (("gyr", self._gyr), ("mag", self._mag)):
+            t_s = batch.stream(name)[0]
+            if len(t_s) and pairing.newest is not None and int(t_s[0]) <= pairing.newest:
+                # a late sample cannot be paired any more: refused rather than dropped without a word
+                raise BatchError(f"{name}_t_ns", f"sample at {int(t_s[0])} ns is not after the last one received "
+                                                 f"({pairing.newest} ns)")
         self._gyr.push(*batch.stream("gyr"))
         self._mag.push(*batch.stream("mag"))
         if len(t_acc) == 0:
@@ -950,9 +956,17 @@ class Engine:
         return cal
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
+        """The answer to a batch; its ``mode`` is what the device is told to run next (``zupt`` with the
+        gyroscope on, ``pdr`` with it off while moving, ``idle`` standing with it off, the device perhaps left to
+        wake it), so it never contradicts
+        the sensor configuration beside it."""
         sched = self._sched
         config, idle = sched.config_and_idle()
-        return Update(positions, events, config, sched.behaviour, "idle" if idle else sched.working)
+        if config.gyro_on or self.mode == "zupt":
+            mode = "zupt"
+        else:
+            mode = "idle" if idle or sched.behaviour == "stand" else "pdr"
+        return Update(positions, events, config, sched.behaviour, mode)
 
     def _log_stride(self, step: Any, e: Any, prev: np.ndarray | None) -> None:
         """Keep a placed Gait-DR stride (its event, length and direction) for :meth:`_correct_pattern`."""
@@ -1088,7 +1102,7 @@ class Engine:
     def from_state(cls, d: dict[str, Any], trace: bool = False) -> Engine:
         if d.get("version") != _STATE_VERSION:
             raise ValueError(f"engine state version {d.get('version')!r} is not {_STATE_VERSION}")
-        config = EngineConfig().override(d["config"])
+        config = EngineConfig.default().override(d["config"])
         obj = cls(mode=d["mode"], config=config, trace=trace)
         for k in cls._SCALARS:
             setattr(obj, "_" + k, d[k])

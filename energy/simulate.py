@@ -437,6 +437,7 @@ def run_engine(
     encode: Encoder | None = None,
     components: bool = False,
     user_profile: dict[str, Any] | None = None,
+    config: Any = None,
 ) -> RunResult:
     """Replay ``batch`` through a fresh ``Engine(mode=mode)`` and account its energy on ``profile``.
 
@@ -467,7 +468,7 @@ def run_engine(
 
     ctx = component_meter() if components else contextlib.nullcontext()
     with ctx as meter:
-        eng = MeteredEngine(Engine(mode=mode, profile=user_profile), encode, meter)
+        eng = MeteredEngine(Engine(mode=mode, config=config, profile=user_profile), encode, meter)
         res = replay(eng, batch, batch_seconds=batch_seconds)  # type: ignore[arg-type]
     t_end = int(batch.t_end_ns or 0)
     intervals, classes = [], []
@@ -514,7 +515,7 @@ def run_engine(
     return RunResult(mode, res, tl, rep, errs, cpu, samples, comp, eng.records, classes, steps_err)
 
 
-def learn_profile(batch: SensorBatch, batch_seconds: float | None = 1.0) -> dict[str, Any]:
+def learn_profile(batch: SensorBatch, batch_seconds: float | None = 1.0, config: Any = None) -> dict[str, Any]:
     """The per-user calibration profile the scheduler hands out after one session on ``batch``.
 
     A returning user (the product's normal case) starts the next session with it: calibrated behaviours
@@ -523,7 +524,7 @@ def learn_profile(batch: SensorBatch, batch_seconds: float | None = 1.0) -> dict
     from energy.device import replay
     from energy.engine import Engine
 
-    eng = Engine(mode="auto")
+    eng = Engine(mode="auto", config=config)
     replay(eng, batch, batch_seconds=batch_seconds)
     return eng.profile_dict()
 
@@ -586,8 +587,10 @@ def simulate(
     components: bool = True,
     repeats: int = 1,
     user_profile: dict[str, Any] | None = None,
+    config: Any = None,
 ) -> dict[str, Any]:
-    """Scheduler (``auto``) vs always-on baseline (``zupt``) on one recording with truth.
+    """Scheduler (``auto``) vs always-on baseline (``zupt``) on one recording with truth; ``config`` the
+    scheduler's :class:`energy.config.EngineConfig` (default: the defaults).
 
     Parameters
     ----------
@@ -638,13 +641,14 @@ def simulate(
         for m in ("auto", "zupt"):
             # measured: the charged replays run without the component meter (its overhead is not the engine's)
             r = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode,
-                           components and not measure, user_profile if m == "auto" else None)
+                           components and not measure, user_profile if m == "auto" else None,
+                           config if m == "auto" else None)
             if m not in runs or sum(r.cpu_us_by_class.values()) < sum(runs[m].cpu_us_by_class.values()):
                 runs[m] = r
     if measure and components:
         for m in ("auto", "zupt"):
             metered[m] = run_engine(m, batch, profile, truth_t_ns, truth_pos, batch_seconds, measure, encode, True,
-                                    user_profile if m == "auto" else None)
+                                    user_profile if m == "auto" else None, config if m == "auto" else None)
             runs[m].component_us = metered[m].component_us
     sched, base = runs["auto"], runs["zupt"]
     steps = max(int(truth_steps), 1)

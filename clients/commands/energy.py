@@ -24,19 +24,29 @@ def _simulate(args: argparse.Namespace) -> int:
         out = Path(__file__).resolve().parent.parent.parent / "energy" / "profiles" / "compute_costs.json"
         out.write_text(json.dumps(costs, indent=2) + "\n")
         print(f"wrote {out}", file=sys.stderr)
+    from clients.commands.eval import _settings
+    from energy.config import EngineConfig
+
+    try:
+        config = EngineConfig.default().override(_settings(args.set))
+    except (ValueError, TypeError) as exc:
+        print(f"pednav energy simulate: --set: {exc}", file=sys.stderr)
+        return 2
     profile = load_profile(args.profile)
     errors = IMU_ERRORS[args.imu_errors]
     check_scenario(args.scenario)
     rec = synthesize(args.scenario, seed=args.seed, errors=errors)
     truth = rec.truth
     assert truth is not None and truth.t_ns is not None and truth.positions is not None
-    doc: dict = {"scenario": args.scenario, "seed": args.seed, "user": args.user, "imu_errors": args.imu_errors}
+    doc: dict = {"scenario": args.scenario, "seed": args.seed, "user": args.user, "imu_errors": args.imu_errors,
+                 "settings": config.changes()}
     user_profile = None
     if args.user == "returning":
         # An earlier day of the same synthetic person (another seed: other strides, noise and field), not this
         # day's data: the profile the scheduler handed out at the end of that session.
         prev_seed = args.seed + PREVIOUS_DAY_SEED_OFFSET
-        user_profile = learn_profile(synthesize(args.scenario, seed=prev_seed, errors=errors).batch, args.batch_seconds)
+        user_profile = learn_profile(synthesize(args.scenario, seed=prev_seed, errors=errors).batch, args.batch_seconds,
+                                     config)
         doc["user_profile_from"] = {"scenario": args.scenario, "seed": prev_seed, "calibrated": sorted(
             b for b, c in user_profile.get("behaviours", {}).items() if c.get("calibrated"))}
     doc["batching"] = (f"fixed {args.batch_seconds} s" if args.batch_seconds else
@@ -46,6 +56,7 @@ def _simulate(args: argparse.Namespace) -> int:
         simulate(
             profile, rec.batch, truth.t_ns, truth.positions, len(truth.extra["step_t_s"]), args.batch_seconds,
             measure=not args.stored_costs, encode=_upload_bytes, repeats=args.repeats, user_profile=user_profile,
+            config=config,
         )
     )
     if args.plot:
@@ -151,6 +162,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     esub = p.add_subparsers(dest="energy_command", metavar="ACTION", required=True)
     s = esub.add_parser("simulate", help="scheduler vs always-on ZUPT-KF baseline on a synthetic scenario")
     s.add_argument("--json", action="store_true", help="print one JSON document")
+    s.add_argument("--set", action="append", default=None, metavar="SECTION.FIELD=VALUE",
+                   help="change one setting of the scheduler's engine (repeatable; `pednav config` lists them)")
     s.add_argument("--scenario", default="mixed-day", help="synthetic scenario (clients.synth.scenario_names())")
     s.add_argument("--seed", type=int, default=0, help="synthesiser seed")
     s.add_argument(

@@ -21,8 +21,9 @@ __all__ = ["Calibrated", "router"]
 router = APIRouter(prefix="/profiles", tags=["profiles"])
 
 Calibrated = Literal["walk", "run", "pdr"]
-"""The behaviours that have a calibration (``energy.profile.PROFILE_BEHAVIOURS``; a test keeps them in step), an enum in the published
-schema (it was a free string there although only these are taken)."""
+"""The profile entries that hold a calibration (``energy.profile.PROFILE_BEHAVIOURS``; a test keeps them in step):
+the foot engine's behaviours and ``pdr``, the step-and-heading engines' (per placement); an enum in the published
+schema."""
 BehaviourPath = Annotated[Calibrated, Path(description="a behaviour with a calibration")]
 
 

@@ -75,6 +75,26 @@ def test_refuses_samples_older_than_processed(walk: SensorBatch) -> None:
         eng.feed(walk.time_slice(walk.t_start_ns + int(1e9), walk.t_start_ns + int(3e9)))
 
 
+@pytest.mark.parametrize("stream", ["gyr", "mag"])
+def test_a_late_gyroscope_or_magnetometer_sample_is_refused_not_dropped(walk: SensorBatch, stream: str) -> None:
+    """A batch that carries the previous batch's gyroscope samples again (they moved the end point 0.29 m when
+    they were dropped without a word): refused, naming the stream; nothing of the batch is taken."""
+    eng = Engine(mode="auto")
+    t0 = walk.t_start_ns
+    eng.feed(walk.time_slice(None, t0 + int(2e9)))
+    nxt = walk.time_slice(t0 + int(2e9), t0 + int(3e9))
+    t_late, v_late = walk.stream(stream)
+    keep = (t_late >= t0 + int(1.5e9)) & (t_late < t0 + int(3e9))
+    late = SensorBatch(**{**{f"{n}_t_ns": nxt.stream(n)[0] for n in ("acc", "gyr", "mag")},
+                          **{n: nxt.stream(n)[1] for n in ("acc", "gyr", "mag")},
+                          f"{stream}_t_ns": t_late[keep], stream: v_late[keep]})
+    before = eng.to_bytes()
+    with pytest.raises(BatchError, match=f"{stream}_t_ns: .*not after the last one received"):
+        eng.feed(late)
+    assert eng.to_bytes() == before
+    eng.feed(nxt)  # the same batch without the stale samples is taken
+
+
 @pytest.mark.parametrize(
     "mutate, field",
     [
