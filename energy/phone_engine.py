@@ -11,18 +11,25 @@ out. What it does per step (003 Figure 5, eq. 24):
 2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
    walking direction: the device's forward axis held in front, the horizontal acceleration's principal
    direction otherwise;
-3. the walking heading (:mod:`models.walk_heading`) is the MARG filter's (whose compass updates it carries)
-   once the gyroscope has carried it for ``gyro_min_steps`` steps; in the first steps after the gyroscope was off
-   it moves by the gyroscope's increment and takes the filter's heading with that filter's variance; with the
-   gyroscope off it holds and follows the compass, taking a compass change beyond its gate as a turn;
+3. the walking heading is the project's one heading estimator (:class:`models.heading.HeadingEstimator`, the
+   foot engine's; its parameters for a hand-held phone per step in :data:`PHONE_HEADING`): with the gyroscope
+   it turns by the MARG filter's change of the walking direction over the step once that filter has settled
+   (``gyro_min_steps`` steps with the gyroscope and its heading standard deviation below
+   ``marg_settled_std_rad``), and takes the MARG filter's heading as an observation while it is still
+   converging; without the gyroscope its straight and turn models and the compass carry it (a compass change
+   only a turn explains is taken as the turn; after a stand at one place the compass's change is the turn made
+   standing). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
+   carries the heading and held, as the compass's spatially correlated error, when it is off;
 4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
-   take out the heading's drift on straight stretches along them (003 Section 6.1);
+   pull straight steps along them onto them (:meth:`models.heading.HeadingEstimator.update_dominant`, 003
+   Section 6.1);
 5. the step length (:mod:`models.pdr_step_length`, Weinberg 000 eq. 35 or 003 eq. 28), calibrated per user and
    placement from known distances (:meth:`PhoneEngine.calibrate_distance`), places the step.
 
 Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (first steps, until the compass's
-noise is known; after a turn; whenever the heading's standard deviation one step ahead without it would exceed
-``max_heading_std_rad``); standing, the accelerometer and magnetometer run at their low rates and the gyroscope
+noise is known; after a turn; whenever the estimator's forecast standard deviation one gyroscope-off step ahead
+(:meth:`models.heading.HeadingEstimator.forecast`) would exceed ``max_heading_std_rad``, except straight along the
+building's dominant directions); standing, the accelerometer and magnetometer run at their low rates and the gyroscope
 is off. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
 North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
 geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
@@ -42,23 +49,31 @@ from energy import codec
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import STREAMS, BatchError, SensorBatch
 from models.dominant_directions import DominantDirections, DominantDirectionsConfig
+from models.heading import CompassNoise, HeadingConfig, HeadingEstimator, wrap
 from models.marg import MargConfig, MargState, merge_streams
 from models.pdr import STEP_RECORD, PdrState, run_pdr
 from models.pdr_step_length import PdrStepLength, StepLengthConfig
 from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
 from models.step_detector import StepDetectorConfig
-from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
 
-__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_MODES", "PROFILE_KEY"]
+__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_HEADING", "PHONE_MODES", "PROFILE_KEY", "steady_step"]
 
 PHONE_MODES: tuple[str, ...] = ("auto", "always-on")
 PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (energy.profile.PROFILE_BEHAVIOURS)
-_STATE_VERSION = 1
+_STATE_VERSION = 2
 _F = {k: i for i, k in enumerate(STEP_RECORD)}
 _LOG_STEPS = 4000  # steps kept for a known-distance calibration (about 40 min of walking)
 # a mean angular rate over a step above this [rad/s] is a device waved about, not carried along (hand-held walking:
 # 0.3 rad/s on the IPIN trials; their calibration manoeuvre: 3-7 rad/s)
 _WAVED_RAD_S = 1.5
+_FIELD_STEPS = 50  # steps whose fields are the reference without an anchor (about 25 s of walking)
+
+
+def steady_step(period_s: float, rate_rad_s: float) -> bool:
+    """A step of a steady gait: a walking cadence (period 0.3-1 s), and a device that is not being waved about (a
+    calibration wave's "steps" turn the device with the compass, which then looks perfect)."""
+    return (math.isfinite(period_s) and 0.3 <= period_s <= 1.0
+            and not (math.isfinite(rate_rad_s) and rate_rad_s > _WAVED_RAD_S))
 
 
 def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | None) -> np.ndarray:
@@ -69,6 +84,30 @@ def _magnetic_reference(anchor: tuple[float, float, float], date: _dt.date | Non
     kw = {"date": date} if date is not None else {}
     el = magnetic_elements(Anchor(anchor[0], anchor[1], anchor[2], **kw))
     return np.asarray(el.field_magnetic_ned_ut, dtype=float)
+
+
+# The heading estimator's parameters for a hand-held phone, per step (models.heading.HeadingConfig): statistics of
+# the sensors on the IPIN 2023 T3 dev trials (16 walks, 8 routes, steps between the first and last landmark; no
+# landmark position used), each within the range of its leave-one-route-out folds (in brackets), reproduced by
+# `python -m clients.evaluation.phone_heading` (its docstring gives the definitions).
+PHONE_HEADING = HeadingConfig(
+    straight_sigma_rad=math.radians(3.4),  # MARG direction change of steps turning < 10 deg: robust SD 3.41 [3.27, 3.74]
+    turn_sigma_rad=math.radians(52.0),  # RMS of the steps turning more: 52.6 deg [51.1, 54.6]
+    p_turn_start=0.06,  # a straight step followed by a turning one: 0.063 [0.055, 0.068]
+    p_turn_stay=0.52,  # a turning step followed by another: 0.52 [0.51, 0.53] (a turn takes two steps)
+    gyro_sigma_rad=math.radians(0.5),  # vertical gyroscope drift unseen by the filter: 0.25-0.42 deg/s x 0.55 s/step (docs/phone.md)
+    gyro_scale=0.01,  # a MEMS gyroscope's scale-factor error (the foot's)
+    # compass minus MARG direction as an AR(1) process (11.2 deg SD, correlation 0.91 per step) is a random walk of
+    # 3.9 deg [3.6, 4.2] per step held by the pseudo-observation "no deflection" at 28.7 deg [26.1, 33.1]
+    deflection_walk_rad=math.radians(3.9),
+    deflection_floor_rad=math.radians(28.0),
+    offset_prior_rad=0.0,  # the compass reads in the heading's own frame (magnetic north): no frame offset
+    compass_floor_rad=math.radians(2.0),  # the white part, at most lag-1 change / sqrt(2): 2.18 deg [2.07, 2.35]
+    consistency_window=24,  # steps (12 strides, the foot's 12)
+    consistency_max_var=math.radians(5.0) ** 2,  # a heading the gyroscope carries: the estimator's 3-5 deg
+    outlier_sigmas=3.0,
+    dominant_on=True,  # (the phone's own ``PhoneEngineConfig.directions`` decides)
+)
 
 
 @dataclass(frozen=True)
@@ -92,7 +131,13 @@ class PhoneEngineConfig:
         exceed this.
     gyro_min_steps : int
         Once on, the gyroscope stays on for at least this many steps (and this many compass innovations measure
-        the compass's noise before it may go off at all).
+        the compass's noise before it may go off at all); the MARG filter's heading changes count as the
+        gyroscope's after this many steps with it.
+    marg_settled_std_rad : float
+        ... and while the MARG filter's heading standard deviation is below this: above its settled range (walking
+        with the gyroscope, its 95th percentile is 14.7 deg on the IPIN trials, 14.4-15.1 leaving out each route);
+        converging after the gyroscope was off it starts at 30-75 deg, and its changes are then its compass
+        corrections, not the walker's turns.
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -104,7 +149,7 @@ class PhoneEngineConfig:
     marg: MargConfig = field(default_factory=MargConfig)
     steps: StepDetectorConfig = field(default_factory=StepDetectorConfig)
     step_length: StepLengthConfig = field(default_factory=StepLengthConfig)
-    heading: WalkHeadingConfig = field(default_factory=WalkHeadingConfig)
+    heading: HeadingConfig = field(default_factory=lambda: PHONE_HEADING)
     placement: PlacementConfig = field(default_factory=PlacementConfig)
     directions: DominantDirectionsConfig | None = field(default_factory=DominantDirectionsConfig)
     acc_rate_hz: float = 50.0
@@ -116,13 +161,14 @@ class PhoneEngineConfig:
     stand_after_s: float = 2.0
     max_heading_std_rad: float = math.radians(6.0)
     gyro_min_steps: int = 6
+    marg_settled_std_rad: float = math.radians(20.0)
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
         for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "stand_acc_rate_hz",
-                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
+                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
@@ -136,7 +182,7 @@ class PhoneEngineConfig:
     def from_dict(cls, d: dict[str, Any]) -> PhoneEngineConfig:
         d = dict(d)
         parts = {"marg": MargConfig.from_dict, "steps": StepDetectorConfig.from_dict,
-                 "step_length": StepLengthConfig.from_dict, "heading": WalkHeadingConfig.from_dict,
+                 "step_length": StepLengthConfig.from_dict, "heading": lambda x: HeadingConfig(**x),
                  "placement": lambda x: PlacementConfig(**x), "directions": DominantDirectionsConfig.from_dict}
         for k, f in parts.items():
             if d.get(k) is not None:
@@ -258,7 +304,7 @@ class PhoneEngine:
         self._placement = PlacementRecognizer(device_kind, placement, self.config.placement)
         self._profile_in = profile
         self._lengths = {p: self._new_length(p, profile) for p in STEP_AND_HEADING}
-        self._heading = WalkHeading(self.config.heading)
+        self._heading = HeadingEstimator(self.config.heading)
         self._directions = None if self.config.directions is None else DominantDirections(self.config.directions)
         self._streams = _Streams()
         self._t0_ns: int | None = None
@@ -267,7 +313,10 @@ class PhoneEngine:
         self._prev_gyro = False
         self._gyro_run = 0  # consecutive gyroscope-carried steps
         self._cadence = 0  # consecutive steps of a steady gait
-        self._last_compass = math.nan  # compass walking direction of the latest step [rad]
+        self._fields: list[list[float]] = []  # [vertical, horizontal] field of the latest steps [uT]
+        self._reading: tuple[float, float, float] | None = None  # the latest compass reading's noise terms
+        self._turned = False  # the latest step took a turn the gyroscope did not see
+        self._locked = False  # the latest step was straight along the building's dominant directions
         self._last_step_s = -math.inf
         self._gyro_want = True
         self._gyro_steps = 0  # steps since the gyroscope was last asked for
@@ -394,51 +443,16 @@ class PhoneEngine:
         f_hz = 1.0 / period if math.isfinite(period) and period > 0 else math.nan
         direction, compass = self._direction(r)
         gyro = bool(r[_F["gyro_frac"]] >= 0.9)
-        # a steady gait: a walking cadence, and a device that is not being waved about (a calibration wave's
-        # "steps" turn the device with the compass, which then looks perfect)
-        rate = float(r[_F["rate_rad_s"]])
-        steady = math.isfinite(period) and 0.3 <= period <= 1.0 and not (math.isfinite(rate) and rate > _WAVED_RAD_S)
-        self._cadence = self._cadence + 1 if steady else 0
+        self._cadence = self._cadence + 1 if steady_step(period, float(r[_F["rate_rad_s"]])) else 0
         walking = self._cadence >= 2
         stood = t_s - self._last_step_s >= self.config.stand_after_s
-        hd = self._heading
-        if not hd.initialised:
-            if gyro and float(r[_F["yaw_std"]]) < 1.0:
-                hd.set(direction, float(r[_F["yaw_std"]]) ** 2)
-            else:
-                hd.update(compass)
-        elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
-            hd.predict(wrap(direction - self._prev_dir))
-            if walking:
-                hd.update(compass, apply=False)  # the compass's noise, measured on a walk
-            var = float(r[_F["yaw_std"]]) ** 2
-            if self._gyro_run >= self.config.gyro_min_steps:
-                hd.set(direction, var)  # the MARG filter has carried it for a while: its heading is the heading
-            else:
-                hd.observe(direction, var)  # the gyroscope was off: the filter's heading is catching up
-        elif stood and math.isfinite(compass) and math.isfinite(self._last_compass):
-            # the first step after a stand without the gyroscope: whatever the walker turned standing is the
-            # compass's change at one place, where the building's error is the same before and after
-            hd.predict(None)
-            hd.set(hd.heading + wrap(compass - self._last_compass), hd.var)
-        elif self._directions is not None and self._directions.locked:
-            # straight along the building's dominant direction: the heading holds unless the compass turns
-            hd.predict(None)
-            hd.hold(compass)
-            if hd.turned:
-                events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass change"}))
-        else:
-            hd.predict(None)
-            hd.update(compass)
-            if hd.turned:
-                events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass"}))
-        if math.isfinite(compass):
-            self._last_compass = compass
+        self._track(r, direction, compass, gyro, walking, stood, t_ns, events)
         self._prev_dir = direction if gyro else math.nan
         self._prev_gyro = gyro
         self._gyro_run = self._gyro_run + 1 if gyro else 0
         self._gyro_steps += 1
-        if not hd.initialised:
+        hd = self._heading
+        if not hd.started:
             return  # no heading yet: neither gyroscope nor compass has said anything
         L = self._lengths[self.placement]
         length = L.length(float(r[_F["a_max"]]), float(r[_F["a_min"]]), f_hz)
@@ -446,7 +460,7 @@ class PhoneEngine:
                           float(STEP_AND_HEADING.index(self.placement))])
         if len(self._log) > _LOG_STEPS:
             del self._log[: len(self._log) - _LOG_STEPS]
-        heading = hd.heading if self._directions is None else self._directions.step(hd.heading, compass, walking)
+        heading = hd.heading
         self._pos += length * np.array([math.cos(heading), math.sin(heading)])
         self._behaviour = "run" if math.isfinite(f_hz) and f_hz >= self.config.run_step_hz else "walk"
         self._last_step_s = t_s
@@ -458,22 +472,99 @@ class PhoneEngine:
                               np.array([p.behaviour]), np.array(["pdr"]), np.array([gyro]))
         self._schedule(t_ns, events)
 
+    def _field_noise(self, r: np.ndarray) -> tuple[float, float]:
+        """The heading [rad] the step's field could be turned by (:meth:`models.heading.CompassNoise.field_sigma`):
+        its anomaly against the Earth's field (the WMM's at the anchor; without one, the median of the recent
+        steps' fields) and its change since the previous step's field."""
+        f_ut, dip = float(r[_F["field_ut"]]), float(r[_F["dip_rad"]])
+        if not (r[_F["n_mag"]] > 0 and math.isfinite(f_ut) and math.isfinite(dip)):
+            return math.inf, math.inf
+        b_v, b_h = f_ut * math.sin(dip), f_ut * math.cos(dip)
+        ref_h, ref_v = float(self._pdr.marg.ref[0]), float(self._pdr.marg.ref[1])
+        recent = self._fields
+        if not ref_h > 0.0:
+            ref_v, ref_h = (float(np.median([x[0] for x in recent])), float(np.median([x[1] for x in recent]))) \
+                if recent else (b_v, b_h)
+        anomaly = CompassNoise.field_sigma(b_v, b_h, ref_v, ref_h)
+        change = anomaly if not recent else CompassNoise.field_sigma(b_v, b_h, *recent[-1])
+        recent.append([b_v, b_h])
+        del recent[:-_FIELD_STEPS]
+        return anomaly, change
+
+    def _track(self, r: np.ndarray, direction: float, compass: float, gyro: bool, walking: bool, stood: bool,
+               t_ns: int, events: list[Event]) -> None:
+        """One step through the heading estimator (:class:`models.heading.HeadingEstimator`), then the building's
+        dominant directions."""
+        hd = self._heading
+        c = self.config
+        anomaly, change = self._field_noise(r)
+        r_c = hd.noise.reading_variance(0.0)  # the compass's own noise; the estimator adds the place's
+        has_c = math.isfinite(compass) and math.isfinite(anomaly)
+        self._reading = (r_c, anomaly, change if math.isfinite(change) else 0.0) if has_c else None
+        yaw_std = float(r[_F["yaw_std"]])
+        self._turned = False
+        if not hd.started:
+            if gyro and yaw_std < 1.0:
+                hd.start(direction, yaw_std ** 2)  # the MARG filter's heading (its compass updates included)
+            elif has_c:
+                hd.start(compass, r_c + hd.noise.place_var)
+            else:
+                return
+            hd.set_offset_prior(0.0, c.heading.offset_prior_rad)  # the compass reads in theta's frame (magnetic north)
+            return
+        dc = 0.0 if not math.isfinite(change) else change
+        if gyro and self._prev_gyro and math.isfinite(self._prev_dir):
+            if self._gyro_run >= c.gyro_min_steps and yaw_std < c.marg_settled_std_rad:
+                hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
+            else:
+                # the MARG filter is still converging (the gyroscope has just come back, or the session just began):
+                # its heading moves with its compass corrections, so its changes are not the walker's; its heading
+                # is an observation with the variance it states
+                hd.predict_free(field_change=dc)
+                hd.update_heading(direction, yaw_std ** 2)
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly, learn=walking)
+        else:
+            # without the gyroscope; after a stand at one place the field's change is nil, so the compass's
+            # change is the turn made standing
+            hd.predict_free(field_change=0.0 if stood else dc)
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly)
+                self._turned = hd.turn_prob > 0.5
+                if self._turned:
+                    events.append(Event(t_ns, "turn", {"heading_rad": hd.heading, "source": "compass"}))
+        self._locked = False
+        if self._directions is not None:
+            ref = self._directions.step(hd.heading, compass, walking)
+            if ref is not None:
+                dd = c.directions
+                assert dd is not None
+                off_grid = (wrap(hd.heading - ref) + math.pi / 4) % (math.pi / 2) - math.pi / 4
+                self._locked = abs(off_grid) < dd.gate_rad
+                hd.update_dominant(ref, dd.sigma_rad, dd.gate_rad)
+
     def _schedule(self, t_ns: int, events: list[Event]) -> None:
         """Gyroscope on demand (``auto``): after each step."""
         if self.mode != "auto":
             return
         c = self.config
         hd = self._heading
-        locked = self._directions is not None and self._directions.locked
-        want = (hd.turned or hd.n_noise < c.gyro_min_steps
-                or (hd.forecast_std() > c.max_heading_std_rad and not locked)
+        locked = self._locked
+        learnt = len(hd.noise.samples)
+        if self._reading is None:
+            forecast = math.inf
+        else:
+            forecast = hd.forecast(*self._reading)[0]
+        want = (self._turned or learnt < c.gyro_min_steps
+                or (forecast > c.max_heading_std_rad and not locked)
                 or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))
         if want != self._gyro_want:
-            reason = ("turn" if hd.turned else "compass noise unknown" if hd.n_noise < c.gyro_min_steps
+            reason = ("turn" if self._turned else "compass noise unknown" if learnt < c.gyro_min_steps
                       else "heading uncertain" if want else "straight along the building" if locked
                       else "compass consistent")
-            events.append(Event(t_ns, "gyro", {"on": want, "reason": reason, "heading_std_rad": hd.std(),
-                                               "compass_std_rad": math.sqrt(hd.compass_var)}))
+            events.append(Event(t_ns, "gyro", {"on": want, "reason": reason, "heading_std_rad": hd.std,
+                                               "compass_std_rad": math.sqrt(hd.noise.reading_variance(0.0)
+                                                                            + hd.noise.place_var)}))
             self._gyro_want = want
             self._gyro_steps = 0
 
@@ -526,7 +617,10 @@ class PhoneEngine:
             "prev_gyro": self._prev_gyro,
             "gyro_run": self._gyro_run,
             "cadence": self._cadence,
-            "last_compass": self._last_compass,
+            "fields": np.asarray(self._fields, dtype=np.float64).reshape(-1, 2),
+            "reading": None if self._reading is None else list(self._reading),
+            "turned": self._turned,
+            "locked": self._locked,
             "last_step_s": self._last_step_s,
             "gyro_want": self._gyro_want,
             "gyro_steps": self._gyro_steps,
@@ -549,7 +643,7 @@ class PhoneEngine:
         obj._placement = PlacementRecognizer.from_state(pl)
         obj._profile_in = d["profile_in"]
         obj._lengths = {p: PdrStepLength.from_state(s) for p, s in d["lengths"].items()}
-        obj._heading = WalkHeading.from_state(d["heading"])
+        obj._heading = HeadingEstimator.from_state(obj.config.heading, d["heading"])
         obj._directions = None if d["directions"] is None else DominantDirections.from_state(d["directions"])
         obj._streams = _Streams.from_state(d["streams"])
         obj._t0_ns = None if d["t0_ns"] is None else int(d["t0_ns"])
@@ -558,7 +652,9 @@ class PhoneEngine:
         obj._prev_gyro = bool(d["prev_gyro"])
         obj._gyro_run = int(d["gyro_run"])
         obj._cadence = int(d["cadence"])
-        obj._last_compass = float(d["last_compass"])
+        obj._fields = np.asarray(d["fields"], dtype=np.float64).reshape(-1, 2).tolist()
+        obj._reading = None if d["reading"] is None else tuple(float(x) for x in d["reading"])  # type: ignore[assignment]
+        obj._turned, obj._locked = bool(d["turned"]), bool(d["locked"])
         obj._last_step_s = float(d["last_step_s"])
         obj._gyro_want = bool(d["gyro_want"])
         obj._gyro_steps = int(d["gyro_steps"])

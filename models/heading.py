@@ -378,6 +378,26 @@ class HeadingEstimator:
         for j in range(2):
             self._kalman(j, h, -float(self.x[j, 2]), float(self.p[j, 2, 2]) + r)
 
+    def update_heading(self, z: float, var: float) -> float:
+        """An absolute observation ``z`` [rad] of theta itself with variance ``var`` [rad^2] (another filter's
+        heading, e.g. a phone's MARG attitude filter, whose compass updates it already carries: the compass's
+        offsets are not observed). Each model is updated (``h = [1, 0, 0]``) and weighted by its likelihood.
+        Returns the normalised innovation ``nu^2 / S`` of the combined estimate."""
+        h = np.array([1.0, 0.0, 0.0])
+        xc, pc = self._combine()
+        nu = wrap(z - float(xc[0]))
+        lik = np.zeros(2)
+        for j in range(2):
+            nu_j = wrap(z - float(self.x[j, 0]))
+            s = float(self.p[j, 0, 0]) + var
+            lik[j] = math.exp(-0.5 * nu_j * nu_j / s) / math.sqrt(2.0 * math.pi * s)
+            self._kalman(j, h, nu_j, s)
+        post = self.mu * lik
+        total = float(post.sum())
+        if total > 0.0 and math.isfinite(total):
+            self.mu = post / total
+        return nu * nu / (float(pc[0, 0]) + var)
+
     def update_dominant(self, ref: float, sigma: float, gate: float) -> None:
         """A building's dominant directions ``ref + k * 90 deg`` [rad] (the ZUPT-KF's; heuristic drift
         elimination, 003 drift reduction) as a pseudo-observation of theta with noise ``sigma`` [rad], for each

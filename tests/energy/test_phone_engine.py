@@ -169,3 +169,24 @@ def test_ipin_trial_beats_standing_still(ipin_dir) -> None:  # type: ignore[no-u
     assert e.path_ratio == pytest.approx(1.0, abs=0.08)
 
 
+
+
+def test_phone_heading_parameters_are_the_dev_trials_statistics(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """Each fitted value of PHONE_HEADING lies within the range of its leave-one-route-out folds (to the rounding
+    of its last digit), so no value rests on one route."""
+    from clients.evaluation.phone_heading import loro_statistics, step_table
+    from clients.importers import load
+    from energy.phone_engine import PHONE_HEADING as H
+
+    files = sorted(ipin_dir.glob("*.txt"))
+    rng = loro_statistics([step_table(load(f)) for f in files])["range"]
+    deg = math.degrees
+    for key, value, tol in (("straight_sigma_deg", deg(H.straight_sigma_rad), 0.05),
+                            ("turn_sigma_deg", deg(H.turn_sigma_rad), 0.5),
+                            ("p_turn_start", H.p_turn_start, 0.005), ("p_turn_stay", H.p_turn_stay, 0.005),
+                            ("deflection_walk_deg", deg(H.deflection_walk_rad), 0.05),
+                            ("deflection_floor_deg", deg(H.deflection_floor_rad), 0.5)):
+        lo, hi = rng[key]
+        assert lo - tol <= value <= hi + tol, (key, value, lo, hi)
+    assert deg(H.compass_floor_rad) <= rng["compass_white_max_deg"][0]
+    assert deg(PhoneEngine().config.marg_settled_std_rad) > rng["marg_yaw_std_p95_deg"][1]

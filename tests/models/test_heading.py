@@ -162,3 +162,30 @@ def test_state_round_trip_continues_identically(seed: int, n: int, cut: int) -> 
     assert b is not None
     assert np.array_equal(a.x, b.x) and np.array_equal(a.p, b.p) and np.array_equal(a.mu, b.mu)
     assert a.forecast((3 * DEG) ** 2) == b.forecast((3 * DEG) ** 2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(theta=st.floats(-3.0, 3.0), z=st.floats(-3.0, 3.0), prior_deg=st.floats(1.0, 60.0), obs_deg=st.floats(0.5, 60.0))
+def test_an_absolute_heading_moves_theta_towards_it_by_the_variances_and_leaves_the_offsets(
+        theta: float, z: float, prior_deg: float, obs_deg: float) -> None:
+    """update_heading: another filter's heading (a phone's MARG filter) is a Kalman observation of theta alone."""
+    est = HeadingEstimator(CFG)
+    est.start(theta, (prior_deg * DEG) ** 2)
+    est.set_offset_prior(0.2, 1 * DEG)
+    est.update_heading(z, (obs_deg * DEG) ** 2)
+    k = prior_deg**2 / (prior_deg**2 + obs_deg**2)
+    assert wrap(est.heading - theta) == pytest.approx(k * wrap(z - theta), abs=1e-9)
+    assert est.variance == pytest.approx((1 - k) * (prior_deg * DEG) ** 2, rel=1e-9)
+    assert est.offset == pytest.approx(0.2, abs=1e-12)
+
+
+def test_an_absolute_heading_weighs_the_motion_models() -> None:
+    """After a gyroscope-off stride, a heading far from the straight model's is evidence of a turn."""
+    est = HeadingEstimator(CFG)
+    est.start(0.0, (1 * DEG) ** 2)
+    est.predict_free()
+    est.update_heading(0.0, (2 * DEG) ** 2)
+    assert est.mu[1] < 0.5
+    est.predict_free()
+    est.update_heading(60 * DEG, (2 * DEG) ** 2)
+    assert est.mu[1] > 0.9 and abs(wrap(est.heading - 60 * DEG)) < 3 * DEG

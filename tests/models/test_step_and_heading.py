@@ -10,11 +10,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from energy.phone_engine import PHONE_HEADING
 from models.marg import KIND_ACC, KIND_GYR, KIND_MAG, MargConfig, MargFilter, merge_streams
 from models.pdr_step_length import HEIGHT_RATIO, WEINBERG_FEATURE_TYP, PdrStepLength, StepLengthConfig
 from models.placement import PlacementRecognizer, default_placement
 from models.step_detector import StepDetector
-from models.walk_heading import WalkHeading, WalkHeadingConfig, wrap
+from models.heading import HeadingEstimator, wrap
 from models.walking_direction import forward_azimuth, forward_sign, principal_direction
 
 G = 9.80665
@@ -183,33 +184,54 @@ def test_height_frequency_model_is_a_typical_step() -> None:
 
 
 # ---------------------------------------------------------------------------------------------- walk heading
-def test_gyroscope_off_holds_the_heading_and_a_compass_jump_is_a_turn() -> None:
-    cfg = WalkHeadingConfig()
-    h = WalkHeading(cfg)
-    h.set(0.3, math.radians(1.0) ** 2)
+# the phone's use of the shared heading estimator (models.heading) with its hand-held parameters, per step
+DEG = math.pi / 180.0
+
+
+def _phone_heading(theta: float) -> HeadingEstimator:
+    h = HeadingEstimator(PHONE_HEADING)
+    h.start(theta, (1 * DEG) ** 2)
+    h.set_offset_prior(0.0, PHONE_HEADING.offset_prior_rad)  # the phone's compass reads in the heading's frame
+    return h
+
+
+def test_gyroscope_steps_learn_the_place_and_gyroscope_off_steps_hold_through_it() -> None:
+    """A compass 20 deg off at this place while the gyroscope carries the heading: the deflection is learnt, not
+    the heading; with the gyroscope off the heading holds instead of following the compass."""
+    h = _phone_heading(0.3)
     rng = np.random.default_rng(2)
-    for _ in range(40):  # gyroscope-carried steps measure the compass noise (8 deg)
-        h.predict(0.0)
-        h.update(0.3 + math.radians(8.0) * rng.standard_normal(), apply=False)
-    assert math.degrees(math.sqrt(h.compass_var)) == pytest.approx(8.0, rel=0.4)
-    std_before = h.forecast_std()
-    h.predict(None)
-    h.update(0.3 + math.radians(5.0))
-    assert not h.turned and abs(h.heading - 0.3) < math.radians(5.0)
-    assert h.forecast_std() >= std_before * 0.5
-    h.predict(None)
-    h.update(0.3 + math.radians(90.0))
-    assert h.turned and h.heading == pytest.approx(0.3 + math.radians(90.0))
+    for _ in range(20):
+        h.predict_gyro(0.0)
+        h.update_compass(0.3 + 20 * DEG + 2 * DEG * rng.standard_normal(), (2 * DEG) ** 2, 0.5, learn=True)
+    assert abs(wrap(h.heading - 0.3)) < 3 * DEG and len(h.noise.samples) == 20
+    for _ in range(5):
+        h.predict_free()
+        h.update_compass(0.3 + 20 * DEG + 2 * DEG * rng.standard_normal(), (2 * DEG) ** 2, 0.5)
+    assert abs(wrap(h.heading - 0.3)) < 4 * DEG and h.turn_prob < 0.5
 
 
-def test_forecast_grows_without_a_useful_compass() -> None:
-    h = WalkHeading(WalkHeadingConfig(compass_prior_rad=math.radians(60.0)))
-    h.set(0.0, math.radians(2.0) ** 2)
+@pytest.mark.parametrize("turn_deg", [90.0, -90.0, 180.0])
+def test_gyroscope_off_a_compass_jump_is_a_turn(turn_deg: float) -> None:
+    h = _phone_heading(0.0)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        h.predict_free()
+        h.update_compass(2 * DEG * rng.standard_normal(), (2 * DEG) ** 2, 0.5)
+    assert h.turn_prob < 0.5
+    turned = []
+    for _ in range(2):
+        h.predict_free()
+        h.update_compass(turn_deg * DEG + 2 * DEG * rng.standard_normal(), (2 * DEG) ** 2, 0.5)
+        turned.append(h.turn_prob > 0.5)
+    assert turned[0] and abs(wrap(h.heading - turn_deg * DEG)) < 10 * DEG
+
+
+def test_forecast_grows_without_a_compass() -> None:
+    h = _phone_heading(0.0)
     stds = []
     for _ in range(10):
-        stds.append(h.forecast_std())
-        h.predict(None)
-        h.update(math.nan)
+        stds.append(h.forecast(None)[0])
+        h.predict_free()
     assert all(b > a for a, b in zip(stds, stds[1:]))
 
 
