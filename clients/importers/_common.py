@@ -47,6 +47,7 @@ __all__ = [
     "MAX_DROPPED_ROW_FRACTION",
     "MAX_CONFLICT_FRACTION",
     "MIN_SAMPLES",
+    "first_line",
     "RATE_RANGE_HZ",
     "GAP_PERIODS",
     "GYR_RAD_S_MAX",
@@ -334,6 +335,20 @@ def skipped_lines_message(bad_lines: list[int], n_fields: int) -> str:
     line numbers, 1-based)."""
     shown = ", ".join(str(k) for k in bad_lines[:5]) + (" ..." if len(bad_lines) > 5 else "")
     return f"skipped {len(bad_lines)} line(s) without {n_fields} fields (line {shown})"
+
+
+def first_line(path: str | Path, empty: tuple[str, str] = ("file", "is empty")) -> str:
+    """The first line of a text file (a byte-order mark dropped); ``ImporterError`` naming the file when it
+    cannot be read, and ``empty`` (field, problem) when that line is blank."""
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8-sig", errors="replace") as fh:
+            line = fh.readline()
+    except OSError as exc:
+        raise ImporterError(p, "file", f"cannot be read ({exc})") from None
+    if not line.strip():
+        raise ImporterError(p, *empty)
+    return line
 
 
 def csv_separator(first_line: str) -> str:

@@ -32,6 +32,7 @@ from clients.importers._common import (
     csv_cell,
     csv_fields,
     csv_separator,
+    first_line,
     drop_untimed_rows,
     gap_notes,
     gyro_unit,
@@ -102,13 +103,7 @@ def parse_units(spec: str, streams: list[str]) -> dict[str, float]:
 
 def _header(p: Path) -> tuple[list[str] | None, int, str]:
     """``(header or None, the number of fields, separator)``: a first line whose cells all read as numbers is data."""
-    try:
-        with open(p, encoding="utf-8-sig", errors="replace") as fh:
-            first = fh.readline()
-    except OSError as exc:
-        raise ImporterError(p, "file", f"cannot be read ({exc})") from None
-    if not first.strip():
-        raise ImporterError(p, "file", "is empty")
+    first = first_line(p)
     sep = csv_separator(first)
     cells = csv_fields(first, sep)
     numeric = all(np.isfinite(csv_cell(c, sep)) for c in cells)

@@ -35,6 +35,7 @@ from clients.importers._common import (
     clean_stream,
     csv_fields,
     drop_untimed_rows,
+    first_line,
     gap_notes,
     gyro_unit,
     make_batch,
@@ -61,15 +62,7 @@ _B_GYR = ("estAngularRateX", "estAngularRateY", "estAngularRateZ")
 def read_header(path: str | Path) -> list[str]:
     """Channel names of a SensorConnect CSV with the ``inertial-<serial>:`` prefix (any node id) removed
     (a byte-order mark and quotes around the names are ignored; comma, semicolon or tab separated)."""
-    p = Path(path)
-    try:
-        with open(p, encoding="utf-8-sig", errors="replace") as fh:
-            line = fh.readline()
-    except OSError as exc:
-        raise ImporterError(p, "file", f"cannot be read ({exc})") from exc
-    if not line.strip():
-        raise ImporterError(p, "header", "empty file")
-    names = csv_fields(line)
+    names = csv_fields(first_line(path, empty=("header", "empty file")))
     return [c.split(":", 1)[1] if ":" in c else c for c in names]
 
 
