@@ -375,8 +375,13 @@ def config_table(config: EngineConfig | None = None) -> list[tuple[str, str, str
     return rows
 
 
+def _cell(text: str) -> str:
+    """Text for a Markdown table cell (a bar inside it, as in ``|a|``, would end the cell)."""
+    return text.replace("|", "\\|")
+
+
 def config_markdown(config: EngineConfig | None = None) -> str:
     """The configuration table as Markdown."""
     lines = ["| setting | value | unit | why |", "| --- | --- | --- | --- |"]
-    lines += [f"| `{p}` | {v} | {u} | {w} |" for p, v, u, w in config_table(config)]
+    lines += [f"| `{p}` | {v} | {_cell(u)} | {_cell(w)} |" for p, v, u, w in config_table(config)]
     return "\n".join(lines) + "\n"

@@ -101,6 +101,161 @@ class ZuptConfig:
     Other intervals longer than ``max_dt`` [s] (a very low rate) are integrated as ``max_dt``; stances shorter
     than ``min_stance_s`` [s] get ZUPTs but are not reported. ``first_order`` (comparison only) replaces the
     exponential-map attitude update by I + [w x] dt.
+
+    Attributes
+    ----------
+    sigma_a : float
+        Accelerometer noise of the stance statistic [m/s^2] (002 eq. 1).
+    sigma_w : float
+        Gyroscope noise of the stance statistic [rad/s] (002 eq. 1).
+    half_window_s : float
+        Half of the detector's centred window [s].
+    gamma0 : float
+        Stance threshold at the reference gait intensity [-] (002 eq. 3).
+    gamma_exp : float
+        Exponent of the threshold's adaptation to gait intensity [-] (0 = fixed threshold).
+    intensity_tau_s : float
+        Decay time of the gait-intensity peak tracker [s].
+    intensity_ref : float
+        Reference gait intensity [m/s^2] (mode 2: peak |a|; modes 0/1: units of the statistic).
+    gamma_min : float
+        Lowest adapted threshold [-].
+    gamma_max : float
+        Highest adapted threshold [-].
+    hysteresis : float
+        A stance ends when the statistic exceeds this times the threshold [-] (>= 1).
+    gravity : float
+        Local gravity magnitude [m/s^2].
+    acc_psd : float
+        Velocity random walk PSD [(m/s^2)^2 s] (004 eq. 6-8 process noise).
+    gyr_psd : float
+        Angle random walk PSD [(rad/s)^2 s].
+    ba_psd : float
+        Accelerometer bias random walk PSD [(m/s^2)^2/s].
+    bg_psd : float
+        Gyroscope bias random walk PSD [(rad/s)^2/s].
+    zupt_sigma : float
+        Zero-velocity pseudo-measurement noise deep in a stance [m/s] (004 eq. 9).
+    zaru_sigma : float
+        Zero-angular-rate pseudo-measurement noise [rad/s] (001 eq. 34-35).
+    zaru_on : bool
+        Apply ZARU on the still foot [-] (the only observation of the vertical gyro bias after the initial rest).
+    mag_on : bool
+        Apply the stance magnetic heading update [-] (004 eq. 10).
+    mag_sigma : float
+        Magnetic heading noise [rad].
+    mag_dmag : float
+        Field magnitude tolerance of the magnetic gate [uT] (002 eq. 4-5).
+    mag_dinc : float
+        Field inclination tolerance of the magnetic gate [rad].
+    mag_gate : float
+        Innovation gate of the magnetic update [sigma].
+    align_min_s : float
+        Shortest initial rest the alignment accepts [s].
+    align_max_s : float
+        Longest initial rest used by the alignment [s].
+    max_dt : float
+        Longest interval integrated in one step [s] (a longer one is integrated as this).
+    p0_tilt : float
+        Initial 1-sigma roll/pitch after alignment [rad].
+    p0_yaw : float
+        Initial 1-sigma heading [rad].
+    p0_ba : float
+        Initial 1-sigma accelerometer bias [m/s^2].
+    p0_bg : float
+        Initial 1-sigma gyroscope bias after a rest [rad/s] (the rest's estimate is trusted; re-estimating it by
+        ZUPT hurt on real data).
+    min_stance_s : float
+        Shortest stance reported as a stance [s] (shorter ones still get ZUPTs).
+    first_order : bool
+        First-order attitude update I + [w x] dt instead of the exponential map [-] (comparison only).
+    trapezoid : bool
+        Integrate the mean of consecutive samples [-] (better at low rates).
+    align_gamma : float
+        Strict stance threshold that marks the initial rest for the alignment [-].
+    align_timeout_s : float
+        Without such a rest by then, align on the adaptive detector's first stance [s].
+    zaru_gamma : float
+        ZARU only where the statistic is below this [-] (a truly still foot).
+    bias_from_rest : bool
+        Start the gyro bias at the rest's mean rate, shrunk by d / (d + bias_shrink_s) [-].
+    bias_shrink_s : float
+        Prior weight of a zero gyro bias, as rest duration [s] (a short, restless rest says little).
+    erosion_s : float
+        The statistic is the max over +- this [s] (narrower stances; 0 = off).
+    hdr_on : bool
+        Heuristic drift reduction: straight strides keep their segment's heading [-] (003).
+    hdr_sigma : float
+        Noise of the drift-reduction pseudo-measurement [rad].
+    hdr_delta : float
+        A stride within this of the segment's heading counts as straight [rad].
+    hdr_min_stride : float
+        Shorter horizontal strides are ignored by the drift reduction [m].
+    hdr_min_n : float
+        Consistent strides needed before the drift reduction applies [strides].
+    hdr_turn : float
+        The foot turned this far from the segment on two strides running by the gyroscope: a turn [rad] (0 = off).
+    dom_on : bool
+        Snap straight segments to the building's dominant directions [-] (iHDE; indoor heuristic).
+    dom_delta : float
+        Snap only segments within this of a dominant direction [rad].
+    gyr_scale_sigma : float
+        Relative gyroscope scale-factor uncertainty [-] (attitude variance grows with the turned angle).
+    zupt_soft : float
+        ZUPT noise grows as zupt_sigma * (1 + zupt_soft * T / gamma) [-]: weak near the threshold.
+    intensity_mode : int
+        Gait intensity [-]: 0 decaying peak of the statistic, 1 exponential mean of its log10, 2 decaying peak
+        of |a|.
+    gyr_sat_frac : float
+        A gyro axis within this fraction of the largest |rate| seen so far is the fastest rotation [-].
+    gyr_sat_min : float
+        ... but only above this rate [rad/s].
+    gyr_sat_sigma : float
+        1-sigma rate error of such a sample [rad/s] (tilt variance; 0 = off).
+    clip_acc_range : float
+        Accelerometer full scale from the device profile [m/s^2] (0 = not known: detected).
+    clip_gyr_range : float
+        Gyroscope full scale from the device profile [rad/s] (0 = not known: detected).
+    clip_acc_min : float
+        Smallest |specific force| taken for a detected clip [m/s^2] (no part's range is smaller).
+    clip_gyr_min : float
+        Smallest |rate| taken for a detected clip [rad/s].
+    clip_frac : float
+        A detected clip lies within this fraction of the axis's largest |value| of that sign so far [-].
+    clip_flat : float
+        Relative tolerance of the plateau at full scale [-].
+    clip_fit_n : int
+        Unclipped samples on either side of a clipped run fitted by the repair's quadratic [samples].
+    clip_max_s : float
+        Longest clipped run repaired [s] (the samples are held back until it is decided).
+    clip_rel_sigma : float
+        1-sigma error of a repaired value as a fraction of what the repair added [-].
+    clip_acc_sigma : float
+        Smallest 1-sigma error of a repaired specific force [m/s^2].
+    clip_gyr_sigma : float
+        Smallest 1-sigma error of a repaired rate [rad/s].
+    gyr_delay_s : float
+        How much the gyroscope's output lags the accelerometer's [s] (0 for a sensor without lag).
+    align_swing_rate : float
+        A rate this large before the initial rest means a mid-walk start [rad/s].
+    align_stance_min_s : float
+        Shortest walking stance a mid-walk start aligns on [s].
+    p0_bg_walk : float
+        Initial 1-sigma gyro bias of a mid-walk start [rad/s] (no rest to estimate it from).
+    gap_factor : float
+        An interval longer than this times the nominal one is a gap in the data [-] (0 = off).
+    gap_acc_sigma : float
+        Specific force per axis a linear interpolation over a gap misses [m/s^2].
+    gap_gyr_sigma : float
+        Tilt rate per axis a linear interpolation over a gap misses [rad/s].
+    gap_yaw_sigma : float
+        Heading rate a linear interpolation over a gap misses [rad/s] (no ZUPT observes it).
+    gap_max_s : float
+        A longer gap is not bridged: position held, re-levelled at the next stance [s].
+    swing_min_s : float
+        No stance starts this soon after the last one ended ... [s]
+    swing_speed : float
+        ... while the mechanised foot moves faster than this [m/s] (a mid-swing pause on stairs).
     """
 
     sigma_a: float = 0.01
