@@ -304,10 +304,12 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
             warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
             for k, (body, ctype) in enumerate(bodies[:_SPREAD_S]):  # every phase of the walk (stand, walk, turns)
                 # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
-                for _ in range(300):  # a worker still warming up answers 503 Retry-After: wait as a device does
+                # a worker still warming up answers 503 Retry-After, and the warm-up sessions share one user, whose
+                # rate limit answers 429 Retry-After: wait as a device does, same sequence number (nothing stored)
+                for _ in range(300):
                     r = await client.put(f"/v1/sessions/{warm}/batches/{k}", content=body,
                                          headers={**h, "content-type": ctype}, timeout=600.0)
-                    if r.status_code != 503:
+                    if r.status_code not in (429, 503):
                         break
                     await asyncio.sleep(float(r.headers.get("retry-after", "1")))
                 r.raise_for_status()
