@@ -437,86 +437,168 @@ def _symmetrise(P):
 def cov_predict(P, C, fn, dt, qa, qg, qba, qbg):
     """In-place ``P <- F P F^T + Q`` with ``F = I + A dt`` exploiting the sparsity of A (004 eq. 7-8).
 
-    A has non-zero blocks dp/dv = I, dv/dphi = -[fn x], dv/dba = -C, dphi/dbg = -C.
+    A has non-zero blocks dp/dv = I, dv/dphi = -[fn x], dv/dba = -C, dphi/dbg = -C. Allocates its work arrays;
+    the navigator's kernel calls :func:`_cov_predict_w` with arrays made once per call.
     """
-    # B = A P (rows 0..8 only; rows 9..14 of A are zero)
-    B = np.empty((9, 15))
-    S = np.empty((3, 3))
-    S[0, 0] = 0.0
-    S[0, 1] = -fn[2]
-    S[0, 2] = fn[1]
-    S[1, 0] = fn[2]
-    S[1, 1] = 0.0
-    S[1, 2] = -fn[0]
-    S[2, 0] = -fn[1]
-    S[2, 1] = fn[0]
-    S[2, 2] = 0.0
+    _cov_predict_w(P, C, fn, dt, qa, qg, qba, qbg, np.empty((9, 15)), np.empty((9, 9)))
+
+
+@njit(cache=True)
+def _cov_predict_w(P, C, fn, dt, qa, qg, qba, qbg, B, M):
+    """:func:`cov_predict` with work arrays ``B`` (9, 15) and ``M`` (9, 9) (no allocation per sample).
+
+    Each pair ``P[i, j], P[j, i]`` is formed in the same order of operations as the dense form and symmetrised
+    on the spot as :func:`_symmetrise` would (the mean of the two rounded sums): the same result, bit for bit,
+    without the separate pass.
+    """
+    f0 = fn[0]
+    f1 = fn[1]
+    f2 = fn[2]
+    # B = A P (rows 0..8 only; rows 9..14 of A are zero); [fn x] = [[0, -f2, f1], [f2, 0, -f0], [-f1, f0, 0]]
     for j in range(15):
-        for r in range(3):
-            B[r, j] = P[3 + r, j]
-            B[3 + r, j] = -(
-                S[r, 0] * P[6, j] + S[r, 1] * P[7, j] + S[r, 2] * P[8, j]
-                + C[r, 0] * P[9, j] + C[r, 1] * P[10, j] + C[r, 2] * P[11, j]
-            )
-            B[6 + r, j] = -(C[r, 0] * P[12, j] + C[r, 1] * P[13, j] + C[r, 2] * P[14, j])
+        p6 = P[6, j]
+        p7 = P[7, j]
+        p8 = P[8, j]
+        p9 = P[9, j]
+        p10 = P[10, j]
+        p11 = P[11, j]
+        p12 = P[12, j]
+        p13 = P[13, j]
+        p14 = P[14, j]
+        B[0, j] = P[3, j]
+        B[1, j] = P[4, j]
+        B[2, j] = P[5, j]
+        B[3, j] = -(0.0 * p6 - f2 * p7 + f1 * p8 + C[0, 0] * p9 + C[0, 1] * p10 + C[0, 2] * p11)
+        B[4, j] = -(f2 * p6 + 0.0 * p7 - f0 * p8 + C[1, 0] * p9 + C[1, 1] * p10 + C[1, 2] * p11)
+        B[5, j] = -(-f1 * p6 + f0 * p7 + 0.0 * p8 + C[2, 0] * p9 + C[2, 1] * p10 + C[2, 2] * p11)
+        B[6, j] = -(C[0, 0] * p12 + C[0, 1] * p13 + C[0, 2] * p14)
+        B[7, j] = -(C[1, 0] * p12 + C[1, 1] * p13 + C[1, 2] * p14)
+        B[8, j] = -(C[2, 0] * p12 + C[2, 1] * p13 + C[2, 2] * p14)
     # M = A P A^T = B A^T (9x9)
-    M = np.empty((9, 9))
     for i in range(9):
-        for r in range(3):
-            M[i, r] = B[i, 3 + r]
-            M[i, 3 + r] = -(
-                S[r, 0] * B[i, 6] + S[r, 1] * B[i, 7] + S[r, 2] * B[i, 8]
-                + C[r, 0] * B[i, 9] + C[r, 1] * B[i, 10] + C[r, 2] * B[i, 11]
-            )
-            M[i, 6 + r] = -(C[r, 0] * B[i, 12] + C[r, 1] * B[i, 13] + C[r, 2] * B[i, 14])
+        b6 = B[i, 6]
+        b7 = B[i, 7]
+        b8 = B[i, 8]
+        b9 = B[i, 9]
+        b10 = B[i, 10]
+        b11 = B[i, 11]
+        b12 = B[i, 12]
+        b13 = B[i, 13]
+        b14 = B[i, 14]
+        M[i, 0] = B[i, 3]
+        M[i, 1] = B[i, 4]
+        M[i, 2] = B[i, 5]
+        M[i, 3] = -(0.0 * b6 - f2 * b7 + f1 * b8 + C[0, 0] * b9 + C[0, 1] * b10 + C[0, 2] * b11)
+        M[i, 4] = -(f2 * b6 + 0.0 * b7 - f0 * b8 + C[1, 0] * b9 + C[1, 1] * b10 + C[1, 2] * b11)
+        M[i, 5] = -(-f1 * b6 + f0 * b7 + 0.0 * b8 + C[2, 0] * b9 + C[2, 1] * b10 + C[2, 2] * b11)
+        M[i, 6] = -(C[0, 0] * b12 + C[0, 1] * b13 + C[0, 2] * b14)
+        M[i, 7] = -(C[1, 0] * b12 + C[1, 1] * b13 + C[1, 2] * b14)
+        M[i, 8] = -(C[2, 0] * b12 + C[2, 1] * b13 + C[2, 2] * b14)
     dt2 = dt * dt
-    for i in range(9):
-        for j in range(15):
-            v = dt * B[i, j]
-            P[i, j] += v
-            P[j, i] += v
-    for i in range(9):
-        for j in range(9):
-            P[i, j] += dt2 * M[i, j]
-    for k in range(3):
-        P[3 + k, 3 + k] += qa * dt
-        P[6 + k, 6 + k] += qg * dt
-        P[9 + k, 9 + k] += qba * dt
-        P[12 + k, 12 + k] += qbg * dt
-    _symmetrise(P)
+    for i in range(15):
+        # diagonal: P + dt (B + B^T) + dt^2 M + Q dt
+        v = P[i, i]
+        if i < 9:
+            w = dt * B[i, i]
+            v = v + w + w + dt2 * M[i, i]
+        if 3 <= i < 6:
+            v += qa * dt
+        elif 6 <= i < 9:
+            v += qg * dt
+        elif 9 <= i < 12:
+            v += qba * dt
+        elif i >= 12:
+            v += qbg * dt
+        P[i, i] = v
+        for j in range(i + 1, 15):
+            a = P[i, j]
+            b = P[j, i]
+            if i < 9:
+                w = dt * B[i, j]
+                a += w
+                b += w
+            if j < 9:
+                w = dt * B[j, i]
+                a += w
+                b += w
+                a += dt2 * M[i, j]
+                b += dt2 * M[j, i]
+            v = 0.5 * (a + b)
+            P[i, j] = v
+            P[j, i] = v
 
 
 @njit(cache=True)
 def _update_block3(P, dx, i0, z, r):
-    """Joseph-form update (004 eq. 13) for a measurement ``z = dx[i0:i0+3] + noise(r^2 I)``."""
-    S = np.empty((3, 3))
-    for a in range(3):
+    """Joseph-form update (004 eq. 13) for a measurement ``z = dx[i0:i0+3] + noise(r^2 I)``. Allocates its work
+    arrays; the navigator's kernel calls :func:`_update_block3_w` with arrays made once per call."""
+    _update_block3_w(P, dx, i0, z[0], z[1], z[2], r, np.empty((15, 3)), np.empty((3, 15)), np.empty((15, 3)))
+
+
+@njit(cache=True)
+def _update_block3_w(P, dx, i0, z0, z1, z2, r, K, Hp, G):
+    """:func:`_update_block3` for ``z = (z0, z1, z2)`` with work arrays ``K`` (15, 3), ``Hp`` (3, 15), ``G`` (15, 3).
+
+    The innovation covariance ``S = P[i0:i0+3, i0:i0+3] + r^2 I`` is symmetric positive definite (``r > 0``), so
+    its inverse is the adjugate over the determinant (closed form, no LU). The Joseph form
+    ``(I - K H) P (I - K H)^T + K R K^T`` is evaluated for the upper triangle and mirrored: it is symmetric in
+    exact arithmetic, and mirroring leaves ``P`` exactly symmetric as :func:`_symmetrise` did.
+    """
+    r2 = r * r
+    s00 = P[i0, i0] + r2
+    s01 = P[i0, i0 + 1]
+    s02 = P[i0, i0 + 2]
+    s11 = P[i0 + 1, i0 + 1] + r2
+    s12 = P[i0 + 1, i0 + 2]
+    s22 = P[i0 + 2, i0 + 2] + r2
+    a00 = s11 * s22 - s12 * s12
+    a01 = s02 * s12 - s01 * s22
+    a02 = s01 * s12 - s02 * s11
+    a11 = s00 * s22 - s02 * s02
+    a12 = s01 * s02 - s00 * s12
+    a22 = s00 * s11 - s01 * s01
+    idet = 1.0 / (s00 * a00 + s01 * a01 + s02 * a02)
+    i00 = a00 * idet
+    i01 = a01 * idet
+    i02 = a02 * idet
+    i11 = a11 * idet
+    i12 = a12 * idet
+    i22 = a22 * idet
+    for i in range(15):
+        p0 = P[i, i0]
+        p1 = P[i, i0 + 1]
+        p2 = P[i, i0 + 2]
+        K[i, 0] = p0 * i00 + p1 * i01 + p2 * i02
+        K[i, 1] = p0 * i01 + p1 * i11 + p2 * i12
+        K[i, 2] = p0 * i02 + p1 * i12 + p2 * i22
+    e0 = z0 - dx[i0]
+    e1 = z1 - dx[i0 + 1]
+    e2 = z2 - dx[i0 + 2]
+    for i in range(15):
+        dx[i] += K[i, 0] * e0 + K[i, 1] * e1 + K[i, 2] * e2
+    # Joseph, with H selecting states i0..i0+2: P1 = P - K H P, P <- P1 - P1 H^T K^T + r^2 K K^T
+    for j in range(15):
+        Hp[0, j] = P[i0, j]
+        Hp[1, j] = P[i0 + 1, j]
+        Hp[2, j] = P[i0 + 2, j]
+    for i in range(15):
+        k0 = K[i, 0]
+        k1 = K[i, 1]
+        k2 = K[i, 2]
         for b in range(3):
-            S[a, b] = P[i0 + a, i0 + b]
-        S[a, a] += r * r
-    Si = np.linalg.inv(S)
-    K = np.empty((15, 3))
+            G[i, b] = P[i, i0 + b] - (k0 * Hp[0, i0 + b] + k1 * Hp[1, i0 + b] + k2 * Hp[2, i0 + b])
     for i in range(15):
-        for b in range(3):
-            K[i, b] = P[i, i0] * Si[0, b] + P[i, i0 + 1] * Si[1, b] + P[i, i0 + 2] * Si[2, b]
-    innov = np.empty(3)
-    for a in range(3):
-        innov[a] = z[a] - dx[i0 + a]
-    for i in range(15):
-        dx[i] += K[i, 0] * innov[0] + K[i, 1] * innov[1] + K[i, 2] * innov[2]
-    # Joseph: (I-KH) P (I-KH)^T + K R K^T, with H selecting states i0..i0+2
-    P1 = P.copy()
-    for i in range(15):
-        for j in range(15):
-            P1[i, j] = P[i, j] - (K[i, 0] * P[i0, j] + K[i, 1] * P[i0 + 1, j] + K[i, 2] * P[i0 + 2, j])
-    for i in range(15):
-        for j in range(15):
-            P[i, j] = (
-                P1[i, j]
-                - (P1[i, i0] * K[j, 0] + P1[i, i0 + 1] * K[j, 1] + P1[i, i0 + 2] * K[j, 2])
-                + r * r * (K[i, 0] * K[j, 0] + K[i, 1] * K[j, 1] + K[i, 2] * K[j, 2])
-            )
-    _symmetrise(P)
+        k0 = K[i, 0]
+        k1 = K[i, 1]
+        k2 = K[i, 2]
+        g0 = G[i, 0]
+        g1 = G[i, 1]
+        g2 = G[i, 2]
+        for j in range(i, 15):
+            p1 = P[i, j] - (k0 * Hp[0, j] + k1 * Hp[1, j] + k2 * Hp[2, j])
+            v = p1 - (g0 * K[j, 0] + g1 * K[j, 1] + g2 * K[j, 2]) + r2 * (k0 * K[j, 0] + k1 * K[j, 1] + k2 * K[j, 2])
+            P[i, j] = v
+            P[j, i] = v
 
 
 @njit(cache=True)
@@ -537,17 +619,38 @@ def _update_scalar(P, dx, h, z, r2, gate):
 
 @njit(cache=True)
 def _apply_correction(x, dx):
-    """Inject the error state into the nominal state and reset it (004 eq. 12)."""
+    """Inject the error state into the nominal state and reset it (004 eq. 12). Scalar arithmetic (no
+    allocation): ``q <- exp(phi) (x) q``, normalised, as :func:`quat_exp_s` and :func:`quat_mul_s` compute it."""
     for k in range(3):
         x[7 + k] += dx[k]
         x[4 + k] += dx[3 + k]
         x[10 + k] += dx[9 + k]
         x[13 + k] += dx[12 + k]
-    dq = quat_exp_s(dx[6], dx[7], dx[8])
-    q = quat_mul_s(dq, x[0:4])
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    for k in range(4):
-        x[k] = q[k] / n
+    wx = dx[6]
+    wy = dx[7]
+    wz = dx[8]
+    ang = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if ang > 1e-8:
+        kk = math.sin(0.5 * ang) / ang
+    else:
+        kk = 0.5 - ang * ang / 48.0
+    p0 = math.cos(0.5 * ang)
+    p1 = kk * wx
+    p2 = kk * wy
+    p3 = kk * wz
+    q0 = x[0]
+    q1 = x[1]
+    q2 = x[2]
+    q3 = x[3]
+    r0 = p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3
+    r1 = p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2
+    r2 = p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1
+    r3 = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
+    n = math.sqrt(r0 ** 2 + r1 ** 2 + r2 ** 2 + r3 ** 2)
+    x[0] = r0 / n
+    x[1] = r1 / n
+    x[2] = r2 / n
+    x[3] = r3 / n
     dx[:] = 0.0
 
 
@@ -662,6 +765,23 @@ def _gyr_at(t, gyr, tq):
 
 
 @njit(cache=True)
+def _gyr_at_into(t, gyr, tq, out):
+    """:func:`_gyr_at` written into ``out`` (3,) (no allocation per sample)."""
+    n = t.shape[0]
+    if tq <= t[0]:
+        for a in range(3):
+            out[a] = gyr[0, a]
+    elif tq >= t[n - 1]:
+        for a in range(3):
+            out[a] = gyr[n - 1, a]
+    else:
+        j = np.searchsorted(t, tq) - 1
+        u = (tq - t[j]) / (t[j + 1] - t[j])
+        for a in range(3):
+            out[a] = (1.0 - u) * gyr[j, a] + u * gyr[j + 1, a]
+
+
+@njit(cache=True)
 def _wrap(a):
     return (a + math.pi) % (2 * math.pi) - math.pi
 
@@ -760,41 +880,83 @@ def _hdr(x, P, dx, fs, par):
         _hdr_new_segment(x, fs, psi, turn if turned else 0.0)
 
 
+@njit(cache=True, inline="always")
+def _quat_dcm_into(w, x, y, z, c):
+    """:func:`quat_dcm_s` of ``(w, x, y, z)`` written into ``c`` (3, 3)."""
+    c[0, 0] = 1 - 2 * (y * y + z * z)
+    c[0, 1] = 2 * (x * y - w * z)
+    c[0, 2] = 2 * (x * z + w * y)
+    c[1, 0] = 2 * (x * y + w * z)
+    c[1, 1] = 1 - 2 * (x * x + z * z)
+    c[1, 2] = 2 * (y * z - w * x)
+    c[2, 0] = 2 * (x * z - w * y)
+    c[2, 1] = 2 * (y * z + w * x)
+    c[2, 2] = 1 - 2 * (x * x + y * y)
+
+
 @njit(cache=True)
-def _mech_step(x, P, wx, wy, wz, fb, dt, par):
+def _mech_step(x, P, wx, wy, wz, f0, f1, f2, dt, par, C1, Cm, fn, B, M):
     """One strapdown step (004 eq. 1) over ``dt`` [s]: attitude by the exact exponential map of the rotation
-    vector ``(wx, wy, wz)`` [rad, body, bias removed], velocity and position [NED] by the specific force ``fb``
-    [m/s^2, body, bias removed] rotated with the mean of the DCMs at both ends; covariance predicted (004 eq.
-    7-8) with the scale-factor term. Returns the body-to-NED DCM at the end of the step."""
+    vector ``(wx, wy, wz)`` [rad, body, bias removed], velocity and position [NED] by the specific force
+    ``(f0, f1, f2)`` [m/s^2, body, bias removed] rotated with the mean of the DCMs at both ends; covariance
+    predicted (004 eq. 7-8) with the scale-factor term. Writes the body-to-NED DCM at the end of the step into
+    ``C1`` (3, 3); ``Cm`` (3, 3), ``fn`` (3,), ``B`` (9, 15), ``M`` (9, 9) are work arrays (no allocation)."""
     g = par[_GRAV]
-    q = x[0:4].copy()
-    C0 = quat_dcm_s(q)
+    q0 = x[0]
+    q1 = x[1]
+    q2 = x[2]
+    q3 = x[3]
+    _quat_dcm_into(q0, q1, q2, q3, Cm)  # C0
     if par[_FO] > 0:
-        dq = np.array([1.0, 0.5 * wx, 0.5 * wy, 0.5 * wz])
+        d0 = 1.0
+        d1 = 0.5 * wx
+        d2 = 0.5 * wy
+        d3 = 0.5 * wz
     else:
-        dq = quat_exp_s(wx, wy, wz)
-    q = quat_mul_s(q, dq)
-    nq = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    q /= nq
-    C1 = quat_dcm_s(q)
-    Cm = 0.5 * (C0 + C1)
-    fn = Cm @ fb
-    vn0 = x[4:7].copy()
-    x[0:4] = q
+        ang = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if ang > 1e-8:
+            kk = math.sin(0.5 * ang) / ang
+        else:
+            kk = 0.5 - ang * ang / 48.0
+        d0 = math.cos(0.5 * ang)
+        d1 = kk * wx
+        d2 = kk * wy
+        d3 = kk * wz
+    r0 = q0 * d0 - q1 * d1 - q2 * d2 - q3 * d3
+    r1 = q0 * d1 + q1 * d0 + q2 * d3 - q3 * d2
+    r2 = q0 * d2 - q1 * d3 + q2 * d0 + q3 * d1
+    r3 = q0 * d3 + q1 * d2 - q2 * d1 + q3 * d0
+    nq = math.sqrt(r0 ** 2 + r1 ** 2 + r2 ** 2 + r3 ** 2)
+    r0 /= nq
+    r1 /= nq
+    r2 /= nq
+    r3 /= nq
+    _quat_dcm_into(r0, r1, r2, r3, C1)
+    for a in range(3):
+        for b in range(3):
+            Cm[a, b] = 0.5 * (Cm[a, b] + C1[a, b])
+        fn[a] = Cm[a, 0] * f0 + Cm[a, 1] * f1 + Cm[a, 2] * f2
+    vn0 = x[4]
+    vn1 = x[5]
+    vn2 = x[6]
+    x[0] = r0
+    x[1] = r1
+    x[2] = r2
+    x[3] = r3
     x[4] += fn[0] * dt
     x[5] += fn[1] * dt
     x[6] += (fn[2] + g) * dt
-    for a in range(3):
-        x[7 + a] += 0.5 * (vn0[a] + x[4 + a]) * dt
+    x[7] += 0.5 * (vn0 + x[4]) * dt
+    x[8] += 0.5 * (vn1 + x[5]) * dt
+    x[9] += 0.5 * (vn2 + x[6]) * dt
     if dt > 0:
-        cov_predict(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG])
+        _cov_predict_w(P, Cm, fn, dt, par[_QA], par[_QG], par[_QBA], par[_QBG], B, M)
         if par[_GSS] > 0:
             # scale-factor error: an angle turned by theta adds (sigma_s * theta)^2 of attitude variance
             qs = (par[_GSS] * math.sqrt(wx * wx + wy * wy + wz * wz)) ** 2
             P[6, 6] += qs
             P[7, 7] += qs
             P[8, 8] += qs
-    return C1
 
 
 @njit(cache=True, inline="always")
@@ -958,6 +1120,17 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
     ew = par[_EROS]
     dx = np.zeros(15)
     q_sat = np.zeros(6)
+    # work arrays, made once per call: the per-sample path allocates nothing
+    w_i = np.empty(3)
+    w_p = np.empty(3)
+    C1 = np.empty((3, 3))
+    Cm = np.empty((3, 3))
+    fnw = np.empty(3)
+    Bw = np.empty((9, 15))
+    Mw = np.empty((9, 9))
+    Kw = np.empty((15, 3))
+    Hw = np.empty((3, 15))
+    Gw = np.empty((15, 3))
     n_st = 0
     i = i0
     while i < n_all:
@@ -1049,7 +1222,11 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
             # ---- coasting: attitude follows the gyro, position held; the next stance re-levels roll/pitch
             # from its mean specific force (001 eq. 1-3), the heading is kept ----
             if gap != 2 and dt > 0:
-                w_i = _gyr_at(t, gyr, t[i] + par[_GDEL]) if par[_GDEL] > 0.0 else gyr[i].copy()
+                if par[_GDEL] > 0.0:
+                    _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i)
+                else:
+                    for a in range(3):
+                        w_i[a] = gyr[i, a]
                 dq = quat_exp_s((w_i[0] - x[13]) * dt, (w_i[1] - x[14]) * dt, (w_i[2] - x[15]) * dt)
                 q = quat_mul_s(x[0:4].copy(), dq)
                 x[0:4] = q / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
@@ -1169,18 +1346,21 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
                 n_sub = 1000
             h = dt_raw / n_sub
             t_p = fs[1]
-            C1 = quat_dcm_s(x[0:4])
+            _quat_dcm_into(x[0], x[1], x[2], x[3], C1)
             for sub in range(1, n_sub + 1):
                 u = sub / n_sub
                 if par[_GDEL] > 0.0:
-                    w_s = _gyr_at(t, gyr, t_p + sub * h + par[_GDEL])
+                    _gyr_at_into(t, gyr, t_p + sub * h + par[_GDEL], w_i)
                 else:
-                    w_s = (1.0 - u) * gyr[i - 1] + u * gyr[i]
-                fb = (1.0 - u) * acc[i - 1] + u * acc[i] - x[10:13]
-                wx = (w_s[0] - x[13]) * h
-                wy = (w_s[1] - x[14]) * h
-                wz = (w_s[2] - x[15]) * h
-                C1 = _mech_step(x, P, wx, wy, wz, fb, h, par)
+                    for a in range(3):
+                        w_i[a] = (1.0 - u) * gyr[i - 1, a] + u * gyr[i, a]
+                fb0 = (1.0 - u) * acc[i - 1, 0] + u * acc[i, 0] - x[10]
+                fb1 = (1.0 - u) * acc[i - 1, 1] + u * acc[i, 1] - x[11]
+                fb2 = (1.0 - u) * acc[i - 1, 2] + u * acc[i, 2] - x[12]
+                wx = (w_i[0] - x[13]) * h
+                wy = (w_i[1] - x[14]) * h
+                wz = (w_i[2] - x[15]) * h
+                _mech_step(x, P, wx, wy, wz, fb0, fb1, fb2, h, par, C1, Cm, fnw, Bw, Mw)
             if not (ist[1] and zv):
                 # the foot was not on the ground throughout: what the line missed, per axis, is taken as a
                 # constant specific-force error e (sigma gap_acc_sigma) over the missed time m = dt - dt_nom:
@@ -1203,19 +1383,19 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
             ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
             if par[_GDEL] > 0.0:
                 # inter-sensor latency: the rate that belongs with this specific force is read gyr_delay_s later
-                w_i = _gyr_at(t, gyr, t[i] + par[_GDEL])
-                w_p = _gyr_at(t, gyr, t[ip] + par[_GDEL])
+                _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i)
+                _gyr_at_into(t, gyr, t[ip] + par[_GDEL], w_p)
             else:
-                w_i = gyr[i]
-                w_p = gyr[ip]
+                for a in range(3):
+                    w_i[a] = gyr[i, a]
+                    w_p[a] = gyr[ip, a]
             wx = (0.5 * (w_i[0] + w_p[0]) - x[13]) * dt
             wy = (0.5 * (w_i[1] + w_p[1]) - x[14]) * dt
             wz = (0.5 * (w_i[2] + w_p[2]) - x[15]) * dt
-            fb = np.array([
-                0.5 * (acc[i, 0] + acc[ip, 0]) - x[10], 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11],
-                0.5 * (acc[i, 2] + acc[ip, 2]) - x[12],
-            ])
-            C1 = _mech_step(x, P, wx, wy, wz, fb, dt, par)
+            fb0 = 0.5 * (acc[i, 0] + acc[ip, 0]) - x[10]
+            fb1 = 0.5 * (acc[i, 1] + acc[ip, 1]) - x[11]
+            fb2 = 0.5 * (acc[i, 2] + acc[ip, 2]) - x[12]
+            _mech_step(x, P, wx, wy, wz, fb0, fb1, fb2, dt, par, C1, Cm, fnw, Bw, Mw)
         if dt > 0:
             fs[_F_DIST] += math.sqrt(x[4] * x[4] + x[5] * x[5]) * dt  # horizontal distance travelled [m]
             if sat:
@@ -1253,19 +1433,16 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
                 fs[14] = math.atan2(C1[1, 0], C1[0, 0])
             fs[28] += 1
             # ZUPT (004 eq. 9): z = 0 - v_est = dv
-            z3 = np.array([-x[4], -x[5], -x[6]])
-            _update_block3(P, dx, 3, z3, par[_RZ] * (1.0 + par[_ZSOFT] * T / gam))
+            _update_block3_w(P, dx, 3, -x[4], -x[5], -x[6], par[_RZ] * (1.0 + par[_ZSOFT] * T / gam), Kw, Hw, Gw)
             if par[_ZARU] > 0 and T < par[_ZGAM]:
                 # ZARU (001 eq. 34-35): measured rate minus bias estimate = d(bias)
-                z3 = np.array([gyr[i, 0] - x[13], gyr[i, 1] - x[14], gyr[i, 2] - x[15]])
-                _update_block3(P, dx, 12, z3, par[_RW])
+                _update_block3_w(P, dx, 12, gyr[i, 0] - x[13], gyr[i, 1] - x[14], gyr[i, 2] - x[15], par[_RW], Kw, Hw,
+                                 Gw)
             _apply_correction(x, dx)
             if has_m and par[_MAGON] > 0:
-                Cc = quat_dcm_s(x[0:4])
-                mn = Cc @ np.array([mag[i, 0], mag[i, 1], mag[i, 2]])
-                fs[19] += mn[0]
-                fs[20] += mn[1]
-                fs[21] += mn[2]
+                _quat_dcm_into(x[0], x[1], x[2], x[3], Cm)
+                for a in range(3):
+                    fs[19 + a] += Cm[a, 0] * mag[i, 0] + Cm[a, 1] * mag[i, 1] + Cm[a, 2] * mag[i, 2]
                 fs[22] += 1
         else:
             sp = math.sqrt(x[4] ** 2 + x[5] ** 2 + x[6] ** 2)
@@ -1327,14 +1504,14 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
                     n_st += 1
             if sp > fs[18]:
                 fs[18] = sp
-        Cc = quat_dcm_s(x[0:4])
         o_pos[k, 0] = x[7]
         o_pos[k, 1] = x[8]
         o_pos[k, 2] = x[9]
         o_vel[k, 0] = x[4]
         o_vel[k, 1] = x[5]
         o_vel[k, 2] = x[6]
-        o_head[k] = math.atan2(Cc[1, 0], Cc[0, 0])
+        # atan2(C[1, 0], C[0, 0]) of quat_dcm_s, from the quaternion directly
+        o_head[k] = math.atan2(2 * (x[1] * x[2] + x[0] * x[3]), 1 - 2 * (x[2] * x[2] + x[3] * x[3]))
         o_hsig[k], o_psig[k] = _sigmas(x, P, fs)
         ist[2] += 1
         i += 1
