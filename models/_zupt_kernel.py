@@ -447,13 +447,22 @@ def cov_predict(P, C, fn, dt, qa, qg, qba, qbg):
 def _cov_predict_w(P, C, fn, dt, qa, qg, qba, qbg, B, M):
     """:func:`cov_predict` with work arrays ``B`` (9, 15) and ``M`` (9, 9) (no allocation per sample).
 
-    Each pair ``P[i, j], P[j, i]`` is formed in the same order of operations as the dense form and symmetrised
-    on the spot as :func:`_symmetrise` would (the mean of the two rounded sums): the same result, bit for bit,
-    without the separate pass.
+    ``P`` must be symmetric (every routine here leaves it so): ``P + dt (B + B^T) + dt^2 M + Q dt`` is formed
+    for the upper triangle only and mirrored, so it stays exactly symmetric without a separate
+    :func:`_symmetrise` pass (rows and columns 9..14 of the bias block change only on the diagonal).
     """
     f0 = fn[0]
     f1 = fn[1]
     f2 = fn[2]
+    c00 = C[0, 0]
+    c01 = C[0, 1]
+    c02 = C[0, 2]
+    c10 = C[1, 0]
+    c11 = C[1, 1]
+    c12 = C[1, 2]
+    c20 = C[2, 0]
+    c21 = C[2, 1]
+    c22 = C[2, 2]
     # B = A P (rows 0..8 only; rows 9..14 of A are zero); [fn x] = [[0, -f2, f1], [f2, 0, -f0], [-f1, f0, 0]]
     for j in range(15):
         p6 = P[6, j]
@@ -468,13 +477,14 @@ def _cov_predict_w(P, C, fn, dt, qa, qg, qba, qbg, B, M):
         B[0, j] = P[3, j]
         B[1, j] = P[4, j]
         B[2, j] = P[5, j]
-        B[3, j] = -(0.0 * p6 - f2 * p7 + f1 * p8 + C[0, 0] * p9 + C[0, 1] * p10 + C[0, 2] * p11)
-        B[4, j] = -(f2 * p6 + 0.0 * p7 - f0 * p8 + C[1, 0] * p9 + C[1, 1] * p10 + C[1, 2] * p11)
-        B[5, j] = -(-f1 * p6 + f0 * p7 + 0.0 * p8 + C[2, 0] * p9 + C[2, 1] * p10 + C[2, 2] * p11)
-        B[6, j] = -(C[0, 0] * p12 + C[0, 1] * p13 + C[0, 2] * p14)
-        B[7, j] = -(C[1, 0] * p12 + C[1, 1] * p13 + C[1, 2] * p14)
-        B[8, j] = -(C[2, 0] * p12 + C[2, 1] * p13 + C[2, 2] * p14)
-    # M = A P A^T = B A^T (9x9)
+        B[3, j] = -(-f2 * p7 + f1 * p8 + c00 * p9 + c01 * p10 + c02 * p11)
+        B[4, j] = -(f2 * p6 - f0 * p8 + c10 * p9 + c11 * p10 + c12 * p11)
+        B[5, j] = -(-f1 * p6 + f0 * p7 + c20 * p9 + c21 * p10 + c22 * p11)
+        B[6, j] = -(c00 * p12 + c01 * p13 + c02 * p14)
+        B[7, j] = -(c10 * p12 + c11 * p13 + c12 * p14)
+        B[8, j] = -(c20 * p12 + c21 * p13 + c22 * p14)
+    dt2 = dt * dt
+    # M = A P A^T = B A^T (9x9; only its upper triangle is used)
     for i in range(9):
         b6 = B[i, 6]
         b7 = B[i, 7]
@@ -488,44 +498,26 @@ def _cov_predict_w(P, C, fn, dt, qa, qg, qba, qbg, B, M):
         M[i, 0] = B[i, 3]
         M[i, 1] = B[i, 4]
         M[i, 2] = B[i, 5]
-        M[i, 3] = -(0.0 * b6 - f2 * b7 + f1 * b8 + C[0, 0] * b9 + C[0, 1] * b10 + C[0, 2] * b11)
-        M[i, 4] = -(f2 * b6 + 0.0 * b7 - f0 * b8 + C[1, 0] * b9 + C[1, 1] * b10 + C[1, 2] * b11)
-        M[i, 5] = -(-f1 * b6 + f0 * b7 + 0.0 * b8 + C[2, 0] * b9 + C[2, 1] * b10 + C[2, 2] * b11)
-        M[i, 6] = -(C[0, 0] * b12 + C[0, 1] * b13 + C[0, 2] * b14)
-        M[i, 7] = -(C[1, 0] * b12 + C[1, 1] * b13 + C[1, 2] * b14)
-        M[i, 8] = -(C[2, 0] * b12 + C[2, 1] * b13 + C[2, 2] * b14)
-    dt2 = dt * dt
-    for i in range(15):
-        # diagonal: P + dt (B + B^T) + dt^2 M + Q dt
-        v = P[i, i]
-        if i < 9:
-            w = dt * B[i, i]
-            v = v + w + w + dt2 * M[i, i]
-        if 3 <= i < 6:
-            v += qa * dt
-        elif 6 <= i < 9:
-            v += qg * dt
-        elif 9 <= i < 12:
-            v += qba * dt
-        elif i >= 12:
-            v += qbg * dt
-        P[i, i] = v
-        for j in range(i + 1, 15):
-            a = P[i, j]
-            b = P[j, i]
-            if i < 9:
-                w = dt * B[i, j]
-                a += w
-                b += w
-            if j < 9:
-                w = dt * B[j, i]
-                a += w
-                b += w
-                a += dt2 * M[i, j]
-                b += dt2 * M[j, i]
-            v = 0.5 * (a + b)
+        M[i, 3] = -(-f2 * b7 + f1 * b8 + c00 * b9 + c01 * b10 + c02 * b11)
+        M[i, 4] = -(f2 * b6 - f0 * b8 + c10 * b9 + c11 * b10 + c12 * b11)
+        M[i, 5] = -(-f1 * b6 + f0 * b7 + c20 * b9 + c21 * b10 + c22 * b11)
+        M[i, 6] = -(c00 * b12 + c01 * b13 + c02 * b14)
+        M[i, 7] = -(c10 * b12 + c11 * b13 + c12 * b14)
+        M[i, 8] = -(c20 * b12 + c21 * b13 + c22 * b14)
+    for i in range(9):
+        for j in range(i, 9):
+            v = P[i, j] + dt * (B[i, j] + B[j, i]) + dt2 * M[i, j]
             P[i, j] = v
             P[j, i] = v
+        for j in range(9, 15):
+            v = P[i, j] + dt * B[i, j]
+            P[i, j] = v
+            P[j, i] = v
+    for kk in range(3):
+        P[3 + kk, 3 + kk] += qa * dt
+        P[6 + kk, 6 + kk] += qg * dt
+        P[9 + kk, 9 + kk] += qba * dt
+        P[12 + kk, 12 + kk] += qbg * dt
 
 
 @njit(cache=True)
@@ -541,8 +533,9 @@ def _update_block3_w(P, dx, i0, z0, z1, z2, r, K, Hp, G):
 
     The innovation covariance ``S = P[i0:i0+3, i0:i0+3] + r^2 I`` is symmetric positive definite (``r > 0``), so
     its inverse is the adjugate over the determinant (closed form, no LU). The Joseph form
-    ``(I - K H) P (I - K H)^T + K R K^T`` is evaluated for the upper triangle and mirrored: it is symmetric in
-    exact arithmetic, and mirroring leaves ``P`` exactly symmetric as :func:`_symmetrise` did.
+    ``(I - K H) P (I - K H)^T + K R K^T = P - K (H P) + (r^2 K - P1 H^T) K^T`` with ``P1 H^T = P H^T - K (H P H^T)``
+    is evaluated for the upper triangle and mirrored: it is symmetric in exact arithmetic, and mirroring leaves
+    ``P`` exactly symmetric as :func:`_symmetrise` did.
     """
     r2 = r * r
     s00 = P[i0, i0] + r2
@@ -564,10 +557,14 @@ def _update_block3_w(P, dx, i0, z0, z1, z2, r, K, Hp, G):
     i11 = a11 * idet
     i12 = a12 * idet
     i22 = a22 * idet
+    for j in range(15):
+        Hp[0, j] = P[i0, j]
+        Hp[1, j] = P[i0 + 1, j]
+        Hp[2, j] = P[i0 + 2, j]
     for i in range(15):
-        p0 = P[i, i0]
-        p1 = P[i, i0 + 1]
-        p2 = P[i, i0 + 2]
+        p0 = Hp[0, i]
+        p1 = Hp[1, i]
+        p2 = Hp[2, i]
         K[i, 0] = p0 * i00 + p1 * i01 + p2 * i02
         K[i, 1] = p0 * i01 + p1 * i11 + p2 * i12
         K[i, 2] = p0 * i02 + p1 * i12 + p2 * i22
@@ -576,27 +573,30 @@ def _update_block3_w(P, dx, i0, z0, z1, z2, r, K, Hp, G):
     e2 = z2 - dx[i0 + 2]
     for i in range(15):
         dx[i] += K[i, 0] * e0 + K[i, 1] * e1 + K[i, 2] * e2
-    # Joseph, with H selecting states i0..i0+2: P1 = P - K H P, P <- P1 - P1 H^T K^T + r^2 K K^T
-    for j in range(15):
-        Hp[0, j] = P[i0, j]
-        Hp[1, j] = P[i0 + 1, j]
-        Hp[2, j] = P[i0 + 2, j]
+    # H P H^T: the 3x3 block of P at the measured states
+    h00 = Hp[0, i0]
+    h01 = Hp[0, i0 + 1]
+    h02 = Hp[0, i0 + 2]
+    h11 = Hp[1, i0 + 1]
+    h12 = Hp[1, i0 + 2]
+    h22 = Hp[2, i0 + 2]
     for i in range(15):
         k0 = K[i, 0]
         k1 = K[i, 1]
         k2 = K[i, 2]
-        for b in range(3):
-            G[i, b] = P[i, i0 + b] - (k0 * Hp[0, i0 + b] + k1 * Hp[1, i0 + b] + k2 * Hp[2, i0 + b])
+        # G = r^2 K - P1 H^T
+        G[i, 0] = r2 * k0 - (Hp[0, i] - (k0 * h00 + k1 * h01 + k2 * h02))
+        G[i, 1] = r2 * k1 - (Hp[1, i] - (k0 * h01 + k1 * h11 + k2 * h12))
+        G[i, 2] = r2 * k2 - (Hp[2, i] - (k0 * h02 + k1 * h12 + k2 * h22))
     for i in range(15):
         k0 = K[i, 0]
         k1 = K[i, 1]
         k2 = K[i, 2]
-        g0 = G[i, 0]
-        g1 = G[i, 1]
-        g2 = G[i, 2]
+        u0 = G[i, 0]
+        u1 = G[i, 1]
+        u2 = G[i, 2]
         for j in range(i, 15):
-            p1 = P[i, j] - (k0 * Hp[0, j] + k1 * Hp[1, j] + k2 * Hp[2, j])
-            v = p1 - (g0 * K[j, 0] + g1 * K[j, 1] + g2 * K[j, 2]) + r2 * (k0 * K[j, 0] + k1 * K[j, 1] + k2 * K[j, 2])
+            v = P[i, j] - (k0 * Hp[0, j] + k1 * Hp[1, j] + k2 * Hp[2, j]) + (u0 * K[j, 0] + u1 * K[j, 1] + u2 * K[j, 2])
             P[i, j] = v
             P[j, i] = v
 
@@ -765,8 +765,10 @@ def _gyr_at(t, gyr, tq):
 
 
 @njit(cache=True)
-def _gyr_at_into(t, gyr, tq, out):
-    """:func:`_gyr_at` written into ``out`` (3,) (no allocation per sample)."""
+def _gyr_at_into(t, gyr, tq, out, hint):
+    """:func:`_gyr_at` written into ``out`` (3,) (no allocation per sample). ``hint``: an index with
+    ``t[hint] < tq`` from which the bracketing interval is searched forward (the kernel's queries move forward
+    a sample at a time); -1 for a binary search."""
     n = t.shape[0]
     if tq <= t[0]:
         for a in range(3):
@@ -775,7 +777,12 @@ def _gyr_at_into(t, gyr, tq, out):
         for a in range(3):
             out[a] = gyr[n - 1, a]
     else:
-        j = np.searchsorted(t, tq) - 1
+        if 0 <= hint < n - 1 and t[hint] < tq:
+            j = hint
+            while t[j + 1] < tq:
+                j += 1
+        else:
+            j = np.searchsorted(t, tq) - 1
         u = (tq - t[j]) / (t[j + 1] - t[j])
         for a in range(3):
             out[a] = (1.0 - u) * gyr[j, a] + u * gyr[j + 1, a]
@@ -1223,7 +1230,7 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
             # from its mean specific force (001 eq. 1-3), the heading is kept ----
             if gap != 2 and dt > 0:
                 if par[_GDEL] > 0.0:
-                    _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i)
+                    _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i, i)
                 else:
                     for a in range(3):
                         w_i[a] = gyr[i, a]
@@ -1350,7 +1357,7 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
             for sub in range(1, n_sub + 1):
                 u = sub / n_sub
                 if par[_GDEL] > 0.0:
-                    _gyr_at_into(t, gyr, t_p + sub * h + par[_GDEL], w_i)
+                    _gyr_at_into(t, gyr, t_p + sub * h + par[_GDEL], w_i, -1)
                 else:
                     for a in range(3):
                         w_i[a] = (1.0 - u) * gyr[i - 1, a] + u * gyr[i, a]
@@ -1383,8 +1390,12 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
             ip = i - 1 if (par[_TRAP] > 0 and i > 0) else i
             if par[_GDEL] > 0.0:
                 # inter-sensor latency: the rate that belongs with this specific force is read gyr_delay_s later
-                _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i)
-                _gyr_at_into(t, gyr, t[ip] + par[_GDEL], w_p)
+                _gyr_at_into(t, gyr, t[i] + par[_GDEL], w_i, i)
+                if ip == i:
+                    for a in range(3):
+                        w_p[a] = w_i[a]
+                else:
+                    _gyr_at_into(t, gyr, t[ip] + par[_GDEL], w_p, ip)
             else:
                 for a in range(3):
                     w_i[a] = gyr[i, a]
