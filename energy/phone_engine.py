@@ -138,8 +138,15 @@ class PhoneEngineConfig:
         with the gyroscope, its 95th percentile is 14.7 deg on the IPIN trials, 14.4-15.1 leaving out each route);
         converging after the gyroscope was off it starts at 30-75 deg, and its changes are then its compass
         corrections, not the walker's turns.
-    batch_s : float
-        Upload period asked of the device.
+    bias_settled_rad_s : float
+        ``auto`` keeps the gyroscope on while standing, after the session's start or after the device was waved
+        about (``marg.wave_rate_rad_s``), until the MARG filter's own standard deviation of the vertical gyroscope
+        bias (:attr:`models.marg.MargState.vertical_bias_std_rad_s`) is below this: the bias's drift over the
+        heading estimator's consistency window (``heading.consistency_window`` steps of 0.55 s) no larger than the
+        random drift the estimator allows the gyroscope over it (``heading.gyro_sigma_rad`` per step):
+        ``0.5 deg / (0.55 s * sqrt(24))`` = 0.19 deg/s. Still, at one place, the quasi-static field makes the
+        vertical bias observable (:mod:`models.marg`); walking, the compass's place errors do not (after the
+        IPIN calibration wave the bias was 0.1-7.9 deg/s wrong, and the gyroscope off while standing kept it so).
     stream_wait_s : float
         How long the accelerometer waits for a lagging gyroscope or magnetometer stream.
     run_step_hz : float
@@ -162,13 +169,15 @@ class PhoneEngineConfig:
     max_heading_std_rad: float = math.radians(6.0)
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
+    bias_settled_rad_s: float = math.radians(0.5) / (0.55 * math.sqrt(24.0))
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
         for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "stand_acc_rate_hz",
-                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
+                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad",
+                     "bias_settled_rad_s", "batch_s", "stream_wait_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
@@ -320,6 +329,8 @@ class PhoneEngine:
         self._last_step_s = -math.inf
         self._gyro_want = True
         self._gyro_steps = 0  # steps since the gyroscope was last asked for
+        self._bias_pending = True  # the vertical gyroscope bias has not settled since the start or the last wave
+        self._bias_ok_s = -math.inf  # when it last settled [s since the start]
         self._behaviour = "other"  # not known before the first step or stand
         self._started = False
         self._log: list[list[float]] = []  # [t_ns, unscaled length, placement index] of the latest steps
@@ -414,7 +425,25 @@ class PhoneEngine:
             last_acc = streams["acc"][0]
             if len(last_acc):
                 self._stand_check(float((int(last_acc[-1]) - self._t0_ns) * 1e-9), events)
+            self._bias_check(float(ts[-1]), events)
         return self._update(positions, events)
+
+    def _bias_check(self, now_s: float, events: list[Event]) -> None:
+        """Has the vertical gyroscope bias settled (``bias_settled_rad_s``) since the start or the device's latest
+        wave? (``auto`` keeps the gyroscope on while standing until it has.)"""
+        from models import marg as M
+
+        m = self._pdr.marg
+        if m.s[M.S_TWAVE] > self._bias_ok_s and not self._bias_pending:
+            self._bias_pending = True
+        if self._bias_pending and now_s - m.s[M.S_TGYR] <= self.config.marg.gyro_gap_s:
+            std = m.vertical_bias_std_rad_s
+            if std <= self.config.bias_settled_rad_s:
+                self._bias_pending = False
+                self._bias_ok_s = now_s
+                if self._t0_ns is not None:
+                    events.append(Event(self._t0_ns + int(round(now_s * 1e9)), "gyro_bias",
+                                        {"settled": True, "std_rad_s": std}))
 
     def _direction(self, r: np.ndarray) -> tuple[float, float]:
         """Walking direction of a step in the filter's frame and as the compass sees it [rad]."""
@@ -584,6 +613,8 @@ class PhoneEngine:
         if self.mode == "always-on":
             return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz, c.batch_s)
         if self._behaviour == "stand":
+            if self._bias_pending:  # the quasi-static field settles the gyroscope's bias: keep it on
+                return SensorConfig(True, c.stand_acc_rate_hz, c.gyr_rate_hz, c.stand_mag_rate_hz, c.batch_s)
             return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
         if self._gyro_want:
             return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
@@ -624,6 +655,8 @@ class PhoneEngine:
             "last_step_s": self._last_step_s,
             "gyro_want": self._gyro_want,
             "gyro_steps": self._gyro_steps,
+            "bias_pending": self._bias_pending,
+            "bias_ok_s": self._bias_ok_s,
             "behaviour": self._behaviour,
             "started": self._started,
             "log": np.asarray(self._log, dtype=np.float64).reshape(-1, 3),
@@ -658,6 +691,8 @@ class PhoneEngine:
         obj._last_step_s = float(d["last_step_s"])
         obj._gyro_want = bool(d["gyro_want"])
         obj._gyro_steps = int(d["gyro_steps"])
+        obj._bias_pending = bool(d.get("bias_pending", True))
+        obj._bias_ok_s = float(d.get("bias_ok_s", -math.inf))
         obj._behaviour = str(d["behaviour"])
         obj._started = bool(d["started"])
         obj._log = np.asarray(d["log"], dtype=np.float64).reshape(-1, 3).tolist()
