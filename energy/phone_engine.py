@@ -138,15 +138,8 @@ class PhoneEngineConfig:
         with the gyroscope, its 95th percentile is 14.7 deg on the IPIN trials, 14.4-15.1 leaving out each route);
         converging after the gyroscope was off it starts at 30-75 deg, and its changes are then its compass
         corrections, not the walker's turns.
-    bias_settled_rad_s : float
-        ``auto`` keeps the gyroscope on while standing, after the session's start or after the device was waved
-        about (``marg.wave_rate_rad_s``), until the MARG filter's own standard deviation of the vertical gyroscope
-        bias (:attr:`models.marg.MargState.vertical_bias_std_rad_s`) is below this: the bias's drift over the
-        heading estimator's consistency window (``heading.consistency_window`` steps of 0.55 s) no larger than the
-        random drift the estimator allows the gyroscope over it (``heading.gyro_sigma_rad`` per step):
-        ``0.5 deg / (0.55 s * sqrt(24))`` = 0.19 deg/s. Still, at one place, the quasi-static field makes the
-        vertical bias observable (:mod:`models.marg`); walking, the compass's place errors do not (after the
-        IPIN calibration wave the bias was 0.1-7.9 deg/s wrong, and the gyroscope off while standing kept it so).
+    batch_s : float
+        Upload period asked of the device.
     stream_wait_s : float
         How long the accelerometer waits for a lagging gyroscope or magnetometer stream.
     run_step_hz : float
@@ -169,15 +162,13 @@ class PhoneEngineConfig:
     max_heading_std_rad: float = math.radians(6.0)
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
-    bias_settled_rad_s: float = math.radians(0.5) / (0.55 * math.sqrt(24.0))
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
         for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "stand_acc_rate_hz",
-                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad",
-                     "bias_settled_rad_s", "batch_s", "stream_wait_s", "run_step_hz"):
+                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
@@ -330,7 +321,7 @@ class PhoneEngine:
         self._gyro_want = True
         self._gyro_steps = 0  # steps since the gyroscope was last asked for
         self._bias_pending = True  # the vertical gyroscope bias has not settled since the start or the last wave
-        self._bias_ok_s = -math.inf  # when it last settled [s since the start]
+        self._returning = False  # the gyroscope came back and its own turns carry the heading until the filter settles
         self._behaviour = "other"  # not known before the first step or stand
         self._started = False
         self._log: list[list[float]] = []  # [t_ns, unscaled length, placement index] of the latest steps
@@ -429,21 +420,15 @@ class PhoneEngine:
         return self._update(positions, events)
 
     def _bias_check(self, now_s: float, events: list[Event]) -> None:
-        """Has the vertical gyroscope bias settled (``bias_settled_rad_s``) since the start or the device's latest
-        wave? (``auto`` keeps the gyroscope on while standing until it has.)"""
+        """Has the vertical gyroscope bias settled since the start and the device's latest wave
+        (:func:`models.marg.bias_settled`)? ``auto`` keeps the gyroscope on while standing until it has."""
         from models import marg as M
 
-        m = self._pdr.marg
-        if m.s[M.S_TWAVE] > self._bias_ok_s and not self._bias_pending:
-            self._bias_pending = True
-        if self._bias_pending and now_s - m.s[M.S_TGYR] <= self.config.marg.gyro_gap_s:
-            std = m.vertical_bias_std_rad_s
-            if std <= self.config.bias_settled_rad_s:
-                self._bias_pending = False
-                self._bias_ok_s = now_s
-                if self._t0_ns is not None:
-                    events.append(Event(self._t0_ns + int(round(now_s * 1e9)), "gyro_bias",
-                                        {"settled": True, "std_rad_s": std}))
+        pending = not M.bias_settled(self._pdr.marg.s)
+        if self._bias_pending and not pending and self._t0_ns is not None:
+            events.append(Event(self._t0_ns + int(round(now_s * 1e9)), "gyro_bias",
+                                {"settled": True, "std_rad_s": self._pdr.marg.vertical_bias_std_rad_s}))
+        self._bias_pending = pending
 
     def _direction(self, r: np.ndarray) -> tuple[float, float]:
         """Walking direction of a step in the filter's frame and as the compass sees it [rad]."""
@@ -542,15 +527,29 @@ class PhoneEngine:
             hd.set_offset_prior(0.0, c.heading.offset_prior_rad)  # the compass reads in theta's frame (magnetic north)
             return
         dc = 0.0 if not math.isfinite(change) else change
-        if gyro and self._prev_gyro and math.isfinite(self._prev_dir):
-            if self._gyro_run >= c.gyro_min_steps and yaw_std < c.marg_settled_std_rad:
-                hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
-            else:
-                # the MARG filter is still converging (the gyroscope has just come back, or the session just began):
-                # its heading moves with its compass corrections, so its changes are not the walker's; its heading
-                # is an observation with the variance it states
-                hd.predict_free(field_change=dc)
-                hd.update_heading(direction, yaw_std ** 2)
+        dyaw = float(r[_F["gyro_dyaw"]])
+        settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
+                   and yaw_std < c.marg_settled_std_rad)
+        # the gyroscope has come back (after a stretch without it) and its bias has settled: until the MARG
+        # filter has settled again, the heading turns by the gyroscope's own measured turn over the step, not by
+        # the filter's heading, which is converging onto its compass (a re-snap to the compass's place error)
+        follow = (gyro and not settled and r[_F["bias_settled"]] > 0.5 and math.isfinite(dyaw)
+                  and (not self._prev_gyro or self._returning))
+        self._returning = follow
+        if settled:
+            hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly, learn=walking)
+        elif follow:
+            hd.predict_gyro(dyaw, dc)
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly, learn=walking)
+        elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
+            # the MARG filter is still converging (the session just began, or the gyroscope came back before its
+            # bias settled): its heading moves with its compass corrections, so its changes are not the walker's;
+            # its heading is an observation with the variance it states
+            hd.predict_free(field_change=dc)
+            hd.update_heading(direction, yaw_std ** 2)
             if has_c:
                 hd.update_compass(compass, r_c, anomaly, learn=walking)
         else:
@@ -656,7 +655,7 @@ class PhoneEngine:
             "gyro_want": self._gyro_want,
             "gyro_steps": self._gyro_steps,
             "bias_pending": self._bias_pending,
-            "bias_ok_s": self._bias_ok_s,
+            "returning": self._returning,
             "behaviour": self._behaviour,
             "started": self._started,
             "log": np.asarray(self._log, dtype=np.float64).reshape(-1, 3),
@@ -692,7 +691,7 @@ class PhoneEngine:
         obj._gyro_want = bool(d["gyro_want"])
         obj._gyro_steps = int(d["gyro_steps"])
         obj._bias_pending = bool(d.get("bias_pending", True))
-        obj._bias_ok_s = float(d.get("bias_ok_s", -math.inf))
+        obj._returning = bool(d.get("returning", False))
         obj._behaviour = str(d["behaviour"])
         obj._started = bool(d["started"])
         obj._log = np.asarray(d["log"], dtype=np.float64).reshape(-1, 3).tolist()

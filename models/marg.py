@@ -58,13 +58,14 @@ S_NCOMP = 12  # compass updates so far
 S_STILL = 13  # 1 when the accelerometer says the device is still
 S_RATE = 14  # exponential mean of the bias-corrected angular rate's magnitude [rad/s] (time constant still_tau_s)
 S_TWAVE = 15  # time of the latest sample of a device waved about (mean rate above wave_rate_rad_s) [s]
-N_SCALARS = 16
+S_TSETTLED = 16  # latest time the gyroscope ran with the vertical bias std <= bias_settled_rad_s [s]
+N_SCALARS = 17
 
 # config slots (MargConfig.as_array)
 _C_FIELDS = ("gyro_noise_rad_s", "bias_walk_rad_s2", "bias_prior_rad_s", "no_gyro_rad_s", "gyro_gap_s",
              "acc_noise_ms2", "acc_dynamic_gain", "compass_sigma_rad", "compass_corr_s", "compass_interval_s",
              "compass_disturbance_gain", "compass_max_rate_rad_s", "qsf_sigma_rad", "qsf_magnitude_ut",
-             "qsf_dip_rad", "still_std_ms2", "still_tau_s", "max_dt_s", "wave_rate_rad_s")
+             "qsf_dip_rad", "still_std_ms2", "still_tau_s", "max_dt_s", "wave_rate_rad_s", "bias_settled_rad_s")
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,14 @@ class MargConfig:
         standing until the quasi-static field has settled it. (Holding the bias covariance at the scale-factor
         error times the rate while waved made the covariance honest but the always-on landmark error worse,
         2.07 -> 2.75 m: the heading estimator took the wave's wilder turns.)
+    bias_settled_rad_s : float
+        The vertical gyroscope bias has settled while the gyroscope runs with the filter's own standard deviation
+        of it (``sqrt((C P_bb C^T)[2, 2])``) at or below this [rad/s]; ``S_TSETTLED`` is the latest such time and
+        :func:`bias_settled` says whether it came after the latest wave. Default: the bias's drift over the
+        phone heading estimator's consistency window (24 steps of 0.55 s) no larger than the random drift it
+        allows the gyroscope over that window (0.5 deg per step): ``0.5 deg / (0.55 s * sqrt(24))`` = 0.19 deg/s.
+        Still at one place the quasi-static field update makes the vertical bias observable (it reaches this in
+        10-20 s after the IPIN wave); walking, the compass's place errors do not.
     """
 
     gyro_noise_rad_s: float = 0.01
@@ -138,6 +147,7 @@ class MargConfig:
     still_tau_s: float = 0.5
     max_dt_s: float = 0.5
     wave_rate_rad_s: float = 3.0
+    bias_settled_rad_s: float = math.radians(0.5) / (0.55 * math.sqrt(24.0))
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -203,7 +213,7 @@ class MargState:
             P[i, i] = config.bias_prior_rad_s ** 2
         P[6, 6] = 1.0
         s = np.zeros(N_SCALARS)
-        s[S_TGYR] = s[S_TMAG] = s[S_TACC] = s[S_TWAVE] = -1e300
+        s[S_TGYR] = s[S_TMAG] = s[S_TACC] = s[S_TWAVE] = s[S_TSETTLED] = -1e300
         ref = np.zeros(3)
         if reference_ned_ut is not None:
             r = np.asarray(reference_ned_ut, dtype=float).reshape(3)
@@ -229,9 +239,7 @@ class MargState:
     def vertical_bias_std_rad_s(self) -> float:
         """Standard deviation of the gyroscope bias about the vertical [rad/s] (the part that turns the heading):
         ``sqrt((C P_bb C^T)[2, 2])`` with ``C`` body -> NED."""
-        C = q2dcm(self.q)
-        c = C[2]
-        return float(math.sqrt(max(float(c @ self.P[3:6, 3:6] @ c), 0.0)))
+        return float(math.sqrt(vertical_bias_var(self.q, self.P)))
 
 
 # ---------------------------------------------------------------------------------------------- compiled core
@@ -515,6 +523,24 @@ def marg_event(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: np
         marg_gravity(q, b, P, s, v, c)
     else:
         marg_magnetic(q, b, P, s, w, ref, v, t, c)
+        if t - s[S_TGYR] <= c[4] and vertical_bias_var(q, P) <= c[19] * c[19]:
+            s[S_TSETTLED] = t
+
+
+@njit(cache=True)
+def vertical_bias_var(q: np.ndarray, P: np.ndarray) -> float:
+    """Variance of the gyroscope bias about the vertical [(rad/s)^2]: ``(C P_bb C^T)[2, 2]``, ``C`` body -> NED."""
+    C = q2dcm(q)
+    acc = 0.0
+    for i in range(3):
+        for j in range(3):
+            acc += C[2, i] * P[3 + i, 3 + j] * C[2, j]
+    return max(acc, 0.0)
+
+
+def bias_settled(s: np.ndarray) -> bool:
+    """Has the vertical gyroscope bias settled (``bias_settled_rad_s``) since the start and the latest wave?"""
+    return bool(s[S_TSETTLED] > -1e299 and s[S_TSETTLED] >= s[S_TWAVE])
 
 
 @njit(cache=True)
