@@ -121,7 +121,12 @@ class PhoneEngineConfig:
     acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
         Full rates (the always-on baseline: a phone's usual 50 / 100 / 50 Hz).
     walk_mag_rate_hz : float
-        Magnetometer rate while walking in ``auto`` (the compass is read every ``marg.compass_interval_s``).
+        Magnetometer rate while walking in ``auto``: 10 Hz, the rate the MARG filter reads the compass at
+        (``marg.compass_interval_s``); faster samples are skipped by it.
+    auto_gyr_rate_hz : float
+        Gyroscope rate in ``auto`` when on: 50 Hz, twice the 25 Hz above which a hand-held walk has little
+        rotation (the accelerometer's own 50 Hz; its compute per sample is what the rate saves, the BMI270's
+        gyroscope current being flat in rate).
     stand_acc_rate_hz, stand_mag_rate_hz : float
         Rates while standing in ``auto``.
     stand_after_s : float
@@ -155,7 +160,8 @@ class PhoneEngineConfig:
     acc_rate_hz: float = 50.0
     gyr_rate_hz: float = 100.0
     mag_rate_hz: float = 50.0
-    walk_mag_rate_hz: float = 25.0
+    walk_mag_rate_hz: float = 10.0
+    auto_gyr_rate_hz: float = 50.0
     stand_acc_rate_hz: float = 25.0
     stand_mag_rate_hz: float = 10.0
     stand_after_s: float = 2.0
@@ -167,7 +173,7 @@ class PhoneEngineConfig:
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
-        for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "stand_acc_rate_hz",
+        for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "auto_gyr_rate_hz", "stand_acc_rate_hz",
                      "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
@@ -320,6 +326,8 @@ class PhoneEngine:
         self._last_step_s = -math.inf
         self._gyro_want = True
         self._gyro_steps = 0  # steps since the gyroscope was last asked for
+        self._bias_pending = True  # the vertical gyroscope bias has not settled since the start or the last wave
+        self._returning = False  # the gyroscope came back and its own turns carry the heading until the filter settles
         self._behaviour = "other"  # not known before the first step or stand
         self._started = False
         self._log: list[list[float]] = []  # [t_ns, unscaled length, placement index] of the latest steps
@@ -414,7 +422,19 @@ class PhoneEngine:
             last_acc = streams["acc"][0]
             if len(last_acc):
                 self._stand_check(float((int(last_acc[-1]) - self._t0_ns) * 1e-9), events)
+            self._bias_check(float(ts[-1]), events)
         return self._update(positions, events)
+
+    def _bias_check(self, now_s: float, events: list[Event]) -> None:
+        """Has the vertical gyroscope bias settled since the start and the device's latest wave
+        (:func:`models.marg.bias_settled`)? ``auto`` keeps the gyroscope on while standing until it has."""
+        from models import marg as M
+
+        pending = not M.bias_settled(self._pdr.marg.s)
+        if self._bias_pending and not pending and self._t0_ns is not None:
+            events.append(Event(self._t0_ns + int(round(now_s * 1e9)), "gyro_bias",
+                                {"settled": True, "std_rad_s": self._pdr.marg.vertical_bias_std_rad_s}))
+        self._bias_pending = pending
 
     def _direction(self, r: np.ndarray) -> tuple[float, float]:
         """Walking direction of a step in the filter's frame and as the compass sees it [rad]."""
@@ -513,15 +533,29 @@ class PhoneEngine:
             hd.set_offset_prior(0.0, c.heading.offset_prior_rad)  # the compass reads in theta's frame (magnetic north)
             return
         dc = 0.0 if not math.isfinite(change) else change
-        if gyro and self._prev_gyro and math.isfinite(self._prev_dir):
-            if self._gyro_run >= c.gyro_min_steps and yaw_std < c.marg_settled_std_rad:
-                hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
-            else:
-                # the MARG filter is still converging (the gyroscope has just come back, or the session just began):
-                # its heading moves with its compass corrections, so its changes are not the walker's; its heading
-                # is an observation with the variance it states
-                hd.predict_free(field_change=dc)
-                hd.update_heading(direction, yaw_std ** 2)
+        dyaw = float(r[_F["gyro_dyaw"]])
+        settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
+                   and yaw_std < c.marg_settled_std_rad)
+        # the gyroscope has come back (after a stretch without it) and its bias has settled: until the MARG
+        # filter has settled again, the heading turns by the gyroscope's own measured turn over the step, not by
+        # the filter's heading, which is converging onto its compass (a re-snap to the compass's place error)
+        follow = (gyro and not settled and r[_F["bias_settled"]] > 0.5 and math.isfinite(dyaw)
+                  and (not self._prev_gyro or self._returning))
+        self._returning = follow
+        if settled:
+            hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly, learn=walking)
+        elif follow:
+            hd.predict_gyro(dyaw, dc)
+            if has_c:
+                hd.update_compass(compass, r_c, anomaly, learn=walking)
+        elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
+            # the MARG filter is still converging (the session just began, or the gyroscope came back before its
+            # bias settled): its heading moves with its compass corrections, so its changes are not the walker's;
+            # its heading is an observation with the variance it states
+            hd.predict_free(field_change=dc)
+            hd.update_heading(direction, yaw_std ** 2)
             if has_c:
                 hd.update_compass(compass, r_c, anomaly, learn=walking)
         else:
@@ -584,9 +618,11 @@ class PhoneEngine:
         if self.mode == "always-on":
             return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz, c.batch_s)
         if self._behaviour == "stand":
+            if self._bias_pending:  # the quasi-static field settles the gyroscope's bias: keep it on
+                return SensorConfig(True, c.stand_acc_rate_hz, c.auto_gyr_rate_hz, c.stand_mag_rate_hz, c.batch_s)
             return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
         if self._gyro_want:
-            return SensorConfig(True, c.acc_rate_hz, c.gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
+            return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
         return SensorConfig(False, c.acc_rate_hz, 0.0, c.walk_mag_rate_hz, c.batch_s)
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
@@ -624,6 +660,8 @@ class PhoneEngine:
             "last_step_s": self._last_step_s,
             "gyro_want": self._gyro_want,
             "gyro_steps": self._gyro_steps,
+            "bias_pending": self._bias_pending,
+            "returning": self._returning,
             "behaviour": self._behaviour,
             "started": self._started,
             "log": np.asarray(self._log, dtype=np.float64).reshape(-1, 3),
@@ -658,6 +696,8 @@ class PhoneEngine:
         obj._last_step_s = float(d["last_step_s"])
         obj._gyro_want = bool(d["gyro_want"])
         obj._gyro_steps = int(d["gyro_steps"])
+        obj._bias_pending = bool(d.get("bias_pending", True))
+        obj._returning = bool(d.get("returning", False))
         obj._behaviour = str(d["behaviour"])
         obj._started = bool(d["started"])
         obj._log = np.asarray(d["log"], dtype=np.float64).reshape(-1, 3).tolist()

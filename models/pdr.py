@@ -10,7 +10,11 @@ knows); the principal direction of the horizontal specific force over the last s
 eigenvalue ratio and the gait-cycle sign statistic for it; the filter's heading standard deviation; the
 fraction of accelerometer samples that had gyroscope samples; the field's magnitude and dip; the mean resultant
 length of the body's down direction (1: a steady tilt, as held in front; a pocket's or a swinging arm's tilt
-swings with the stride) and the mean angular rate [rad/s] (NaN without gyroscope).
+swings with the stride), the mean angular rate [rad/s] (NaN without gyroscope) and ``gyro_dyaw``, the turn about
+the vertical the bias-corrected gyroscope measured over the step [rad] (integrated as the filter integrates it;
+unlike the change of the filter's azimuths, free of its compass corrections); ``bias_settled`` is 1 when the
+filter's vertical gyroscope bias has settled since the start and the device's latest wave
+(:func:`models.marg.bias_settled`).
 
 Everything that carries over between calls is in plain arrays (:class:`PdrState`), so the pass is
 deterministic whatever the input's chunking, and serialisable.
@@ -32,12 +36,13 @@ from models.walking_direction import RING, forward_azimuth, forward_sign, princi
 __all__ = ["STEP_RECORD", "PdrState", "pdr_run", "run_pdr"]
 
 STEP_RECORD = ("t_s", "a_max", "a_min", "period_s", "fwd_az", "fwd_r", "field_az", "field_r", "pca_az", "pca_ratio",
-               "pca_sign", "yaw_std", "gyro_frac", "n_mag", "field_ut", "dip_rad", "tilt_r", "rate_rad_s")
+               "pca_sign", "yaw_std", "gyro_frac", "n_mag", "field_ut", "dip_rad", "tilt_r", "rate_rad_s", "gyro_dyaw",
+               "bias_settled")
 _NREC = len(STEP_RECORD)
 # accumulator slots (since the previous step)
 (_A_FC, _A_FS, _A_FN, _A_MC, _A_MS, _A_MN, _A_NACC, _A_NGYR, _A_MAG, _A_DIP, _A_PREV, _A_PREV2, _A_DX, _A_DY, _A_DZ,
- _A_RATE) = range(16)
-_NACC = 16
+ _A_RATE, _A_DYAW) = range(17)
+_NACC = 17
 
 
 @dataclass
@@ -63,12 +68,13 @@ class PdrState:
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> PdrState:
         return cls(M.MargState.from_state(d["marg"]), np.asarray(d["steps"], dtype=float).reshape(N_STATE).copy(),
-                   np.asarray(d["acc"], dtype=float).reshape(_NACC).copy(),
+                   M._pad(np.asarray(d["acc"], dtype=float).reshape(-1), _NACC),
                    np.asarray(d["ring"], dtype=float).reshape(RING, 4).copy(), np.array([int(d["ring_n"])], dtype=np.int64))
 
 
 @njit(cache=True)
-def _emit(row: np.ndarray, det: np.ndarray, ac: np.ndarray, ring: np.ndarray, n_ring: int, P: np.ndarray) -> None:
+def _emit(row: np.ndarray, det: np.ndarray, ac: np.ndarray, ring: np.ndarray, n_ring: int, P: np.ndarray,
+          s: np.ndarray) -> None:
     row[0], row[1], row[2], row[3] = det[0], det[1], det[2], det[3]
     row[4] = math.atan2(ac[_A_FS], ac[_A_FC]) if ac[_A_FN] > 0 else math.nan
     row[5] = math.hypot(ac[_A_FS], ac[_A_FC]) / ac[_A_FN] if ac[_A_FN] > 0 else 0.0
@@ -87,6 +93,8 @@ def _emit(row: np.ndarray, det: np.ndarray, ac: np.ndarray, ring: np.ndarray, n_
     row[15] = ac[_A_DIP] / ac[_A_MN] if ac[_A_MN] > 0 else math.nan
     row[16] = math.sqrt(ac[_A_DX] ** 2 + ac[_A_DY] ** 2 + ac[_A_DZ] ** 2) / ac[_A_NACC] if ac[_A_NACC] > 0 else 1.0
     row[17] = ac[_A_RATE] / ac[_A_NGYR] if ac[_A_NGYR] > 0 else math.nan
+    row[18] = ac[_A_DYAW]
+    row[19] = 1.0 if (s[M.S_TSETTLED] > -1e299 and s[M.S_TSETTLED] >= s[M.S_TWAVE]) else 0.0
 
 
 @njit(cache=True)
@@ -102,6 +110,11 @@ def pdr_run(t: np.ndarray, kind: np.ndarray, v: np.ndarray, q: np.ndarray, b: np
         ti = t[i]
         k = kind[i]
         vi = v[i]
+        if s[M.S_INIT] > 0.5 and ti > s[M.S_T] and ti - s[M.S_TGYR] <= mc[4]:
+            # the turn about the vertical the filter's prediction is about to integrate (z down: + = clockwise)
+            C0 = M.q2dcm(q)
+            ac[_A_DYAW] += (C0[2, 0] * (w[0] - b[0]) + C0[2, 1] * (w[1] - b[1]) + C0[2, 2] * (w[2] - b[2])) \
+                * min(ti - s[M.S_T], mc[17])
         M.marg_event(q, b, P, w, s, ref, ti, k, vi, mc)
         if s[M.S_INIT] < 0.5:
             continue
@@ -127,12 +140,12 @@ def pdr_run(t: np.ndarray, kind: np.ndarray, v: np.ndarray, q: np.ndarray, b: np
                 ac[_A_RATE] += math.sqrt((w[0] - b[0]) ** 2 + (w[1] - b[1]) ** 2 + (w[2] - b[2]) ** 2)
             if step_update(st, ti, a, sc, det):
                 if n_out < out.shape[0]:
-                    _emit(out[n_out], det, ac, ring, ring_n[0], P)
+                    _emit(out[n_out], det, ac, ring, ring_n[0], P, s)
                     n_out += 1
                 ac[_A_PREV2] = ac[_A_PREV]
                 ac[_A_PREV] = det[0]
                 for z in (_A_FC, _A_FS, _A_FN, _A_MC, _A_MS, _A_MN, _A_NACC, _A_NGYR, _A_MAG, _A_DIP, _A_DX, _A_DY, _A_DZ,
-                          _A_RATE):
+                          _A_RATE, _A_DYAW):
                     ac[z] = 0.0
         elif k == M.KIND_MAG:
             mn0 = C[0, 0] * vi[0] + C[0, 1] * vi[1] + C[0, 2] * vi[2]
