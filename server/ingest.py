@@ -25,7 +25,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, object_session
 from sqlalchemy.orm.exc import StaleDataError
 
 from models.batch import STREAMS, BatchError, SensorBatch
@@ -225,20 +225,28 @@ class EngineHost:
             return new_engine(mode, profile, spec)  # type: ignore[no-any-return]
         return self.engine_cls(mode=mode, profile=profile)
 
-    def restore(self, sess: TrackSession, db: Session) -> EngineLike:
-        """The session's engine at its stored version (the checkpoint and the stored batches after it)."""
+    def restore(self, sess: TrackSession) -> EngineLike:
+        """The session's engine at its stored version (the checkpoint and the stored batches after it, read in the
+        ORM session ``sess`` belongs to)."""
+        db = object_session(sess)
         return self.restore_at(sess.id, sess.version, lambda: sess.engine_state, sess.engine_mode, sess.profile_in,
-                               lambda n: orm_batches_after(db, sess.id, n, sess.next_seq))[0]
+                               lambda n: orm_batches_after(db, sess.id, n, sess.next_seq))
 
     def restore_at(
         self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None,
-        load_raws: Callable[[int], list[bytes]],
-    ) -> tuple[EngineLike, int | None, bool]:
+        load_raws: Callable[[int], list[bytes]] | None = None,
+    ) -> EngineLike:
         """The engine of ``session_id`` at ``version``: the cached one when it is at that version, else
         restored from ``load_state()`` (bytes or None for a session that never got a batch) and, for a checkpoint,
-        the stored raw batches after it (``load_raws(n)``: batches ``n ..`` in order). Returns ``(engine, held,
-        restored)``: ``held`` the batches the stored blob holds (None: a complete state), ``restored`` False for
-        the cached engine."""
+        the stored raw batches after it (``load_raws(n)``: batches ``n ..`` in order)."""
+        return self.restore_held(session_id, version, load_state, mode, profile, load_raws)[0]
+
+    def restore_held(
+        self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None,
+        load_raws: Callable[[int], list[bytes]] | None,
+    ) -> tuple[EngineLike, int | None, bool]:
+        """:meth:`restore_at`, returning ``(engine, held, restored)``: ``held`` the batches the stored blob holds
+        (None: a complete state), ``restored`` False for the cached engine (:func:`checkpoint_due`)."""
         hit = self._cache.get(session_id)
         if hit is not None and hit[0] == version:
             self._cache.move_to_end(session_id)
@@ -253,7 +261,9 @@ class EngineHost:
             from_bytes: Callable[[bytes], Any] = engine_from_bytes
         else:
             from_bytes = self.engine_cls.from_bytes
-        raws = load_raws(held) if held is not None else []
+        if held is not None and load_raws is None:
+            raise ValueError("a checkpoint needs the stored batches after it (load_raws)")
+        raws = load_raws(held) if held is not None and load_raws is not None else []
         return replay_engine(from_bytes(state), raws), held, True
 
     def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
@@ -700,7 +710,7 @@ def _apply_once(
             state = None if fed.state is None else pack_checkpoint(fed.state, seq + 1)
         else:
             with phase("load_state"):
-                engine, held, restored = host.restore_at(session_id, row.version, load_state, row.engine_mode,
+                engine, held, restored = host.restore_held(session_id, row.version, load_state, row.engine_mode,
                                                          row.profile_in,
                                                          lambda n: orm_batches_after(db, session_id, n, row.next_seq))
                 end_read()
@@ -769,7 +779,7 @@ def close_session(db: Session, host: EngineHost, user: User, session_id: int,
         if sess is None or sess.status != "open":
             db.rollback()
             return sess
-        engine = host.restore(sess, db)
+        engine = host.restore(sess)
         host.forget(session_id)
         upd = engine.flush()
         _store_outputs(db, sess, sess.next_seq, upd)
@@ -805,7 +815,7 @@ def apply_known_distance(db: Session, host: EngineHost, user: User, session_id: 
         if sess.status != "open":
             db.rollback()
             raise IngestConflict(f"session {session_id} is closed; a distance calibrates an open session", sess.next_seq)
-        engine = host.restore(sess, db)
+        engine = host.restore(sess)
         host.forget(session_id)
         calibrate = getattr(engine, "calibrate_distance", None)
         if calibrate is None:

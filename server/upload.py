@@ -383,7 +383,7 @@ class Uploader:
                                  host.state_every)
         else:
             with phase("load_state"):
-                engine, held, restored = host.restore_at(session_id, sess.version, stored_state, "auto", None,
+                engine, held, restored = host.restore_held(session_id, sess.version, stored_state, "auto", None,
                                                          raws_after)
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
             with phase("engine"):
