@@ -432,7 +432,7 @@ class GaitPipeline:
         if len(self._fields) < 3:
             return None
         a = np.asarray(self._fields)
-        return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
+        return median(a[:, 0]), median(a[:, 1])
 
     def compass_reading(self, e: StepEvent) -> tuple[float, float, float, float] | None:
         """At the stance of ``e``: compass heading [rad], its variance [rad^2] without the place term, and the

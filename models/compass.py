@@ -396,7 +396,7 @@ class MagCalibrator:
         """RMS [rad] of compass minus ZUPT-KF heading over stance rows ``[acc, mag, heading]``, and its robust
         version (the square root of the median square over 0.6745, the RMS of a normal spread)."""
         d2 = np.square(np.angle(np.exp(1j * np.asarray([self.heading(r[:3], r[3:6]) - r[6] for r in rows]))))
-        return math.sqrt(float(np.mean(d2))), math.sqrt(float(np.median(d2))) / 0.6745
+        return math.sqrt(float(np.mean(d2))), math.sqrt(median(d2)) / 0.6745
 
     def _shape_scale(self, rows: np.ndarray) -> tuple[float, float]:
         """Robust scales of the calibrated field's magnitude [uT] and dip [rad] over stance rows
@@ -406,8 +406,8 @@ class MagCalibrator:
         sh = np.asarray([self.field_shape(r[:3], r[3:6]) for r in rows], dtype=np.float64).reshape(-1, 2)
         if sh.shape[0] == 0:
             return math.nan, math.nan
-        return (math.sqrt(float(np.median(np.square(sh[:, 0] - ref)))) / 0.6745,
-                math.sqrt(float(np.median(np.square(sh[:, 1] - dip_ref)))) / 0.6745)
+        return (math.sqrt(median(np.square(sh[:, 0] - ref))) / 0.6745,
+                math.sqrt(median(np.square(sh[:, 1] - dip_ref))) / 0.6745)
 
     def settled(self, norm: float, dip: float, rel_floor: float, dip_floor: float, sigmas: float = 3.0) -> bool:
         """The calibrated field's magnitude [uT] and dip [rad] (:meth:`field_shape`) are m_n's within ``sigmas``
@@ -543,7 +543,7 @@ class MagCalibrator:
                 # the stances' scale may not grow past the linear fit's: with more unknowns the stances fit at
                 # least as well, and a scale re-estimated freely let the fit give the stances up for swings fitted
                 # by a far-off flat ellipsoid (gdin indoor walks: hard iron 10^5-10^6 uT, residuals 50-200 uT)
-                s_st = min(max(1.4826 * float(np.median(rn)) / math.sqrt(3.0) * 1.2, 0.5), s_lin)
+                s_st = min(max(1.4826 * median(rn) / math.sqrt(3.0) * 1.2, 0.5), s_lin)
                 u = rn / (s_st * math.sqrt(3.0))
                 w_st = np.where(u <= 1.5, 1.0, 1.5 / np.maximum(u, 1e-12))
                 s_sw = max(1.4826 * float(np.median(np.abs(r_sw))), 0.1)

@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from models.stats import median
+
 __all__ = ["HeadingConfig", "CompassNoise", "HeadingEstimator", "wrap"]
 
 _STRAIGHT, _TURN = 0, 1
@@ -158,7 +160,7 @@ class CompassNoise:
         if not self.samples:
             return 0.0
         a = np.asarray(self.samples)
-        return max(0.0, float(np.median(a[:, 0])) / _CHI2_1_MEDIAN - float(np.median(a[:, 1])))
+        return max(0.0, median(a[:, 0]) / _CHI2_1_MEDIAN - median(a[:, 1]))
 
     def reading_variance(self, s_cal: float) -> float:
         """Variance [rad^2] of a reading for calibration scale ``s_cal`` [rad], without the place term (the

@@ -166,7 +166,7 @@ def create_app(settings: Settings | None = None, engine_cls: Any | None = None) 
     app.state.ingest_pool = ThreadPoolExecutor(max_workers=settings.ingest_threads, thread_name_prefix="ingest")
     app.state.host = EngineHost(settings.engine_cache_size, engine_cls, serialize_writes=db_engine.dialect.name == "sqlite",
                                 engine_processes=settings.engine_processes, channels=settings.ingest_threads,
-                                warm=settings.engine_warmup)
+                                warm=settings.engine_warmup, state_every=settings.state_every)
     # batch uploads on driver connections (SQLite: group commit; PostgreSQL: one statement), see server.upload
     sqlite = db_engine.dialect.name == "sqlite"
     app.state.uploader = Uploader(db_engine, app.state.host, app.state.limiter) if (

@@ -94,27 +94,31 @@ def _unpack_streams(counts: tuple[int, ...], buf: bytearray) -> dict[str, np.nda
 
 
 def _feed(
-    session_id: int, version: int, state: bytes | None, seq: int, counts: tuple[int, ...], buf: bytearray
+    session_id: int, version: int, state: bytes | tuple[bytes, list[bytes]] | None, seq: int, counts: tuple[int, ...],
+    buf: bytearray, want_state: bool = True,
 ) -> tuple[Any, ...]:
     """In the helper: feed one batch; ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
 
-    ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state``,
+    ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state`` (a
+    stored blob, or a blob and the stored raw batches after its checkpoint, :func:`server.ingest.replay_engine`),
     also when an engine is cached at ``version`` (the worker does not vouch for it, see the module docstring).
+    ``want_state``: the answer carries the engine's new state (a checkpoint is due).
     """
     from energy.engines import engine_from_bytes
     from models.batch import BatchError, SensorBatch
-    from server.ingest import feed_engine
+    from server.ingest import feed_engine, replay_engine
     from server.statecodec import unpack_state
 
     hit = _CACHE.pop(session_id, None)
     if state is not None:
-        engine = engine_from_bytes(unpack_state(state))
+        blob, raws = (state, []) if isinstance(state, (bytes, bytearray)) else state
+        engine = replay_engine(engine_from_bytes(unpack_state(blob)), raws)
     elif hit is not None and hit[0] == version:
         engine = hit[1]
     else:
         return ("miss",)
     try:
-        fed = feed_engine(engine, SensorBatch(**_unpack_streams(counts, buf)), session_id, seq)
+        fed = feed_engine(engine, SensorBatch(**_unpack_streams(counts, buf)), session_id, seq, want_state)
     except BatchError as exc:  # sent back as plain values (the worker raises its own BatchError from them)
         return ("batch_error", exc.field, exc.problem)
     _CACHE[session_id] = (version + 1, engine)
@@ -261,11 +265,13 @@ class EnginePool:
         with self._committed_lock:
             self._committed.pop(session_id, None)
 
-    def feed(self, session_id: int, version: int, state: bytes | None, seq: int, streams: dict[str, np.ndarray]) -> tuple[Any, ...]:
+    def feed(self, session_id: int, version: int, state: bytes | tuple[bytes, list[bytes]] | None, seq: int,
+             streams: dict[str, np.ndarray], want_state: bool = True) -> tuple[Any, ...]:
         """Feed one batch in the session's helper: ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
 
         ``state`` None: the helper's cached engine at ``version`` (only after :meth:`take`); else the engine
-        restored from ``state`` (the helper's cached one is then never used)."""
+        restored from ``state`` (a stored blob, or a blob and the stored raw batches after its checkpoint; the
+        helper's cached one is then never used). ``want_state``: the answer carries the new engine state."""
         h = self._helper(session_id)
         waited = 0.0
         while True:  # a free channel; give up at once when the helper died meanwhile (its channels never free)
@@ -279,7 +285,7 @@ class EnginePool:
                 if waited >= 120.0:
                     raise EngineHelperError("no engine helper channel free for 120 s") from None
         try:
-            conn.send((session_id, version, state, seq, *_pack_streams(streams)))
+            conn.send((session_id, version, state, seq, *_pack_streams(streams), want_state))
             out: tuple[Any, ...] = conn.recv()
         except (EOFError, OSError) as exc:  # the helper died: this pipe is out of step, do not reuse it
             h.broken = True

@@ -25,15 +25,15 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 from sqlalchemy import insert, select, update
 from sqlalchemy.exc import IntegrityError, OperationalError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, object_session
 from sqlalchemy.orm.exc import StaleDataError
 
 from models.batch import STREAMS, BatchError, SensorBatch
 from server import crud
 from server.engine_pool import EngineHelperDied, EnginePool
-from server.formats import canonical_bytes, digest
+from server.formats import MSGPACK_TYPE, canonical_bytes, decode_batch, digest
 from server.models import BatchRecord, EventRecord, PositionRecord, TrackSession, User, utcnow
-from server.statecodec import pack_state, unpack_state
+from server.statecodec import held_batches, pack_checkpoint, pack_state, unpack_checkpoint
 from server.timing import phase, since
 from server.plausibility import STILL_GYRO
 from server.watermarks import advanced, check_after
@@ -47,6 +47,7 @@ __all__ = [
     "apply_batch",
     "close_session",
     "apply_known_distance",
+    "checkpoint_due",
     "engine_profile_in",
     "engine_profile_from_stored",
     "session_spec",
@@ -54,6 +55,8 @@ __all__ = [
     "is_contention",
     "pool_feed",
     "json_safe",
+    "replay_engine",
+    "stored_batch",
     "validate_calibration",
 ]
 
@@ -144,6 +147,9 @@ class EngineHost:
     warm : bool
         Compile or load the engine's kernels at :meth:`start` and report :meth:`ready` only then
         (:mod:`server.warmup`); False: ready at once.
+    state_every : int
+        Batch uploads store the engine state as a checkpoint every this many batches (``Settings.state_every``,
+        :mod:`server.statecodec`); a restore replays the stored batches after the last one.
     """
 
     def __init__(
@@ -154,8 +160,10 @@ class EngineHost:
         engine_processes: int = 0,
         channels: int = 16,
         warm: bool = False,
+        state_every: int = 4,
     ) -> None:
         self.cache_size = cache_size
+        self.state_every = max(1, int(state_every))
         self.warm = warm
         # engines in helper processes (only for the default engine class: helpers import it themselves)
         self.pool: EnginePool | None = EnginePool(engine_processes, cache_size, channels, warm) if (
@@ -218,26 +226,45 @@ class EngineHost:
         return self.engine_cls(mode=mode, profile=profile)
 
     def restore(self, sess: TrackSession) -> EngineLike:
-        """The session's engine at its stored version."""
-        return self.restore_at(sess.id, sess.version, lambda: sess.engine_state, sess.engine_mode, sess.profile_in)
+        """The session's engine at its stored version (the checkpoint and the stored batches after it, read in the
+        ORM session ``sess`` belongs to)."""
+        db = object_session(sess)
+        return self.restore_at(sess.id, sess.version, lambda: sess.engine_state, sess.engine_mode, sess.profile_in,
+                               lambda n: orm_batches_after(db, sess.id, n, sess.next_seq))
 
     def restore_at(
-        self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None
+        self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None,
+        load_raws: Callable[[int], list[bytes]] | None = None,
     ) -> EngineLike:
         """The engine of ``session_id`` at ``version``: the cached one when it is at that version, else
-        restored from ``load_state()`` (bytes or None for a session that never got a batch)."""
+        restored from ``load_state()`` (bytes or None for a session that never got a batch) and, for a checkpoint,
+        the stored raw batches after it (``load_raws(n)``: batches ``n ..`` in order)."""
+        return self.restore_held(session_id, version, load_state, mode, profile, load_raws)[0]
+
+    def restore_held(
+        self, session_id: int, version: int, load_state: Any, mode: str, profile: dict[str, Any] | None,
+        load_raws: Callable[[int], list[bytes]] | None,
+    ) -> tuple[EngineLike, int | None, bool]:
+        """:meth:`restore_at`, returning ``(engine, held, restored)``: ``held`` the batches the stored blob holds
+        (None: a complete state), ``restored`` False for the cached engine (:func:`checkpoint_due`)."""
         hit = self._cache.get(session_id)
         if hit is not None and hit[0] == version:
             self._cache.move_to_end(session_id)
-            return hit[1]
+            return hit[1], None, False
         blob = load_state()
         if blob is None:  # only sessions from before engine states were stored: all ran the foot engine
-            return self.new(mode, engine_profile_from_stored(profile))
+            return self.new(mode, engine_profile_from_stored(profile)), None, True
+        state, held = unpack_checkpoint(blob)
         if self._engine_cls is None:
             from energy.engines import engine_from_bytes
 
-            return engine_from_bytes(unpack_state(blob))  # type: ignore[no-any-return]
-        return self.engine_cls.from_bytes(unpack_state(blob))
+            from_bytes: Callable[[bytes], Any] = engine_from_bytes
+        else:
+            from_bytes = self.engine_cls.from_bytes
+        if held is not None and load_raws is None:
+            raise ValueError("a checkpoint needs the stored batches after it (load_raws)")
+        raws = load_raws(held) if held is not None and load_raws is not None else []
+        return replay_engine(from_bytes(state), raws), held, True
 
     def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
         """After the commit of ``version``: keep ``engine`` for the next batch (None: the engine helper's, which
@@ -265,6 +292,38 @@ class EngineHost:
             lk = self._locks.setdefault(session_id, threading.Lock())
         with lk:
             yield
+
+
+def stored_batch(raw: bytes) -> SensorBatch:
+    """A stored raw batch (:func:`server.formats.canonical_bytes`) as the batch it was."""
+    return decode_batch(raw, MSGPACK_TYPE, 2**62, allow_empty=True)
+
+
+def replay_engine(engine: EngineLike, raws: list[bytes]) -> EngineLike:
+    """Feed ``engine`` (restored from a checkpoint) the stored raw batches after it, in order: the state after the
+    last of them, exactly (the engine is chunk invariant; the outputs were stored when they were first fed)."""
+    for raw in raws:
+        engine.feed(stored_batch(raw))
+    return engine
+
+
+def checkpoint_due(seq: int, every: int, held: int | None, restored: bool) -> bool:
+    """Whether batch ``seq``'s upload stores the engine state: every ``every`` batches (after batches ``every - 1``,
+    ``2 every - 1`` ...), and after a restore from a complete state (``held`` None: an older server's, or the
+    session start's, migrated now) or from a checkpoint ``every`` or more batches back (``every`` was larger)."""
+    if (seq + 1) % every == 0:
+        return True
+    return restored and (held is None or seq + 1 - held >= every)
+
+
+def orm_batches_after(db: Session, session_id: int, n: int, next_seq: int) -> list[bytes]:
+    """Raw batches ``n .. next_seq - 1`` of the session, in order (raises :class:`_Raced` when one is missing:
+    another writer changed the session meanwhile)."""
+    rows = db.execute(select(_BATCHES.c.raw).where(_BATCHES.c.session_id == session_id, _BATCHES.c.seq >= n,
+                                                   _BATCHES.c.seq < next_seq).order_by(_BATCHES.c.seq)).all()
+    if len(rows) != next_seq - n:
+        raise _Raced()
+    return [bytes(r.raw) for r in rows]
 
 
 def json_safe(obj: Any) -> Any:
@@ -427,28 +486,29 @@ class Fed(NamedTuple):
     resp_json: str  # the answer as compact JSON (stored as the batch's response and sent)
     raw: bytes  # canonical raw batch (lossless msgpack)
     digest: str  # SHA-256 of raw (retries must match it)
-    state: bytes  # the engine's new state (Engine.to_bytes; compressed by the storing thread, server.statecodec)
+    state: bytes | None  # the engine's new state (Engine.to_bytes; None: no checkpoint at this batch, server.statecodec)
     n_acc: int
     n_gyr: int
     n_mag: int
 
 
-def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int) -> Fed:
-    """Feed ``batch`` as number ``seq`` and encode everything that is stored for it (``BatchError`` from the
-    engine's validation passes through; the engine is then unchanged)."""
+def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int, want_state: bool = True) -> Fed:
+    """Feed ``batch`` as number ``seq`` and encode everything that is stored for it, the engine's state only with
+    ``want_state`` (``BatchError`` from the engine's validation passes through; the engine is then unchanged)."""
     upd = engine.feed(batch)
     resp, text = _answer(session_id, seq, seq + 1, upd)
     raw = canonical_bytes(batch)
-    return Fed(resp, text, raw, digest(raw), engine.to_bytes(), len(batch.acc_t_ns), len(batch.gyr_t_ns),
-               len(batch.mag_t_ns))
+    return Fed(resp, text, raw, digest(raw), engine.to_bytes() if want_state else None, len(batch.acc_t_ns),
+               len(batch.gyr_t_ns), len(batch.mag_t_ns))
 
 
 def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: SensorBatch,
-              load_blob: Callable[[], bytes]) -> Fed:
+              load_blob: Callable[[], bytes], load_raws: Callable[[int], list[bytes]], every: int) -> Fed:
     """Feed ``batch`` through the engine helper process: its cached engine when this worker committed
     ``version`` from it (:meth:`EnginePool.take`) and the helper still holds it, else the stored state
-    ``load_blob()`` (``BatchError`` from the engine's validation is raised here). Call
-    ``host.remember(session_id, version + 1, None)`` after the commit."""
+    ``load_blob()`` and, for a checkpoint, the stored batches after it (``load_raws(n)``); ``BatchError`` from the
+    engine's validation is raised here. The answer carries the engine state when :func:`checkpoint_due` (``every``
+    batches). Call ``host.remember(session_id, version + 1, None)`` after the commit."""
     streams: dict[str, Any] = {}
     for name in STREAMS:
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
@@ -456,16 +516,19 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
     if pool.take(session_id, version):
         try:
             with phase("engine"):
-                out = pool.feed(session_id, version, None, seq, streams)
+                out = pool.feed(session_id, version, None, seq, streams, checkpoint_due(seq, every, None, False))
         except EngineHelperDied:  # its cached engine died with it: a fresh helper restores the stored state
             out = ("miss",)
     if out[0] == "miss":
         with phase("load_state"):
             blob = load_blob()
+            held = held_batches(blob)
+            stored = (blob, load_raws(held) if held is not None else [])
+        want = checkpoint_due(seq, every, held, True)
         for attempt in (1, 2):  # a helper that dies under the request costs one retry on a fresh one
             try:
                 with phase("engine"):
-                    out = pool.feed(session_id, version, blob, seq, streams)
+                    out = pool.feed(session_id, version, stored, seq, streams, want)
                 break
             except EngineHelperDied as exc:
                 if attempt == 2:
@@ -635,34 +698,41 @@ def _apply_once(
         if host.pool is not None:  # the engine runs in a helper process
             end_read()
 
-            def blob_then_end_read() -> bytes:
+            def stored_blob() -> bytes:
                 blob = load_state()
-                end_read()
+                if blob is None:  # as for the in-process engine below: a new engine of the stored mode and profile
+                    blob = pack_state(host.new(row.engine_mode, engine_profile_from_stored(row.profile_in)).to_bytes())
                 return blob
 
-            fed = pool_feed(host.pool, session_id, row.version, seq, batch, blob_then_end_read)
-            resp, state, behaviour, mode = fed.resp, pack_state(fed.state), fed.resp["behaviour"], fed.resp["mode"]
+            fed = pool_feed(host.pool, session_id, row.version, seq, batch, stored_blob,
+                            lambda n: orm_batches_after(db, session_id, n, row.next_seq), host.state_every)
+            resp, behaviour, mode = fed.resp, fed.resp["behaviour"], fed.resp["mode"]
+            state = None if fed.state is None else pack_checkpoint(fed.state, seq + 1)
         else:
             with phase("load_state"):
-                engine = host.restore_at(session_id, row.version, load_state, row.engine_mode, row.profile_in)
+                engine, held, restored = host.restore_held(session_id, row.version, load_state, row.engine_mode,
+                                                         row.profile_in,
+                                                         lambda n: orm_batches_after(db, session_id, n, row.next_seq))
                 end_read()
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
             with phase("engine"):
                 upd = engine.feed(batch)  # validates the batch (BatchError -> 422, nothing stored)
                 resp = _update_dict(session_id, seq, seq + 1, upd)
-                state = pack_state(engine.to_bytes())
+                due = checkpoint_due(seq, host.state_every, held, restored)
+                state = pack_checkpoint(engine.to_bytes(), seq + 1) if due else None
             behaviour, mode = upd.behaviour, upd.mode
         next_seq = seq + 1
         try:
             t_wl = time.perf_counter()
             with host.write_lock, phase("write"):
                 since("write_lock", t_wl)
+                values: dict[str, Any] = {"engine_state": state} if state is not None else {}  # a checkpoint
                 res = db.execute(
                     update(_TS).where(_TS.c.id == session_id, _TS.c.version == row.version).values(
-                        version=row.version + 1, next_seq=next_seq, engine_state=state, behaviour=behaviour,
+                        version=row.version + 1, next_seq=next_seq, behaviour=behaviour,
                         mode=mode, sensor_config=resp["sensor_config"],
                         n_positions=_TS.c.n_positions + len(resp["positions"]), gyr_newest_ns=newest["gyr"],
-                        mag_newest_ns=newest["mag"],
+                        mag_newest_ns=newest["mag"], **values,
                     )
                 )
                 if res.rowcount != 1:

@@ -32,7 +32,14 @@ class Settings(BaseSettings):
     migrate_on_startup : bool
         Run Alembic migrations to ``head`` when the app is created.
     engine_cache_size : int
-        Engines kept in memory between batches (their state is still persisted after every batch).
+        Engines kept in memory between batches (their state is still persisted: every ``state_every`` batches,
+        the raw batches with every upload).
+    state_every : int
+        A session's engine state is stored as a checkpoint every this many batch uploads [batches]
+        (``PEDNAV_STATE_EVERY``); every raw batch is still stored before its upload is answered, and a restore
+        replays the stored batches after the last checkpoint (exact: the engine is chunk invariant). 1 = after
+        every batch. Larger saves serialising and writing the ~30 kB state per batch at the price of up to
+        ``state_every - 1`` batches replayed when an engine is restored (``pednav bench engine``).
     engine_processes : int
         Helper processes per server process that run the navigation engines (0 = in the server process).
     engine_warmup : bool
@@ -105,6 +112,7 @@ class Settings(BaseSettings):
     engine_mode: Literal["auto", "zupt", "pdr"] = "auto"
     migrate_on_startup: bool = True
     engine_cache_size: int = Field(default=512, ge=0)
+    state_every: int = Field(default=4, ge=1, le=1000)
     sensorlogger_hold_s: float = Field(default=2.0, ge=0.0)
     ingest_threads: int = Field(default=16, ge=1, le=64)
     engine_processes: int = Field(default=1, ge=0, le=64)

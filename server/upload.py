@@ -30,10 +30,10 @@ from fastapi import HTTPException, status
 from models.batch import BatchError, SensorBatch
 from server.auth import RateLimiter, admit, require_token
 from server.formats import canonical_bytes, decode_batch, digest
-from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_busy_message, engine_profile_from_stored,
-                           feed_engine, is_contention, pool_feed)
+from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_busy_message, checkpoint_due,
+                           engine_profile_from_stored, feed_engine, is_contention, pool_feed)
 from server.security import hash_token
-from server.statecodec import pack_state
+from server.statecodec import pack_checkpoint, pack_state
 from server.timing import phase, since
 from server.plausibility import STILL_GYRO
 from server.watermarks import advanced, check_after
@@ -66,6 +66,7 @@ def _utc_text() -> str:
 
 def _write_params(session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> dict[str, Any]:
     r = fed.resp
+    # fed.state: the checkpoint (server.statecodec) or None (none due: the stored one stays)
     return {"gyr_newest": newest["gyr"], "mag_newest": newest["mag"],
         "sid": session_id, "v0": version, "v1": version + 1, "next_seq": seq + 1, "state": fed.state,
         "behaviour": r["behaviour"], "mode": r["mode"], "sensor_config": json.dumps(r["sensor_config"]),
@@ -77,7 +78,8 @@ def _write_params(session_id: int, version: int, seq: int, fed: Fed, newest: dic
 _POS_COLS = ("t_ns", "north", "east", "down", "heading_rad", "behaviour", "mode", "step_length_m", "gyro_on")
 
 _SQLITE_UPDATE = (
-    "UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = :state, behaviour = :behaviour, "
+    "UPDATE sessions SET version = :v1, next_seq = :next_seq, engine_state = COALESCE(:state, engine_state), "
+    "behaviour = :behaviour, "
     "mode = :mode, sensor_config = :sensor_config, n_positions = n_positions + :n_new, gyr_newest_ns = :gyr_newest, "
     "mag_newest_ns = :mag_newest WHERE id = :sid AND version = :v0"
 )
@@ -203,7 +205,8 @@ class SqliteGroupWriter:
 # PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement (see module docstring)
 _PG_WRITE = """
 WITH u AS (
-    UPDATE sessions SET version = %(v1)s, next_seq = %(next_seq)s, engine_state = %(state)s, behaviour = %(behaviour)s,
+    UPDATE sessions SET version = %(v1)s, next_seq = %(next_seq)s,
+        engine_state = COALESCE(CAST(%(state)s AS bytea), engine_state), behaviour = %(behaviour)s,
         mode = %(mode)s, sensor_config = CAST(%(sensor_config)s AS json), n_positions = n_positions + %(n_new)s,
         gyr_newest_ns = %(gyr_newest)s, mag_newest_ns = %(mag_newest)s
     WHERE id = %(sid)s AND version = %(v0)s
@@ -265,6 +268,8 @@ class Uploader:
                              f"WHERE id = {ph}")
         self._state_sql = f"SELECT version, engine_state, engine_mode, profile_in FROM sessions WHERE id = {ph}"
         self._replay_sql = f"SELECT body_sha256, response FROM batches WHERE session_id = {ph} AND seq = {ph}"
+        self._raws_sql = (f"SELECT raw FROM batches WHERE session_id = {ph} AND seq >= {ph} AND seq < {ph} "
+                          "ORDER BY seq")
 
     def close(self) -> None:
         if self.writer is not None:
@@ -363,19 +368,29 @@ class Uploader:
                 return blob
             return pack_state(self.host.new(mode, engine_profile_from_stored(profile)).to_bytes())  # null -> NaN
 
+        def raws_after(n: int) -> list[bytes]:
+            # the stored batches after the checkpoint (this session's batches below next_seq never change)
+            cur.execute(self._raws_sql, (session_id, n, sess.next_seq))
+            raws = [bytes(r[0]) for r in cur.fetchall()]
+            if len(raws) != sess.next_seq - n:
+                raise _Raced()
+            return raws
+
         host = self.host
         engine = None
         if host.pool is not None:
-            fed: Fed = pool_feed(host.pool, session_id, sess.version, seq, batch, stored_state)
+            fed: Fed = pool_feed(host.pool, session_id, sess.version, seq, batch, stored_state, raws_after,
+                                 host.state_every)
         else:
             with phase("load_state"):
-                engine = host.restore_at(session_id, sess.version, stored_state, "auto", None)
+                engine, held, restored = host.restore_held(session_id, sess.version, stored_state, "auto", None,
+                                                         raws_after)
             host.forget(session_id)  # the cached object is mutated now; re-cached only after the commit
             with phase("engine"):
-                fed = feed_engine(engine, batch, session_id, seq)
-        # compressed here, not in the engine helper: zlib runs without the GIL, and the single helper process is
-        # the one whose CPU time limits throughput when the machine is busy
-        fed = fed._replace(state=pack_state(fed.state))
+                fed = feed_engine(engine, batch, session_id, seq,
+                                  checkpoint_due(seq, host.state_every, held, restored))
+        if fed.state is not None:  # a checkpoint every host.state_every batches (server.statecodec)
+            fed = fed._replace(state=pack_checkpoint(fed.state, seq + 1))
         with phase("write"):
             if self.writer is not None:
                 ok = self.writer.write((session_id, sess.version, seq, fed, newest))

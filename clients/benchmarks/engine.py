@@ -8,11 +8,20 @@ synthetic walk when the data is absent, reported in ``"data"``), ``--sessions`` 
 the load benchmark's devices, and reports per engine mode:
 
 - ``helper_cached``: CPU time of the helper process [ms per batch] when it holds the session's engine
-  (the steady state of the server);
+  (the steady state of the server), serialising the state when a checkpoint is due (every ``state_every``
+  batches);
 - ``helper_restore``: the same with a helper that keeps no engine, so every batch restores the engine from
-  the stored (compressed) state first (a server restart, another worker, an evicted engine);
+  the stored checkpoint and replays the raw batches after it first (a server restart, another worker, an
+  evicted engine);
 - ``stages_us``: the same work in this process, split into stages and engine components (thread CPU time,
-  components metered as in ``pednav energy simulate``; ``engine_other`` is the rest of ``Engine.feed``).
+  components metered as in ``pednav energy simulate``; ``engine_other`` is the rest of ``Engine.feed``;
+  ``state_compress`` the zlib of a complete state, ``state_checkpoint`` the checkpoint form uploads store);
+- ``server_cached`` / ``server_restore``: the whole server path of a batch upload in this process
+  (:class:`server.upload.Uploader` on a temporary SQLite database, engines in process, the session's engine
+  cached or restored from the stored checkpoint and batches every time): CPU [ms per batch, all threads] and the
+  split by phase (``read``, ``decode``, ``load_state``, ``engine`` incl. the answer and the state's bytes when a
+  checkpoint is due, ``write`` incl. the commit) [ms per batch, wall], with ``state_every`` (``--state-every``,
+  default the server's ``PEDNAV_STATE_EVERY``).
 
 The CPU times are absolute, so the ``ahrs`` Madgwick ``updateIMU`` peer (as in ``pednav bench speed``) is
 measured in the same run, before and after, and each figure is also given in peer samples (machine speed
@@ -40,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batches", type=int, default=20, help="1-s batches per session (default 20)")
     p.add_argument("--file", type=Path, default=None, help="a SensorConnect CSV to use instead of the default gdin walk")
     p.add_argument("--peer-samples", type=int, default=4000, help="samples fed to the Madgwick peer")
+    p.add_argument("--state-every", type=int, default=None,
+                   help="server path: a state checkpoint every N batches (default: the server's PEDNAV_STATE_EVERY)")
+    p.add_argument("--server-sessions", type=int, default=50, help="sessions of the server-path measurement")
 
 
 def _default_file() -> Path | None:
@@ -106,25 +118,45 @@ def _peer_us(acc: np.ndarray, gyr: np.ndarray, dt: float, m: int) -> float:
     return best
 
 
-def _helper_ms(mode: str, sess: list[list[dict[str, np.ndarray]]], cache: bool) -> dict[str, float]:
-    """Feed every session's batches through one engine helper process; its CPU time per batch [ms]."""
+def _helper_ms(mode: str, sess: list[list[dict[str, np.ndarray]]], cache: bool,
+               state_every: int | None = None) -> dict[str, float]:
+    """Feed every session's batches through one engine helper process as the server does (a state checkpoint
+    every ``state_every`` batches; a restore sends the last checkpoint and the raw batches after it); its CPU
+    time per batch [ms]."""
+    from models.batch import SensorBatch
     from server.engine_pool import EnginePool
+    from server.formats import canonical_bytes
     from server.settings import Settings
-    from server.statecodec import pack_state
+    from server import statecodec
 
     # as the server builds it: one channel per ingest thread, the configured engine cache
     fields = Settings.model_fields
+    every = int(state_every or fields["state_every"].default) if "state_every" in fields else 1
     pool = EnginePool(1, fields["engine_cache_size"].default if cache else 0, fields["ingest_threads"].default)
     try:
-        states: dict[int, bytes] = {}
+        ckpt: dict[int, tuple[bytes, int | None]] = {}
+        raws: dict[int, list[bytes]] = {}
 
         def feed(sid: int, seq: int, streams: dict[str, np.ndarray]) -> None:
-            out = pool.feed(sid, seq, None, seq, streams)
+            if every == 1:  # the server before checkpoints: the complete state after every batch
+                out = pool.feed(sid, seq, None, seq, streams)
+                if out[0] == "miss":
+                    out = pool.feed(sid, seq, ckpt.get(sid, (_NEW[mode], None))[0], seq, streams)
+                if out[0] != "ok":
+                    raise RuntimeError(f"engine helper answered {out[:2]}")
+                ckpt[sid] = (statecodec.pack_state(out[1].state), None)
+                return
+            out = pool.feed(sid, seq, None, seq, streams, (seq + 1) % every == 0)
             if out[0] == "miss":
-                out = pool.feed(sid, seq, states.get(sid, _NEW[mode]), seq, streams)
+                blob, held = ckpt.get(sid, (_NEW[mode], None))
+                stored = blob if held is None else (blob, raws[sid][held:])
+                due = (seq + 1) % every == 0 or held is None or seq + 1 - held >= every
+                out = pool.feed(sid, seq, stored, seq, streams, due)
             if out[0] != "ok":
                 raise RuntimeError(f"engine helper answered {out[:2]}")
-            states[sid] = pack_state(out[1].state)
+            raws.setdefault(sid, []).append(canonical_bytes(SensorBatch(**streams)))
+            if out[1].state is not None:
+                ckpt[sid] = (statecodec.pack_checkpoint(out[1].state, seq + 1), seq + 1)
 
         for seq, streams in enumerate(sess[0]):  # warm-up session (kernels loaded), not measured
             feed(-1, seq, streams)
@@ -139,7 +171,7 @@ def _helper_ms(mode: str, sess: list[list[dict[str, np.ndarray]]], cache: bool) 
     finally:
         pool.shutdown()
     return {"cpu_ms_per_batch": round(1e3 * (c1 - c0) / n, 3), "wall_ms_per_batch": round(1e3 * (w1 - w0) / n, 3),
-            "batches": n}
+            "batches": n, "state_every": every}
 
 
 _NEW: dict[str, bytes] = {}  # packed state of a fresh engine per mode (what a session's first batch restores)
@@ -153,7 +185,7 @@ def _stages_us(mode: str, sess: list[list[dict[str, np.ndarray]]]) -> dict[str, 
     from server.engine_pool import _pack_streams, _unpack_streams
     from server.formats import canonical_bytes, digest
     from server.ingest import Fed, _answer
-    from server.statecodec import pack_state, unpack_state
+    from server.statecodec import pack_checkpoint, pack_state, unpack_state
 
     clock = time.thread_time_ns
     tot: dict[str, int] = {}
@@ -188,10 +220,12 @@ def _stages_us(mode: str, sess: list[list[dict[str, np.ndarray]]]) -> dict[str, 
                 fed = Fed(resp, text, raw, dg, state, len(b.acc_t_ns), len(b.gyr_t_ns), len(b.mag_t_ns))
                 pickle.dumps(("ok", fed), protocol=pickle.HIGHEST_PROTOCOL)
                 t7 = clock()
-                blob = pack_state(state)  # compressed by the worker
+                blob = pack_state(state)  # a complete state (session start and close)
                 t8 = clock()
                 Engine.from_bytes(unpack_state(blob))
                 t9 = clock()
+                pack_checkpoint(state, k + 1)  # what a batch upload stores when a checkpoint is due
+                t10 = clock()
                 comp = 0
                 for (name, _), ns in meter.ns.items():
                     add(name, ns)
@@ -204,10 +238,63 @@ def _stages_us(mode: str, sess: list[list[dict[str, np.ndarray]]]) -> dict[str, 
                 add("state_to_bytes", t6 - t5)
                 add("ipc_pickle", t7 - t6)
                 add("state_restore", t9 - t8)
+                add("state_compress", t8 - t7)
+                add("state_checkpoint", t10 - t9)
                 n += 1
     out = {k: round(v / n / 1e3, 1) for k, v in sorted(tot.items())}
-    out["total_cached"] = round(sum(v for k, v in out.items() if k != "state_restore"), 1)
+    out["total_cached"] = round(sum(v for k, v in out.items() if k not in ("state_restore", "state_compress",
+                                                                          "state_checkpoint")), 1)
     return out
+
+
+def _server_ms(mode: str, sess: list[list[dict[str, np.ndarray]]], cache: bool, state_every: int | None,
+               n_sessions: int) -> dict[str, Any]:
+    """The server's upload path in this process (module docstring): CPU per batch and the split by phase."""
+    import tempfile
+
+    from models.batch import SensorBatch
+    from server import crud
+    from server.app import create_app
+    from server.formats import MSGPACK_TYPE, encode_msgpack
+    from server.settings import Settings
+    from server.timing import Phases
+
+    sess = sess[:max(1, n_sessions)]
+    with tempfile.TemporaryDirectory() as tmp:
+        kw: dict[str, Any] = {} if state_every is None else {"state_every": state_every}
+        settings = Settings(database_url=f"sqlite:///{tmp}/bench.db", engine_processes=0, engine_warmup=False,
+                            engine_mode=mode, engine_cache_size=Settings.model_fields["engine_cache_size"].default
+                            if cache else 0, rate_limit_per_s=0.0, **kw)
+        app = create_app(settings)
+        try:
+            with app.state.sessionmaker() as db:
+                _, token = crud.create_user(db, "bench")
+                db.commit()
+            from fastapi.testclient import TestClient
+
+            with TestClient(app) as c:
+                sids = [c.post("/v1/sessions", json={"device_kind": "foot"},
+                               headers={"Authorization": f"Bearer {token}"}).json()["id"] for _ in range(len(sess) + 1)]
+                up = app.state.uploader
+                bodies = [[encode_msgpack(SensorBatch(**b)) for b in batches] for batches in sess]
+                for seq, b in enumerate(sess[0]):  # warm-up session, not measured
+                    up.upload(token, sids[-1], seq, encode_msgpack(SensorBatch(**b)), MSGPACK_TYPE, 10**6)
+                phases: dict[str, float] = {}
+                n = 0
+                c0, w0 = time.process_time(), time.perf_counter()
+                for k in range(len(sess[0])):
+                    for i in range(len(sess)):
+                        with Phases() as ph:
+                            up.upload(token, sids[i], k, bodies[i][k], MSGPACK_TYPE, 10**6)
+                        for name, ms in ph.ms.items():
+                            phases[name] = phases.get(name, 0.0) + ms
+                        n += 1
+                c1, w1 = time.process_time(), time.perf_counter()
+        finally:
+            app.state.db_engine.dispose()
+    return {"cpu_ms_per_batch": round(1e3 * (c1 - c0) / n, 3), "wall_ms_per_batch": round(1e3 * (w1 - w0) / n, 3),
+            "phases_ms": {k: round(v / n, 3) for k, v in phases.items()}, "state_every": getattr(settings, "state_every", 1),
+            "batches": n}
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -224,10 +311,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     modes: dict[str, Any] = {}
     for mode in args.modes:
         _NEW[mode] = pack_state(Engine(mode=mode).to_bytes())
-        cached = _helper_ms(mode, sess, cache=True)
-        restore = _helper_ms(mode, sess, cache=False)
+        every = getattr(args, "state_every", None)
+        cached = _helper_ms(mode, sess, cache=True, state_every=every)
+        restore = _helper_ms(mode, sess, cache=False, state_every=every)
         stages = _stages_us(mode, sess)
-        modes[mode] = {"helper_cached": cached, "helper_restore": restore, "stages_us": stages}
+        n_srv = getattr(args, "server_sessions", 50)
+        modes[mode] = {"helper_cached": cached, "helper_restore": restore, "stages_us": stages,
+                       "server_cached": _server_ms(mode, sess, True, every, n_srv),
+                       "server_restore": _server_ms(mode, sess, False, every, n_srv)}
     peer.append(_peer_us(batch.acc, batch.gyr, dt, m))
     peer_us = min(peer)
     for r in modes.values():

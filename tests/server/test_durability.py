@@ -15,6 +15,7 @@ from server.app import create_app
 from server.formats import MSGPACK_TYPE, encode_msgpack
 from server.ingest import IngestConflict, apply_batch
 from server.models import TrackSession
+from server.statecodec import held_batches, pack_state
 from tests.server.conftest import auth, still_batch
 
 T0 = 1_700_000_000_000_000_000
@@ -267,3 +268,89 @@ def test_upload_overtaken_by_a_reprocessing_is_applied(settings, backend, client
     assert code == 200 and body["seq"] == 2 and body["next_seq"] == 3, (path, body)
     assert [b["seq"] for b in client.get(f"/v1/sessions/{sid}/batches", headers=auth(tok)).json()] == [0, 1, 2]
     assert _put(client, tok, sid, 2, seed=3).headers["x-pednav-replayed"] == "true"  # applied once
+
+
+def _walk_batches(n: int) -> list[Any]:
+    from clients.synth import synthesize
+
+    return synthesize("walk", seed=7).batch.split_seconds(1.0)[:n]
+
+
+def _put_batch(c: TestClient, tok: str, sid: int, seq: int, b: Any):  # type: ignore[no-untyped-def]
+    return c.put(f"/v1/sessions/{sid}/batches/{seq}", content=encode_msgpack(b),
+                 headers={**auth(tok), "content-type": MSGPACK_TYPE})
+
+
+def _session_run(c: TestClient, tok: str, sid: int, bs: list[Any], seqs: range) -> list[dict[str, Any]]:
+    out = []
+    for seq in seqs:
+        r = _put_batch(c, tok, sid, seq, bs[seq])
+        assert r.status_code == 200, r.text
+        d = r.json()
+        d.pop("session_id")
+        out.append(d)
+    return out
+
+
+def _trajectory(c: TestClient, tok: str, sid: int) -> list[dict[str, Any]]:
+    assert c.post(f"/v1/sessions/{sid}/close", headers=auth(tok)).status_code == 200
+    return c.get(f"/v1/sessions/{sid}/trajectory", headers=auth(tok)).json()["positions"]
+
+
+@pytest.mark.parametrize("cut", [5, 7, 9])
+def test_restart_between_checkpoints_gives_the_uninterrupted_trajectory(settings, client, make_user, cut) -> None:  # type: ignore[no-untyped-def]
+    """A walk in 1-s batches with a checkpoint every 4 batches (the default ``state_every``); the server restarts
+    (a new app: no cached engine) after ``cut`` batches, between two checkpoints, so the next upload restores the
+    last checkpoint and replays the stored batches after it. Every answer, the stored checkpoint and the closed
+    session's trajectory equal an uninterrupted run's."""
+    assert settings.state_every == 4
+    bs = _walk_batches(11)
+    _, tok = make_user()
+    ref = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    ref_resp = _session_run(client, tok, ref, bs, range(len(bs)))
+    assert sum(len(r["positions"]) for r in ref_resp) >= 3  # a walk: stride positions to compare
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    got = _session_run(client, tok, sid, bs, range(cut))
+    app2 = create_app(settings.model_copy(update={"migrate_on_startup": False}))
+    try:
+        with TestClient(app2) as c2:
+            got += _session_run(c2, tok, sid, bs, range(cut, len(bs)))
+            with app2.state.sessionmaker() as db:
+                a, b = db.get(TrackSession, ref), db.get(TrackSession, sid)
+                assert held_batches(b.engine_state) == 8  # the last checkpoint: batches 0 .. 7 (of 0 .. 10)
+                assert a.engine_state == b.engine_state
+            traj = _trajectory(c2, tok, sid)
+    finally:
+        app2.state.db_engine.dispose()
+    assert got == ref_resp
+    assert traj == _trajectory(client, tok, ref)
+
+
+def test_state_of_an_older_server_is_migrated_on_the_next_batch(settings, client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """A session whose stored state is the complete form an older server wrote after every batch: the next upload
+    (a restarted server) continues from it exactly and stores a checkpoint, though no checkpoint is due at that
+    number."""
+    bs = _walk_batches(8)
+    _, tok = make_user()
+    ref = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    ref_resp = _session_run(client, tok, ref, bs, range(len(bs)))
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+    got = _session_run(client, tok, sid, bs, range(5))
+    e = Engine(mode="auto")
+    for b in bs[:5]:
+        e.feed(b)
+    with client.app.state.sessionmaker() as db:  # what an older server stored after batch 4
+        db.get(TrackSession, sid).engine_state = pack_state(e.to_bytes())
+        db.commit()
+    app2 = create_app(settings.model_copy(update={"migrate_on_startup": False}))
+    try:
+        with TestClient(app2) as c2:
+            got += _session_run(c2, tok, sid, bs, range(5, 6))
+            with app2.state.sessionmaker() as db:
+                assert held_batches(db.get(TrackSession, sid).engine_state) == 6  # migrated: batches 0 .. 5
+            got += _session_run(c2, tok, sid, bs, range(6, len(bs)))
+            traj = _trajectory(c2, tok, sid)
+    finally:
+        app2.state.db_engine.dispose()
+    assert got == ref_resp
+    assert traj == _trajectory(client, tok, ref)

@@ -23,7 +23,7 @@ from server import ingest, upload
 from server.formats import MSGPACK_TYPE, decode_batch, encode_msgpack
 from server.ingest import IngestConflict, apply_batch, feed_engine
 from server.models import TrackSession
-from server.statecodec import pack_state
+from server.statecodec import unpack_checkpoint
 from tests.server.conftest import app_with, auth
 
 K = 5  # the number whose first write fails
@@ -53,20 +53,27 @@ def _put(c: TestClient, tok: str, sid: int, seq: int, b: SensorBatch) -> Any:
                  headers={**auth(tok), "content-type": MSGPACK_TYPE})
 
 
-def _replay(client: TestClient, tok: str, sid: int, n: int) -> tuple[list[dict[str, Any]], bytes]:
-    """Answers and final stored state of a fresh in-process engine fed the session's stored batches."""
+def _replay(client: TestClient, tok: str, sid: int, n: int) -> tuple[list[dict[str, Any]], list[bytes]]:
+    """Answers of a fresh in-process engine fed the session's stored batches, and its state after each number
+    of them (``[k]``: after batches ``0 .. k - 1``)."""
     e = Engine(mode="auto")
     answers = []
+    states = [e.to_bytes()]
     for seq in range(n):
         raw = client.get(f"/v1/sessions/{sid}/batches/{seq}/raw", headers=auth(tok))
         assert raw.status_code == 200
         answers.append(json.loads(feed_engine(e, decode_batch(raw.content, MSGPACK_TYPE, 2**62, allow_empty=True), sid, seq).resp_json))
-    return answers, pack_state(e.to_bytes())
+        states.append(e.to_bytes())
+    return answers, states
 
 
-def _stored_state(app: Any, sid: int) -> bytes:
+def _assert_stored_state(app: Any, sid: int, states: list[bytes]) -> None:
+    """The stored checkpoint is the replay's state after the batches it says it holds (the batches after it are
+    replayed from storage on a restore)."""
     with app.state.sessionmaker() as db:
-        return db.get(TrackSession, sid).engine_state
+        blob = db.get(TrackSession, sid).engine_state
+    state, held = unpack_checkpoint(blob)
+    assert held is not None and state == states[held]
 
 
 def test_upload_after_a_lost_write_continues_from_the_other_workers_batch(app, client, worker_a, make_user,  # type: ignore[no-untyped-def]
@@ -81,12 +88,12 @@ def test_upload_after_a_lost_write_continues_from_the_other_workers_batch(app, c
     real = upload.pool_feed
     loads: list[int] = []  # numbers whose feed read the stored state
 
-    def racing(pool: Any, session_id: int, version: int, seq: int, batch: SensorBatch, load_blob: Any) -> Any:
+    def racing(pool: Any, session_id: int, version: int, seq: int, batch: SensorBatch, load_blob: Any, *rest: Any) -> Any:
         def counted() -> Any:
             loads.append(seq)
             return load_blob()
 
-        fed = real(pool, session_id, version, seq, batch, counted)  # the helper caches its engine at version + 1
+        fed = real(pool, session_id, version, seq, batch, counted, *rest)  # the helper caches its engine at version + 1
         if seq == K:  # worker B (the module's app, engine in process) commits number K first, other content
             assert _put(client, tok, sid, K, _turned(bs[K])).status_code == 200
         return fed
@@ -103,7 +110,7 @@ def test_upload_after_a_lost_write_continues_from_the_other_workers_batch(app, c
     ref, state = _replay(client, tok, sid, K + 2)
     assert ref[K + 1]["positions"]  # the batch has positions to compare
     assert nxt.json() == ref[K + 1]
-    assert _stored_state(app, sid) == state
+    _assert_stored_state(app, sid, state)
     assert loads == [0, K + 1]  # K + 1 restored the stored state (B's batch K), not A's helper engine
 
 
@@ -123,8 +130,8 @@ def test_apply_batch_after_a_failed_write_continues_from_the_other_workers_batch
     host = a.state.host
     real = ingest.pool_feed
 
-    def racing(pool: Any, session_id: int, version: int, seq: int, batch: SensorBatch, load_blob: Any) -> Any:
-        fed = real(pool, session_id, version, seq, batch, load_blob)
+    def racing(pool: Any, session_id: int, version: int, seq: int, batch: SensorBatch, load_blob: Any, *rest: Any) -> Any:
+        fed = real(pool, session_id, version, seq, batch, load_blob, *rest)
         if seq == K:
             assert _put(client, tok, sid, K, _turned(bs[K])).status_code == 200
         return fed
@@ -154,4 +161,4 @@ def test_apply_batch_after_a_failed_write_continues_from_the_other_workers_batch
     ref, state = _replay(client, tok, sid, K + 2)
     assert ref[K + 1]["positions"]
     assert json.loads(json.dumps(out[0])) == ref[K + 1]
-    assert _stored_state(app, sid) == state
+    _assert_stored_state(app, sid, state)
