@@ -13,9 +13,10 @@ speed between the measured footprints) as soon as the stride is over, and holds 
 over. On the recordings that change pace every few strides it loses the first stride of every pace; no
 recogniser that needs to see a stride before it decides can beat it there.
 
-:func:`stride_features` gives the recogniser's features per labelled stride (duty factor from ``|a|``, |a| spread,
-stride period, and the truth speed), the evidence of the label conflict between gdin exp34's walking and VICON
-trial 2017-11-22-11-44-47, a run by the dataset's table (docs/behaviour.md).
+:func:`labelled_features` gives the recogniser's features inside labelled ranges (duty factor from ``|a|``, |a|
+spread, stride period), the evidence of the label conflict between gdin exp34's walking and VICON
+trial 2017-11-22-11-44-47, a run by the dataset's table (docs/behaviour.md). ``python -m
+clients.evaluation.behaviour_fit [ROOT]`` prints all of it as one JSON document.
 """
 
 from __future__ import annotations
@@ -37,7 +38,8 @@ __all__ = [
     "gdin_strides",
     "oracle_decisions",
     "oracle_shares",
-    "stride_features",
+    "labelled_features",
+    "main",
 ]
 
 _GAIT = ("walk", "run", "other")
@@ -73,7 +75,7 @@ def fit_stand_enter(quiet: Sequence[np.ndarray]) -> float:
     from models.behaviour import MAX_STANCE_S
 
     longest = max((float(q.max()) for q in quiet if q.size), default=0.0)
-    return max(MAX_STANCE_S, math.floor(longest * 10.0 + 1e-9) / 10.0 + 0.1)
+    return round(max(MAX_STANCE_S, math.floor(longest * 10.0 + 1e-9) / 10.0 + 0.1), 1)
 
 
 def _batches(root: Path, groups: dict[tuple[str, str], list[bh.LabelRange]],
@@ -188,19 +190,60 @@ def oracle_shares(root: Path, ranges: Sequence[bh.LabelRange] | None = None) -> 
     return out
 
 
-def stride_features(t_s: np.ndarray, acc: np.ndarray, stride_ends_s: np.ndarray) -> np.ndarray:
-    """Per stride (consecutive ``stride_ends_s``): the recogniser's features over the 3 s window that ends at the
-    stride's end (``models.behaviour.window_features``): rows of (stance fraction, gait |a| spread [m/s^2],
-    |a| spread over the last second [m/s^2], stride period [s])."""
-    from models.behaviour import WINDOW_S, window_features
+def labelled_features(root: Path, dataset: str, recording: str, labels: Sequence[str],
+                      ranges: Sequence[bh.LabelRange] | None = None) -> np.ndarray:
+    """The recogniser's features every ``HOP_S`` inside the recording's ranges labelled one of ``labels`` (window
+    ``[t - WINDOW_S, t)``, :func:`models.behaviour.window_features`, at the recorded rate): rows of (stance
+    fraction, gait |a| spread [m/s^2], |a| spread over the last second [m/s^2], stride period [s])."""
+    from models.behaviour import HOP_S, WINDOW_S, window_features
 
-    t = np.asarray(t_s, dtype=float)
-    a = np.linalg.norm(acc, axis=1)
+    groups = bh.labelled_recordings(bh.read_labels() if ranges is None else ranges)
+    b = bh._recording(root, dataset, recording).batch
+    t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+    a = np.linalg.norm(b.acc, axis=1)
     rows = []
-    for e in np.asarray(stride_ends_s, dtype=float)[1:]:
-        m = (t >= e - WINDOW_S) & (t < e)
-        if np.count_nonzero(m) < 8:
+    for r in groups[(dataset, recording)]:
+        if r.label not in labels:
             continue
-        f = window_features(t[m], a[m])
-        rows.append((f.stance_fraction, f.gait_std, f.still_std, f.stride_period_s))
+        for td in np.arange(r.t0_s + HOP_S / 2, r.t1_s, HOP_S):
+            m = (t >= td - WINDOW_S) & (t < td)
+            if td < WINDOW_S or np.count_nonzero(m) < 8:
+                continue
+            f = window_features(t[m], a[m])
+            rows.append((f.stance_fraction, f.gait_std, f.still_std, f.stride_period_s))
     return np.array(rows, dtype=float).reshape(-1, 4)
+
+
+def _spread(x: np.ndarray) -> list[list[float]]:
+    """Per column: median, 10th and 90th percentile (rounded)."""
+    return [[round(float(np.nanpercentile(x[:, c], q)), 2) for q in (50, 10, 90)] for c in range(x.shape[1])]
+
+
+def main() -> None:
+    """``python -m clients.evaluation.behaviour_fit [ROOT]``: one JSON document with the leave-one-group-out
+    summaries (recorded rate and 25 Hz), the oracle's shares and the label-conflict features (docs/behaviour.md)."""
+    import json
+    import os
+    import sys
+
+    root = Path(sys.argv[1] if len(sys.argv) > 1 else os.environ.get("PEDNAV_DATA", "../shared/datasets"))
+    logo = leave_one_group_out(root, (None, 25.0))
+    conflict = {
+        "gdin/exp34 walk": labelled_features(root, "gdin", "exp34", ("walk",)),
+        "vicon/2017-11-22-11-44-47 run and ignore": labelled_features(root, "vicon", "2017-11-22-11-44-47",
+                                                                      ("run", "ignore")),
+    }
+    doc = {
+        "groups": logo["groups"],
+        "rates": {k: {"summary": v["summary"], "stand_enter_s": sorted({r["stand_enter_s"] for r in v["recordings"]}),
+                      "longest_quiet_in_gait_s": max(v["longest_quiet_in_gait_s"].values())}
+                  for k, v in logo["rates"].items()},
+        "oracle_walk_run_share": oracle_shares(root),
+        "features_median_p10_p90": {k: dict(zip(("stance_fraction", "gait_std", "still_std", "stride_period_s"),
+                                                _spread(v))) for k, v in conflict.items()},
+    }
+    print(json.dumps(doc, indent=1))
+
+
+if __name__ == "__main__":
+    main()
