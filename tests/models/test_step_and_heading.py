@@ -137,6 +137,27 @@ def test_vertical_bias_settles_standing_and_a_wave_unsettles_it() -> None:
     assert not bias_settled(f2.state.s)
 
 
+def test_a_10_hz_magnetometer_is_read_whole() -> None:
+    """The compass is due every 0.1 s: a magnetometer at 10 Hz with jitter (the energy-aware rate) gives an update
+    at (nearly) every sample, not at every other one; one at 50 Hz still every fifth."""
+    from models import marg as M
+
+    rng = np.random.default_rng(3)
+    t, k, v = _still_device(30.0, 20.0, (0.0, 0.0, math.radians(0.3)))
+    for keep, expect in ((5, 0.9), (1, 0.9 / 5)):
+        mag = np.flatnonzero(k == KIND_MAG)
+        drop = mag[np.arange(mag.size) % keep != 0]
+        sel = np.setdiff1d(np.arange(t.size), drop)
+        tt = t[sel].copy()
+        m = k[sel] == KIND_MAG
+        tt[m] += rng.uniform(-0.004, 0.004, int(m.sum()))
+        o = np.argsort(tt, kind="stable")
+        f = MargFilter(MargConfig())
+        f.process(tt[o], k[sel][o], v[sel][o])
+        updates = f.state.s[M.S_NQSF] + f.state.s[M.S_NCOMP]
+        assert updates >= expect * m.sum() and updates <= 1.1 * m.sum() / (5 // keep)
+
+
 def test_gyro_dyaw_is_the_turn_about_the_vertical() -> None:
     """A pitched phone walking while turning at 0.2 rad/s about the vertical: the steps' ``gyro_dyaw`` add up to
     the turn between the first and the last step, whatever the pitch puts on the body's axes."""
