@@ -371,7 +371,7 @@ def marg_predict(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: 
             P[i, i] += c[0] * c[0] * dt
             P[3 + i, 3 + i] += c[1] * c[1] * dt
         r2 = (w[0] - b[0]) ** 2 + (w[1] - b[1]) ** 2 + (w[2] - b[2]) ** 2
-        s[S_RATE] += (1.0 - math.exp(-dt / c[16])) * (math.sqrt(r2) - s[S_RATE])
+        s[S_RATE] += dt / (c[16] + dt) * (math.sqrt(r2) - s[S_RATE])  # 1 - exp(-dt/tau) to first order
         if s[S_RATE] > c[18]:
             s[S_TWAVE] = t
     else:
