@@ -29,8 +29,11 @@ out. What it does per step (003 Figure 5, eq. 24):
 Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (first steps, until the compass's
 noise is known; after a turn; whenever the estimator's forecast standard deviation one gyroscope-off step ahead
 (:meth:`models.heading.HeadingEstimator.forecast`) would exceed ``max_heading_std_rad``, except straight along the
-building's dominant directions); standing, the accelerometer and magnetometer run at their low rates and the gyroscope
-is off. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
+building's dominant directions) at 50 Hz, the magnetometer at 10 Hz; standing, the accelerometer and magnetometer
+run at their low rates and the gyroscope is off once the MARG filter's vertical bias has settled
+(:func:`models.marg.bias_settled`: after the start and after the device was waved about it stays on, the
+quasi-static field settling the bias). A gyroscope that comes back with a settled bias carries the heading by its
+own measured turn (``gyro_dyaw``) until the MARG filter has settled again. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
 North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
 geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
 Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.

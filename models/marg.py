@@ -59,7 +59,8 @@ S_STILL = 13  # 1 when the accelerometer says the device is still
 S_RATE = 14  # exponential mean of the bias-corrected angular rate's magnitude [rad/s] (time constant still_tau_s)
 S_TWAVE = 15  # time of the latest sample of a device waved about (mean rate above wave_rate_rad_s) [s]
 S_TSETTLED = 16  # latest time the gyroscope ran with the vertical bias std <= bias_settled_rad_s [s]
-N_SCALARS = 17
+S_TMAGS = 17  # time of the latest magnetometer sample, used or not [s]
+N_SCALARS = 18
 
 # config slots (MargConfig.as_array)
 _C_FIELDS = ("gyro_noise_rad_s", "bias_walk_rad_s2", "bias_prior_rad_s", "no_gyro_rad_s", "gyro_gap_s",
@@ -213,7 +214,7 @@ class MargState:
             P[i, i] = config.bias_prior_rad_s ** 2
         P[6, 6] = 1.0
         s = np.zeros(N_SCALARS)
-        s[S_TGYR] = s[S_TMAG] = s[S_TACC] = s[S_TWAVE] = s[S_TSETTLED] = -1e300
+        s[S_TGYR] = s[S_TMAG] = s[S_TACC] = s[S_TWAVE] = s[S_TSETTLED] = s[S_TMAGS] = -1e300
         ref = np.zeros(3)
         if reference_ned_ut is not None:
             r = np.asarray(reference_ned_ut, dtype=float).reshape(3)
@@ -370,7 +371,7 @@ def marg_predict(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: 
             P[i, i] += c[0] * c[0] * dt
             P[3 + i, 3 + i] += c[1] * c[1] * dt
         r2 = (w[0] - b[0]) ** 2 + (w[1] - b[1]) ** 2 + (w[2] - b[2]) ** 2
-        s[S_RATE] += (1.0 - math.exp(-dt / c[16])) * (math.sqrt(r2) - s[S_RATE])
+        s[S_RATE] += dt / (c[16] + dt) * (math.sqrt(r2) - s[S_RATE])  # 1 - exp(-dt/tau) to first order
         if s[S_RATE] > c[18]:
             s[S_TWAVE] = t
     else:
@@ -446,7 +447,11 @@ def still_update(s: np.ndarray, f: np.ndarray, t: float, c: np.ndarray) -> None:
 def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w: np.ndarray, ref: np.ndarray,
                   m: np.ndarray, t: float, c: np.ndarray) -> None:
     """Compass and quasi-static field updates with field ``m`` [uT] (body), every ``compass_interval_s``."""
-    if t - s[S_TMAG] < c[9]:
+    spacing = t - s[S_TMAGS]
+    s[S_TMAGS] = t
+    # due every compass_interval_s; a stream sampled at most twice as fast is taken whole (its samples come about
+    # one interval apart, with jitter: a 10 Hz stream would otherwise lose every other one)
+    if t - s[S_TMAG] < c[9] and spacing < 0.5 * c[9]:
         return
     s[S_TMAG] = t
     C = q2dcm(q)

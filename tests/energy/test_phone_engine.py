@@ -83,8 +83,16 @@ def test_sensor_configuration_follows_behaviour() -> None:
     assert all(c.gyro_on and c.acc_rate_hz == 50.0 and c.mag_rate_hz == 50.0 for _, c in on.configs)
     auto = replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0)
     cfgs = [c for _, c in auto.configs]
-    standing = [c for c, u in zip(cfgs[1:], auto.updates) if u.behaviour == "stand"]
-    assert standing and all(not c.gyro_on and c.acc_rate_hz == 25.0 and c.mag_rate_hz == 10.0 for c in standing)
+    settled, standing = False, []
+    for c, u in zip(cfgs[1:], auto.updates):
+        settled = settled or any(e.kind == "gyro_bias" and e.detail["settled"] for e in u.events)
+        if u.behaviour == "stand":
+            standing.append((c, settled))
+    assert standing and all(c.acc_rate_hz == 25.0 and c.mag_rate_hz == 10.0 for c, _ in standing)
+    # standing, the gyroscope runs only until its vertical bias has settled (the quasi-static field settles it)
+    assert all(c.gyro_on != s for c, s in standing)
+    walking = [c for c in cfgs if c.gyro_on and c.acc_rate_hz == 50.0]
+    assert walking and all(c.gyr_rate_hz <= 50.0 and c.mag_rate_hz <= 10.0 for c in walking)
     assert any(c.gyro_on for c in cfgs)  # the first steps learn the compass's noise with the gyroscope on
     assert auto.gyro_on_fraction < on.gyro_on_fraction
 

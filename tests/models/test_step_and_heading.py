@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from energy.phone_engine import PHONE_HEADING
-from models.marg import KIND_ACC, KIND_GYR, KIND_MAG, MargConfig, MargFilter, merge_streams
+from models.marg import KIND_ACC, KIND_GYR, KIND_MAG, MargConfig, MargFilter, bias_settled, merge_streams
 from models.pdr_step_length import HEIGHT_RATIO, WEINBERG_FEATURE_TYP, PdrStepLength, StepLengthConfig
 from models.placement import PlacementRecognizer, default_placement
 from models.step_detector import StepDetector
@@ -115,6 +115,69 @@ def test_quasi_static_field_finds_the_vertical_gyro_bias_in_a_disturbed_field() 
     f2 = MargFilter(MargConfig(compass_sigma_rad=0.0, qsf_sigma_rad=1e3))
     f2.process(*_still_device(20.0, 90.0, bias))
     assert abs(f2.state.b[2] - bias[2]) > math.radians(0.2)
+
+
+def test_vertical_bias_settles_standing_and_a_wave_unsettles_it() -> None:
+    """At rest the quasi-static field settles the vertical bias to the filter's own bound, its estimate within
+    three of its standard deviations of the truth; a wave (the device turned at 6 rad/s) unsettles it."""
+    cfg = MargConfig()
+    bias = (0.0, 0.0, math.radians(0.8))
+    f = MargFilter(cfg, REF, math.atan2(REF[1], REF[0]))
+    f.process(*_still_device(40.0, 1.0, bias))
+    assert not bias_settled(f.state.s)  # the prior (1.7 deg/s) is not settled
+    f2 = MargFilter(cfg, REF, math.atan2(REF[1], REF[0]))
+    f2.process(*_still_device(40.0, 60.0, bias))
+    std = f2.state.vertical_bias_std_rad_s
+    assert bias_settled(f2.state.s) and std <= cfg.bias_settled_rad_s
+    assert abs(f2.state.b[2] - bias[2]) <= 3.0 * std
+    t, k, v = _still_device(40.0, 2.0, bias)
+    v = v.copy()
+    v[k == KIND_GYR] = (6.0, 0.0, 0.0)
+    f2.process(t + 60.0, k, v)
+    assert not bias_settled(f2.state.s)
+
+
+def test_a_10_hz_magnetometer_is_read_whole() -> None:
+    """The compass is due every 0.1 s: a magnetometer at 10 Hz with jitter (the energy-aware rate) gives an update
+    at (nearly) every sample, not at every other one; one at 50 Hz still every fifth."""
+    from models import marg as M
+
+    rng = np.random.default_rng(3)
+    t, k, v = _still_device(30.0, 20.0, (0.0, 0.0, math.radians(0.3)))
+    for keep, expect in ((5, 0.9), (1, 0.9 / 5)):
+        mag = np.flatnonzero(k == KIND_MAG)
+        drop = mag[np.arange(mag.size) % keep != 0]
+        sel = np.setdiff1d(np.arange(t.size), drop)
+        tt = t[sel].copy()
+        m = k[sel] == KIND_MAG
+        tt[m] += rng.uniform(-0.004, 0.004, int(m.sum()))
+        o = np.argsort(tt, kind="stable")
+        f = MargFilter(MargConfig())
+        f.process(tt[o], k[sel][o], v[sel][o])
+        updates = f.state.s[M.S_NQSF] + f.state.s[M.S_NCOMP]
+        assert updates >= expect * m.sum() and updates <= 1.1 * m.sum() / (5 // keep)
+
+
+def test_gyro_dyaw_is_the_turn_about_the_vertical() -> None:
+    """A pitched phone walking while turning at 0.2 rad/s about the vertical: the steps' ``gyro_dyaw`` add up to
+    the turn between the first and the last step, whatever the pitch puts on the body's axes."""
+    from energy.phone_engine import PhoneEngineConfig
+    from models.marg import MargState
+    from models.pdr import STEP_RECORD, PdrState, run_pdr
+
+    rate = 0.2
+    ta, acc = _walk_acc(50.0, seconds=30.0)
+    th = math.radians(50)
+    tg = np.arange(0.0, 30.0, 0.01)
+    gyr = np.tile(rate * np.array([0.0, -math.sin(th), -math.cos(th)]), (tg.size, 1))
+    cfg = PhoneEngineConfig()
+    state = PdrState.new(MargState.new(cfg.marg))
+    t, k, v = merge_streams((ta, acc), (tg, gyr), (np.zeros(0), np.zeros((0, 3))))
+    r = run_pdr(state, cfg.marg.as_array(), cfg.steps.as_array(), t, k, v)
+    F = {n: i for i, n in enumerate(STEP_RECORD)}
+    assert len(r) > 20
+    turn = float(np.sum(r[1:, F["gyro_dyaw"]]))
+    assert turn == pytest.approx(rate * (r[-1, F["t_s"]] - r[0, F["t_s"]]), rel=0.02)
 
 
 def test_merge_order_and_kinds() -> None:
