@@ -281,18 +281,21 @@ def quat_mul_s(p, q):
 
 
 @njit(cache=True)
-def quat_exp_s(wx, wy, wz):
-    """Exponential map of a rotation vector [rad] (exact, 004 Sec. 2: avoids first-order divergence)."""
+def _quat_exp_t(wx, wy, wz):
+    """:func:`quat_exp_s` as a tuple ``(w, x, y, z)`` (no allocation)."""
     ang = math.sqrt(wx * wx + wy * wy + wz * wz)
-    out = np.empty(4)
     if ang > 1e-8:
         k = math.sin(0.5 * ang) / ang
     else:
         k = 0.5 - ang * ang / 48.0
-    out[0] = math.cos(0.5 * ang)
-    out[1] = k * wx
-    out[2] = k * wy
-    out[3] = k * wz
+    return math.cos(0.5 * ang), k * wx, k * wy, k * wz
+
+
+@njit(cache=True)
+def quat_exp_s(wx, wy, wz):
+    """Exponential map of a rotation vector [rad] (exact, 004 Sec. 2: avoids first-order divergence)."""
+    out = np.empty(4)
+    out[0], out[1], out[2], out[3] = _quat_exp_t(wx, wy, wz)
     return out
 
 
@@ -626,18 +629,7 @@ def _apply_correction(x, dx):
         x[4 + k] += dx[3 + k]
         x[10 + k] += dx[9 + k]
         x[13 + k] += dx[12 + k]
-    wx = dx[6]
-    wy = dx[7]
-    wz = dx[8]
-    ang = math.sqrt(wx * wx + wy * wy + wz * wz)
-    if ang > 1e-8:
-        kk = math.sin(0.5 * ang) / ang
-    else:
-        kk = 0.5 - ang * ang / 48.0
-    p0 = math.cos(0.5 * ang)
-    p1 = kk * wx
-    p2 = kk * wy
-    p3 = kk * wz
+    p0, p1, p2, p3 = _quat_exp_t(dx[6], dx[7], dx[8])
     q0 = x[0]
     q1 = x[1]
     q2 = x[2]
@@ -920,15 +912,7 @@ def _mech_step(x, P, wx, wy, wz, f0, f1, f2, dt, par, C1, Cm, fn, B, M):
         d2 = 0.5 * wy
         d3 = 0.5 * wz
     else:
-        ang = math.sqrt(wx * wx + wy * wy + wz * wz)
-        if ang > 1e-8:
-            kk = math.sin(0.5 * ang) / ang
-        else:
-            kk = 0.5 - ang * ang / 48.0
-        d0 = math.cos(0.5 * ang)
-        d1 = kk * wx
-        d2 = kk * wy
-        d3 = kk * wz
+        d0, d1, d2, d3 = _quat_exp_t(wx, wy, wz)
     r0 = q0 * d0 - q1 * d1 - q2 * d2 - q3 * d3
     r1 = q0 * d1 + q1 * d0 + q2 * d3 - q3 * d2
     r2 = q0 * d2 - q1 * d3 + q2 * d0 + q3 * d1
