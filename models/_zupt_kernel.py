@@ -299,11 +299,9 @@ def quat_exp_s(wx, wy, wz):
     return out
 
 
-@njit(cache=True)
-def quat_dcm_s(q):
-    """Body-to-NED DCM of a unit quaternion."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    c = np.empty((3, 3))
+@njit(cache=True, inline="always")
+def _quat_dcm_into(w, x, y, z, c):
+    """:func:`quat_dcm_s` of ``(w, x, y, z)`` written into ``c`` (3, 3)."""
     c[0, 0] = 1 - 2 * (y * y + z * z)
     c[0, 1] = 2 * (x * y - w * z)
     c[0, 2] = 2 * (x * z + w * y)
@@ -313,6 +311,13 @@ def quat_dcm_s(q):
     c[2, 0] = 2 * (x * z - w * y)
     c[2, 1] = 2 * (y * z + w * x)
     c[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+@njit(cache=True)
+def quat_dcm_s(q):
+    """Body-to-NED DCM of a unit quaternion."""
+    c = np.empty((3, 3))
+    _quat_dcm_into(q[0], q[1], q[2], q[3], c)
     return c
 
 
@@ -877,20 +882,6 @@ def _hdr(x, P, dx, fs, par):
         # is taken back
         turned = thr > 0 and abs(turn) > thr and abs(fs[_F_HTPREV]) > thr and turn * fs[_F_HTPREV] > 0
         _hdr_new_segment(x, fs, psi, turn if turned else 0.0)
-
-
-@njit(cache=True, inline="always")
-def _quat_dcm_into(w, x, y, z, c):
-    """:func:`quat_dcm_s` of ``(w, x, y, z)`` written into ``c`` (3, 3)."""
-    c[0, 0] = 1 - 2 * (y * y + z * z)
-    c[0, 1] = 2 * (x * y - w * z)
-    c[0, 2] = 2 * (x * z + w * y)
-    c[1, 0] = 2 * (x * y + w * z)
-    c[1, 1] = 1 - 2 * (x * x + z * z)
-    c[1, 2] = 2 * (y * z - w * x)
-    c[2, 0] = 2 * (x * z - w * y)
-    c[2, 1] = 2 * (y * z + w * x)
-    c[2, 2] = 1 - 2 * (x * x + y * y)
 
 
 @njit(cache=True)
