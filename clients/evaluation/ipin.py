@@ -11,7 +11,8 @@ landmark, their mean and 75th percentile (the competition's metric), the error a
 return to the first: the loop error), the path ratio (sum of the step lengths between the first and last
 landmark over the surveyed path, the sum of landmark-to-landmark distances; the walk between landmarks is not
 guaranteed straight, so the surveyed path is a lower bound), the steps between the two, and the energy ratio
-(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`).
+(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`), and the samples per
+stream the engine received too late to use (``late_samples``, :attr:`energy.phone_engine.PhoneEngine.late_samples`).
 
 Fitted on the data, and so left out per trial (leave-one-route-out: the two repetitions of a route are one
 walker's same walk, both are left out): the Weinberg constant of the engine and of the baseline, each as the
@@ -128,6 +129,7 @@ class TrialResult:
     energy_mj: float
     gyro_on_fraction: float
     events: dict[str, int] = field(default_factory=dict)
+    late_samples: dict[str, int] = field(default_factory=dict)
 
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
@@ -159,7 +161,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     n, e, _h = to_true_north(np.array([p.north for p in pos]), np.array([p.east for p in pos]),
                              np.array([p.heading_rad for p in pos]), decl)
     return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.column_stack([n, e]).reshape(-1, 2),
-                       np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev)
+                       np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev,
+                       eng.late_samples)
 
 
 def baseline_track(rec: Recording, weinberg_k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -270,7 +273,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
                "accuracy_ratio": e.mean_err_m / e_on.mean_err_m if e_on.mean_err_m > 0 else None,
                "gyro_on_fraction": run.gyro_on_fraction, "weinberg_k": k, "landmarks": int(len(T)),
                "phone": (rec.aux.get("device") or {}).get("Model"), "events": run.events,
-               "always_on": {**e_on.row(), "energy_mj": on.energy_mj},
+               "late_samples": run.late_samples,
+               "always_on": {**e_on.row(), "energy_mj": on.energy_mj, "late_samples": on.late_samples},
                "baseline": {**e_b.row(), "weinberg_k": kb}}
         trials.append(row)
     doc = {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}

@@ -77,6 +77,38 @@ def test_works_with_what_the_device_sends() -> None:
     assert not any(np.isnan(pos).ravel())
 
 
+def _lagged(batch: SensorBatch, lag_s: float, every_s: float) -> list[SensorBatch]:
+    """Upload batches of ``every_s`` in which the magnetometer's samples arrive ``lag_s`` after their time stamps
+    (as a decimating filter's delay delivers them), the other streams at once."""
+    t0, t1 = int(batch.t_start_ns), int(batch.t_end_ns) + 1
+    lag, step = int(lag_s * 1e9), int(every_s * 1e9)
+    out = []
+    for a in range(t0, t1, step):
+        b = min(a + step, t1)
+        now = batch.time_slice(a, b)
+        m = (batch.mag_t_ns >= a - lag) & (batch.mag_t_ns < b - lag)
+        out.append(SensorBatch(acc_t_ns=now.acc_t_ns, acc=now.acc, gyr_t_ns=now.gyr_t_ns, gyr=now.gyr,
+                               mag_t_ns=batch.mag_t_ns[m], mag=batch.mag[m]))
+    return out
+
+
+def test_late_samples_are_counted_per_stream() -> None:
+    """A magnetometer lagging by more than ``stream_wait_s`` loses the samples whose time the merge has passed:
+    they are counted on their stream (none when it is on time), and the count survives the state round trip."""
+    rec = _rec("phone-walk")
+    e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
+    _positions(e, _lagged(rec.batch, 0.0, 1.0))
+    assert e.late_samples == {"acc": 0, "gyr": 0, "mag": 0}
+    wait = e.config.stream_wait_s
+    e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
+    batches = _lagged(rec.batch, wait + 0.3, 1.0)
+    for b in batches[: len(batches) // 2]:
+        e.feed(b)
+    late = e.late_samples
+    assert late["mag"] > 0 and late["acc"] == late["gyr"] == 0
+    assert engine_from_bytes(e.to_bytes()).late_samples == late  # type: ignore[attr-defined]
+
+
 def test_sensor_configuration_follows_behaviour() -> None:
     rec = _rec("phone-walk")
     on = replay(PhoneEngine("always-on", anchor=ANCHOR), rec.batch, 1.0)
