@@ -209,6 +209,26 @@ def test_ipin_trial_beats_standing_still(ipin_dir) -> None:  # type: ignore[no-u
     assert e.path_ratio == pytest.approx(1.0, abs=0.08)
 
 
+def test_ipin_batch_phases(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """``evaluate_ipin(phases=2)``: phase 0 is the document's own rows; the other phase replays with the batch
+    boundaries half a batch later (a different replay of the same walks: the energy-aware track changes, the
+    always-on one hardly); the means are the means of the phases."""
+    from clients.evaluation.ipin import evaluate_ipin
+    from clients.importers import load
+
+    recs = [load(ipin_dir / f"IPIN2023_T3_Training{n}.txt") for n in ("Trial23_repetition01", "Trial27_repetition01")]
+    doc = evaluate_ipin(recs, mode="auto", phases=2)
+    ph = doc["phases"]
+    p0, p1 = ph["per_phase"]
+    assert (p0["offset_s"], p1["offset_s"]) == (0.0, 0.5)
+    assert p0["mean_err_m"] == pytest.approx(doc["summary"]["mean_err_m"]["median"], abs=1e-12)
+    assert p0["always_on"]["mean_err_m"] == pytest.approx(doc["summary"]["always_on"]["mean_err_m"]["median"], abs=1e-12)
+    assert p1["mean_err_m"] != p0["mean_err_m"]
+    assert p1["always_on"]["mean_err_m"] == pytest.approx(p0["always_on"]["mean_err_m"], rel=0.25)
+    assert ph["mean"]["mean_err_m"] == pytest.approx(0.5 * (p0["mean_err_m"] + p1["mean_err_m"]), abs=1e-12)
+    assert [t["name"] for t in ph["trials"]] == [t["name"] for t in doc["trials"]]
+
+
 
 
 def test_phone_heading_parameters_are_the_dev_trials_statistics(ipin_dir) -> None:  # type: ignore[no-untyped-def]
