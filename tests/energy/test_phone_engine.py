@@ -209,6 +209,20 @@ def test_ipin_trial_beats_standing_still(ipin_dir) -> None:  # type: ignore[no-u
     assert e.path_ratio == pytest.approx(1.0, abs=0.08)
 
 
+def test_sm_g930f_walker_takes_longer_steps_at_no_larger_feature(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """The diagnosis of docs/phone.md "Known limits" (clients.evaluation.phone_step_length): the SM-G930F walker's
+    steps are more than 15 % longer than an SM-A520F walker's whose Weinberg feature and walking-band vertical
+    power are larger: no amplitude feature tells his steps apart."""
+    from clients.evaluation.phone_step_length import trial_statistics
+    from clients.importers import load
+
+    g = trial_statistics(load(ipin_dir / "IPIN2023_T3_TrainingTrial21_repetition01.txt"))
+    a = trial_statistics(load(ipin_dir / "IPIN2023_T3_TrainingTrial24_repetition01.txt"))
+    assert (g["phone"], a["phone"]) == ("SM-G930F", "SM-A520F")
+    assert g["step_m"] > 1.15 * a["step_m"]
+    assert g["weinberg"] < a["weinberg"] and g["vert_power"] < a["vert_power"] and g["period_s"] > a["period_s"]
+
+
 def test_ipin_batch_phases(ipin_dir) -> None:  # type: ignore[no-untyped-def]
     """``evaluate_ipin(phases=2)``: phase 0 is the document's own rows; the other phase replays with the batch
     boundaries half a batch later (a different replay of the same walks: the energy-aware track changes, the
