@@ -146,6 +146,15 @@ class PhoneEngineConfig:
         with the gyroscope, its 95th percentile is 14.7 deg on the IPIN trials, 14.4-15.1 leaving out each route);
         converging after the gyroscope was off it starts at 30-75 deg, and its changes are then its compass
         corrections, not the walker's turns.
+    orientation_rho : float
+        The compass's error correlation from one step to the next (AR(1); the IPIN dev trials' compass minus MARG
+        walking direction: 0.906, 0.890-0.921 leaving out each route, ``python -m
+        clients.evaluation.phone_heading``). The building's orientation voted by the compass of straight steps is
+        known to its votes' spread over the square root of the independent votes
+        (:meth:`models.dominant_directions.DominantDirections.orientation_std_rad`), and the pull onto its
+        directions weighs that error with the walk's own (``directions.sigma_rad``): votes from a few places
+        carry those places' compass errors (the orientation erred by 10-17 deg on some trials) and pulled every
+        straight step onto them with 4 deg. 0: the walk's own only.
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -171,6 +180,7 @@ class PhoneEngineConfig:
     max_heading_std_rad: float = math.radians(6.0)
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
+    orientation_rho: float = 0.91
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     run_step_hz: float = 2.4
@@ -183,6 +193,8 @@ class PhoneEngineConfig:
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
         if int(self.gyro_min_steps) < 1:
             raise ValueError("PhoneEngineConfig: gyro_min_steps must be >= 1")
+        if not 0.0 <= float(self.orientation_rho) < 1.0:
+            raise ValueError(f"PhoneEngineConfig: orientation_rho must lie in [0, 1), got {self.orientation_rho!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -587,7 +599,10 @@ class PhoneEngine:
                 assert dd is not None
                 off_grid = (wrap(hd.heading - ref) + math.pi / 4) % (math.pi / 2) - math.pi / 4
                 self._locked = abs(off_grid) < dd.gate_rad
-                hd.update_dominant(ref, dd.sigma_rad, dd.gate_rad)
+                sigma = dd.sigma_rad
+                if c.orientation_rho > 0:  # the orientation's own error adds to how straight people walk
+                    sigma = math.hypot(sigma, self._directions.orientation_std_rad(c.orientation_rho))
+                hd.update_dominant(ref, sigma, dd.gate_rad)
 
     def _schedule(self, t_ns: int, events: list[Event]) -> None:
         """Gyroscope on demand (``auto``): after each step."""

@@ -81,6 +81,18 @@ class DominantDirections:
         """The building's orientation modulo 90 degrees (NaN before any vote)."""
         return cmath.phase(self.vote) / 4.0 if self.votes else math.nan
 
+    def orientation_std_rad(self, rho: float) -> float:
+        """Standard error [rad] of :attr:`orientation_rad` for votes whose compass errors are correlated by ``rho``
+        from one step to the next (AR(1)): the votes' circular spread (of four times the angle, ``sqrt(-2 ln R)``
+        with ``R`` the mean resultant length, divided by 4) over the square root of the number of independent
+        votes, ``n (1 - rho) / (1 + rho)`` (at least one). Infinite before any vote."""
+        if not self.votes:
+            return math.inf
+        r = min(abs(self.vote) / self.votes, 1.0)
+        spread = math.sqrt(-2.0 * math.log(max(r, 1e-12))) / 4.0
+        n_eff = max(self.votes * (1.0 - rho) / (1.0 + rho), 1.0)
+        return spread / math.sqrt(n_eff)
+
     def step(self, heading_rad: float, compass_rad: float, walking: bool = True) -> float | None:
         """One step's heading [rad] and compass walking direction [rad] (NaN: none); ``walking``: the step is part
         of a steady gait (a device waved about or shuffled with makes steps that are not a walk along anything).

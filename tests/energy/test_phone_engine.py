@@ -263,4 +263,6 @@ def test_phone_heading_parameters_are_the_dev_trials_statistics(ipin_dir) -> Non
         lo, hi = rng[key]
         assert lo - tol <= value <= hi + tol, (key, value, lo, hi)
     assert deg(H.compass_floor_rad) <= rng["compass_white_max_deg"][0]
+    lo, hi = rng["compass_rho_per_step"]
+    assert lo - 0.005 <= PhoneEngine().config.orientation_rho <= hi + 0.005
     assert deg(PhoneEngine().config.marg_settled_std_rad) > rng["marg_yaw_std_p95_deg"][1]

@@ -328,3 +328,26 @@ def test_step_fusion_blends_agreeing_steps_and_keeps_the_primary_otherwise() -> 
     assert not blended.any() and np.array_equal(length, la)
     with pytest.raises(ValueError):
         StepFusionConfig(ratio_low=1.1)
+
+
+def test_orientation_std_shrinks_with_independent_votes_and_grows_with_their_spread() -> None:
+    """DominantDirections.orientation_std_rad: the votes' circular spread (of 4 theta) / 4 over the square root of
+    n (1 - rho) / (1 + rho) independent votes."""
+    import cmath
+
+    from models.dominant_directions import DominantDirections, DominantDirectionsConfig
+
+    d = DominantDirections(DominantDirectionsConfig())
+    assert d.orientation_std_rad(0.9) == math.inf
+    rng = np.random.default_rng(3)
+    sd = math.radians(10.0)
+    errs = rng.normal(0.0, sd, 400)
+    for k, e in enumerate(errs):
+        d.vote += cmath.exp(4j * (0.3 + e + (k % 4) * math.pi / 2))
+        d.votes += 1
+    assert d.orientation_rad == pytest.approx(0.3, abs=3 * sd / math.sqrt(400))
+    assert d.orientation_std_rad(0.0) == pytest.approx(sd / math.sqrt(400), rel=0.15)
+    assert d.orientation_std_rad(0.9) == pytest.approx(sd / math.sqrt(400 * 0.1 / 1.9), rel=0.15)
+    few = DominantDirections(DominantDirectionsConfig())
+    few.vote, few.votes = d.vote * 0.01, 4
+    assert few.orientation_std_rad(0.9) > d.orientation_std_rad(0.9)
