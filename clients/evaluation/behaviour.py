@@ -386,8 +386,9 @@ def confusion_table(rows: Sequence[dict[str, Any]]) -> list[str]:
     :func:`missed_by_context`), e.g. ``start walk>other 1.2`` = 1.2 s of labelled walking 1-3 s after a stand
     recognised as ``other``."""
     def cells(conf: dict[str, dict[str, float]]) -> str:
-        return " ".join(f"{k}[" + " ".join(f"{g[0]}{conf[k].get(g, 0.0):.1f}" for g in ("stand", "walk", "run", "other"))
-                        + "]" for k in ("walk", "run", "other") if k in conf)
+        got = ("stand", "walk", "run", "other")
+        return " ".join(f"{k}[" + " ".join(f"{g[0]}{conf[k].get(g, 0.0):.1f}" for g in got) + "]"
+                        for k in ("walk", "run", "other") if k in conf)
 
     def missed(m: dict[str, dict[str, dict[str, float]]]) -> str:
         items = [(x, f"{c} {k}>{g}") for c, v in m.items() for k, w in v.items() for g, x in w.items() if x > 0]

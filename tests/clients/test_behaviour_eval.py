@@ -106,3 +106,20 @@ def test_recogniser_figures_on_the_labelled_recordings(data_root: Path) -> None:
         assert s["stand_boundaries_missed"] == 0, rate
         assert s["stand_left_median_abs_s"] <= 1.0 and s["stand_entered_median_abs_s"] <= 1.3, rate
         assert s["walk_run_share_mean"] >= 0.91, rate  # 0.929 and 0.923 before the stand rule
+
+
+@pytest.mark.slow
+def test_cli_prints_the_confusion_by_recording(data_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`pednav eval behaviour --confusion`: one line per labelled recording with its labelled x recognised seconds
+    and where the wrong time lies, one line for all, then the summary."""
+    from clients.cli import main
+
+    assert main(["eval", "behaviour", str(data_root), "--confusion"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = [x for x in lines if x.startswith(("vicon/", "gdin/", "gaitmap/"))]
+    assert len(rows) == len(read_labels_recordings()) and all("| missed:" in x for x in rows)
+    assert any(x.startswith("all ") and "walk[" in x for x in lines) and "walk/run share mean" in lines[-1]
+
+
+def read_labels_recordings() -> set[tuple[str, str]]:
+    return {(r.dataset, r.recording) for r in read_labels(LABEL_TABLE)}
