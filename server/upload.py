@@ -172,16 +172,24 @@ class SqliteGroupWriter:
                 with self.write_lock:
                     cur = conn.cursor()
                     cur.execute("BEGIN IMMEDIATE")
+                    # each upload in its own savepoint, but a group of one needs none: its failure rolls back the
+                    # whole transaction, which holds nothing else (two statements less per upload when idle)
+                    single = len(boxes) == 1
                     for b in boxes:
-                        cur.execute("SAVEPOINT upload")
+                        if not single:
+                            cur.execute("SAVEPOINT upload")
                         try:
                             b[2] = _sqlite_write(cur, b[0])
                         except sqlite3.IntegrityError:
                             b[2] = False  # (session, seq) already stored: answered as a retry
-                        if not b[2]:
-                            cur.execute("ROLLBACK TO upload")
-                        cur.execute("RELEASE upload")
-                    conn.commit()
+                        if not single:
+                            if not b[2]:
+                                cur.execute("ROLLBACK TO upload")
+                            cur.execute("RELEASE upload")
+                    if single and not boxes[0][2]:
+                        conn.rollback()
+                    else:
+                        conn.commit()
                     cur.close()
             except Exception as exc:  # noqa: BLE001 - every upload of the group gets the error (nothing committed)
                 for b in boxes:
