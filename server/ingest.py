@@ -492,12 +492,16 @@ class Fed(NamedTuple):
     n_mag: int
 
 
-def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int, want_state: bool = True) -> Fed:
+def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int, want_state: bool = True,
+                raw: bytes | None = None) -> Fed:
     """Feed ``batch`` as number ``seq`` and encode everything that is stored for it, the engine's state only with
-    ``want_state`` (``BatchError`` from the engine's validation passes through; the engine is then unchanged)."""
+    ``want_state`` (``BatchError`` from the engine's validation passes through; the engine is then unchanged).
+    ``raw``: the batch's :func:`~server.formats.canonical_bytes` when the decoder had them
+    (:func:`~server.formats.decode_upload`), else they are encoded here."""
     upd = engine.feed(batch)
     resp, text = _answer(session_id, seq, seq + 1, upd)
-    raw = canonical_bytes(batch)
+    if raw is None:
+        raw = canonical_bytes(batch)
     return Fed(resp, text, raw, digest(raw), engine.to_bytes() if want_state else None, len(batch.acc_t_ns),
                len(batch.gyr_t_ns), len(batch.mag_t_ns))
 
