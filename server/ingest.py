@@ -507,12 +507,14 @@ def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: in
 
 
 def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: SensorBatch,
-              load_blob: Callable[[], bytes], load_raws: Callable[[int], list[bytes]], every: int) -> Fed:
+              load_blob: Callable[[], bytes], load_raws: Callable[[int], list[bytes]], every: int,
+              raw: bytes | None = None) -> Fed:
     """Feed ``batch`` through the engine helper process: its cached engine when this worker committed
     ``version`` from it (:meth:`EnginePool.take`) and the helper still holds it, else the stored state
     ``load_blob()`` and, for a checkpoint, the stored batches after it (``load_raws(n)``); ``BatchError`` from the
     engine's validation is raised here. The answer carries the engine state when :func:`checkpoint_due` (``every``
-    batches). Call ``host.remember(session_id, version + 1, None)`` after the commit."""
+    batches). ``raw``: the batch's canonical bytes when the decoder had them (the helper then neither encodes nor
+    sends them back). Call ``host.remember(session_id, version + 1, None)`` after the commit."""
     streams: dict[str, Any] = {}
     for name in STREAMS:
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
@@ -520,7 +522,8 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
     if pool.take(session_id, version):
         try:
             with phase("engine"):
-                out = pool.feed(session_id, version, None, seq, streams, checkpoint_due(seq, every, None, False))
+                out = pool.feed(session_id, version, None, seq, streams, checkpoint_due(seq, every, None, False),
+                                raw is None)
         except EngineHelperDied:  # its cached engine died with it: a fresh helper restores the stored state
             out = ("miss",)
     if out[0] == "miss":
@@ -532,7 +535,7 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
         for attempt in (1, 2):  # a helper that dies under the request costs one retry on a fresh one
             try:
                 with phase("engine"):
-                    out = pool.feed(session_id, version, stored, seq, streams, want)
+                    out = pool.feed(session_id, version, stored, seq, streams, want, raw is None)
                 break
             except EngineHelperDied as exc:
                 if attempt == 2:
@@ -542,6 +545,8 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
                         retry_after_s=2) from exc
     if out[0] == "batch_error":
         raise BatchError(out[1], out[2])
+    if raw is not None:
+        return out[1]._replace(raw=raw, digest=digest(raw))
     return out[1]
 
 

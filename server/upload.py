@@ -391,7 +391,7 @@ class Uploader:
         engine = None
         if host.pool is not None:
             fed: Fed = pool_feed(host.pool, session_id, sess.version, seq, batch, stored_state, raws_after,
-                                 host.state_every)
+                                 host.state_every, raw)
         else:
             with phase("load_state"):
                 engine, held, restored = host.restore_held(session_id, sess.version, stored_state, "auto", None,
