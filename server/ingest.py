@@ -182,15 +182,20 @@ class EngineHost:
 
     def start(self) -> None:
         """At server start: spawn the engine helpers (they warm up themselves), or warm up this process's engine
-        in a background thread (``warm``)."""
+        in a background thread (``warm``); the worker's own compiled code on the upload path too
+        (:func:`server.warmup.warm_worker`)."""
         if self.pool is not None:
             self.pool.start()
-        elif not self._warmed.is_set():
+        if not self._warmed.is_set():
+            pool = self.pool
+
             def warm() -> None:
-                from server.warmup import warm_up
+                from server.warmup import warm_up, warm_worker
 
                 try:
-                    warm_up(self.engine_cls)
+                    warm_worker()
+                    if pool is None:
+                        warm_up(self.engine_cls)
                 finally:
                     self._warmed.set()
 
@@ -199,7 +204,7 @@ class EngineHost:
     def ready(self) -> bool:
         """The engine's kernels are compiled and loaded: an upload is answered within the normal latency."""
         if self.pool is not None:
-            return not self.warm or self.pool.ready()
+            return self._warmed.is_set() and (not self.warm or self.pool.ready())
         return self._warmed.is_set()
 
     @property

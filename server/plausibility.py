@@ -108,7 +108,7 @@ class StillGyroCheck:
         span_s = (hi - lo) / 1e9
         if span_s < self.min_still_s:
             return None
-        if _spans_beyond(t_a, acc, lo, hi, 2.0 * self.still_tol_ms2 + 1e-6):
+        if _spans_beyond(np.ascontiguousarray(t_a), np.ascontiguousarray(acc), lo, hi, 2.0 * self.still_tol_ms2 + 1e-6):
             # an axis spans more than twice the tolerance, so a sample departs from any mean by more than it on
             # that axis alone: not still, as the test below would find (one pass instead of its ~20 us of array
             # operations on every walking batch)
