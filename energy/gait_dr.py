@@ -152,6 +152,19 @@ def _row_mean(a, b0, b1):
     return out / (b1 - b0)
 
 
+def warm_kernels() -> None:
+    """Compile (or load) the step-event kernels with the argument types the pipeline passes: the server's
+    warm-up signal (:func:`server.warmup.warm_signal`) yields no step event, so they would otherwise compile
+    under the first stride of a session."""
+    t = np.arange(12) * 0.04
+    a = np.zeros((12, 3))
+    a[:, 2] = _G0
+    _stance_rows(t, a, 0.0, 0.4, 0.04, 3, 1.0, _G0)
+    _swing_rows(t, 0.0, 0.4, 0.06)
+    _stride_peak_of(t, a, 0.0, 0.4, 0.06)
+    _row_mean(a, 0, 3)
+
+
 _SWING_KEEP: dict[int, np.ndarray] = {}  # rows kept of a swing of m samples (they depend on m only)
 
 

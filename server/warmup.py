@@ -66,7 +66,10 @@ def warm_worker() -> float:
 def warm_up(engine_cls: Any, modes: tuple[str, ...] = _MODES) -> float:
     """Feed :func:`warm_signal` through ``engine_cls`` in each mode as the server would (1-s batches, state to
     bytes and back after each, flush at the end); returns the seconds it took (compilation included)."""
+    from energy.gait_dr import warm_kernels
+
     t0 = time.perf_counter()
+    warm_kernels()  # the step-event kernels: the signal below yields no step event
     parts = warm_signal().split_seconds(1.0)
     for mode in modes:
         engine = engine_cls(mode=mode)
