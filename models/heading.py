@@ -83,6 +83,32 @@ def _moments_kernel(w, x, p, ref, mean, cov):  # pragma: no cover - compiled
         mean[k] = np.remainder(ref[k] + m[k] + math.pi, tp) - math.pi
 
 
+@njit(cache=True)
+def _mix_kernel(mu, pi, x, p, x0, p0, cbar):  # pragma: no cover - compiled
+    """IMM interaction (Bar-Shalom, Li & Kirubarajan 2001, Sec. 11.6.6): predicted model probabilities
+    ``cbar = mu pi``, mixing weights ``w[i, j] = pi[i, j] mu[i] / max(cbar[j], 1e-300)`` and each model's mixed
+    start ``(x0[j], p0[j])`` (:func:`_moments_kernel` about ``x[j]``), in the numpy form's arithmetic."""
+    n = mu.shape[0]
+    for j in range(n):
+        s = 0.0
+        for i in range(n):
+            s += mu[i] * pi[i, j]
+        cbar[j] = s
+    w = np.empty(n)
+    mean = np.empty(3)
+    cov = np.empty((3, 3))
+    for j in range(n):
+        c = cbar[j]
+        den = c if (c >= 1e-300 or c != c) else 1e-300  # np.maximum (NaN propagates)
+        for i in range(n):
+            w[i] = (pi[i, j] * mu[i]) / den
+        _moments_kernel(w, x, p, x[j], mean, cov)
+        for k in range(3):
+            x0[j, k] = mean[k]
+            for l in range(3):
+                p0[j, k, l] = cov[k, l]
+
+
 @dataclass(frozen=True)
 class HeadingConfig:
     """Parameters of the heading estimator (units in the names; angles in radians).
@@ -319,12 +345,10 @@ class HeadingEstimator:
     # ------------------------------------------------------------------ predict
     def _mix(self) -> None:
         """IMM interaction step: each model starts from the mixture the Markov chain hands it."""
-        cbar = self.mu @ self._pi  # predicted model probabilities
-        w = (self._pi * self.mu[:, None]) / np.maximum(cbar, 1e-300)[None, :]  # w[i, j] = P(i | j)
-        x0 = np.zeros_like(self.x)
-        p0 = np.zeros_like(self.p)
-        for j in range(2):
-            x0[j], p0[j] = self._moments(w[:, j], self.x, self.p, self.x[j])
+        x0 = np.empty_like(self.x)
+        p0 = np.empty_like(self.p)
+        cbar = np.empty(2)
+        _mix_kernel(self.mu, self._pi, self.x, self.p, x0, p0, cbar)
         self.x, self.p, self.mu = x0, p0, cbar
 
     def _q(self, theta_var: float, field_change: float) -> np.ndarray:

@@ -218,3 +218,26 @@ def test_mixture_moments_kernel_equals_the_numpy_form() -> None:
         mean, cov = HeadingEstimator._moments(w, x, p, ref)
         m0, c0 = reference(w, x, p, ref)
         assert mean.tobytes() == m0.tobytes() and cov.tobytes() == c0.tobytes()
+
+
+def test_imm_mixing_kernel_equals_the_numpy_form() -> None:
+    """The compiled IMM interaction step gives the numpy form's mixed starts and probabilities to the bit."""
+    from models.heading import _mix_kernel
+
+    rng = np.random.default_rng(5)
+    for k in range(2000):
+        mu = rng.random(2) if k % 11 else np.array([1.0, 0.0])
+        mu = mu / mu.sum()
+        a, b = rng.random(2) * 0.3
+        pi = np.array([[1 - a, a], [1 - b, b]])
+        x = rng.uniform(-np.pi, np.pi, (2, 3))
+        q = rng.normal(size=(2, 3, 3))
+        p = q @ q.transpose(0, 2, 1)
+        cbar = mu @ pi
+        w = (pi * mu[:, None]) / np.maximum(cbar, 1e-300)[None, :]
+        ref = [HeadingEstimator._moments(w[:, j], x, p, x[j]) for j in range(2)]
+        x0, p0, cb = np.empty_like(x), np.empty_like(p), np.empty(2)
+        _mix_kernel(mu, pi, x, p, x0, p0, cb)
+        assert cb.tobytes() == cbar.tobytes()
+        assert x0.tobytes() == np.array([r[0] for r in ref]).tobytes()
+        assert p0.tobytes() == np.array([r[1] for r in ref]).tobytes()
