@@ -209,6 +209,7 @@ class _Streams:
         self.last = {n: -(2 ** 62) for n in STREAMS}  # newest time received [ns]
         self.done = -(2 ** 62)  # everything up to here was processed [ns]
         self.dropped = 0  # samples that came after their time had been processed
+        self.dropped_by = {n: 0 for n in STREAMS}  # ... per stream
 
     def push(self, batch: SensorBatch) -> None:
         for n in STREAMS:
@@ -217,6 +218,7 @@ class _Streams:
                 continue
             keep = t > self.done
             self.dropped += int(len(t) - keep.sum())
+            self.dropped_by[n] += int(len(t) - keep.sum())
             t, v = t[keep], v[keep]
             if len(t):
                 self.t[n] = np.concatenate([self.t[n], t])
@@ -245,7 +247,7 @@ class _Streams:
 
     def get_state(self) -> dict[str, Any]:
         return {"t": {n: self.t[n] for n in STREAMS}, "v": {n: self.v[n] for n in STREAMS}, "last": dict(self.last),
-                "done": self.done, "dropped": self.dropped}
+                "done": self.done, "dropped": self.dropped, "dropped_by": dict(self.dropped_by)}
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> _Streams:
@@ -255,6 +257,7 @@ class _Streams:
             obj.v[n] = np.asarray(d["v"][n], dtype=np.float64).reshape(-1, 3)
             obj.last[n] = int(d["last"][n])
         obj.done, obj.dropped = int(d["done"]), int(d["dropped"])
+        obj.dropped_by.update({n: int(v) for n, v in (d.get("dropped_by") or {}).items() if n in obj.dropped_by})
         return obj
 
 
@@ -345,6 +348,12 @@ class PhoneEngine:
     @property
     def placement(self) -> str:
         return self._placement.placement
+
+    @property
+    def late_samples(self) -> dict[str, int]:
+        """Samples per stream that arrived after the merge had passed their time and were not used (a stream
+        lagging the accelerometer by more than ``stream_wait_s``, e.g. a decimated magnetometer's filter delay)."""
+        return dict(self._streams.dropped_by)
 
     def feed(self, batch: SensorBatch) -> Update:
         """Consume one batch.

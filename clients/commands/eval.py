@@ -638,7 +638,7 @@ def _run_ipin(args: argparse.Namespace) -> int:
 
     bound = None if args.max_heading_std_deg is None else math.radians(args.max_heading_std_deg)
     doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
-                        max_heading_std_rad=bound)
+                        max_heading_std_rad=bound, phases=max(1, int(args.phases)))
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:
@@ -653,6 +653,12 @@ def _run_ipin(args: argparse.Namespace) -> int:
               f"(worst {_fmt(s['mean_err_m']['worst'], '.2f')}), median p75 {_fmt(s['p75_err_m']['median'], '.2f')} m, "
               f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')}; always-on "
               f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
+        if "phases" in doc:
+            m = doc["phases"]["mean"]
+            print(f"over {doc['phases']['phases']} batch phases: median mean error {m['mean_err_m']:.2f} m "
+                  f"(worst {m['worst_mean_err_m']:.2f}), median p75 {m['p75_err_m']:.2f} m, energy ratio "
+                  f"{m['energy_ratio']:.2f}; always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
+                  f"{m['ratio_of_medians']:.2f}")
     return 1 if rows_failed else 0
 
 
@@ -755,6 +761,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pi.add_argument("--max-heading-std-deg", type=float, default=None, metavar="DEG",
                     help="auto: the heading standard deviation above which the gyroscope is asked for (default: the "
                          "engine's, 6 deg): the energy / accuracy trade-off")
+    pi.add_argument("--phases", type=int, default=1, metavar="N",
+                    help="also replay with the upload batches' boundaries moved by k/N of a batch (k = 1 .. N-1) and "
+                         "report each phase's medians and their mean (an energy-aware engine switches sensors at batch "
+                         "boundaries); default 1: phase 0 only")
     pi.set_defaults(func=_run_ipin)
     pw = esub.add_parser("phone-watch", help="a phone's and a watch's steps fused (000 eq. 70) on synthetic walks "
                                              "(no public recording has both)")

@@ -11,7 +11,8 @@ landmark, their mean and 75th percentile (the competition's metric), the error a
 return to the first: the loop error), the path ratio (sum of the step lengths between the first and last
 landmark over the surveyed path, the sum of landmark-to-landmark distances; the walk between landmarks is not
 guaranteed straight, so the surveyed path is a lower bound), the steps between the two, and the energy ratio
-(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`).
+(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`), and the samples per
+stream the engine received too late to use (``late_samples``, :attr:`energy.phone_engine.PhoneEngine.late_samples`).
 
 Fitted on the data, and so left out per trial (leave-one-route-out: the two repetitions of a route are one
 walker's same walk, both are left out): the Weinberg constant of the engine and of the baseline, each as the
@@ -128,12 +129,15 @@ class TrialResult:
     energy_mj: float
     gyro_on_fraction: float
     events: dict[str, int] = field(default_factory=dict)
+    late_samples: dict[str, int] = field(default_factory=dict)
 
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
-              batch_seconds: float = 1.0, max_heading_std_rad: float | None = None) -> TrialResult:
+              batch_seconds: float = 1.0, max_heading_std_rad: float | None = None,
+              start_offset_s: float = 0.0) -> TrialResult:
     """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
-    (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's)."""
+    (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's; ``start_offset_s`` [s]: the
+    replay starts this long after the recording, which moves the upload batches' boundaries against the walk)."""
     from dataclasses import replace
 
     from energy.device import replay
@@ -145,7 +149,10 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     if max_heading_std_rad is not None:
         cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
     eng = PhoneEngine(mode=mode, config=cfg, device_kind="phone", placement=placement, anchor=anchor, date=day)
-    res = replay(eng, rec.batch, batch_seconds)
+    batch = rec.batch
+    if start_offset_s > 0:
+        batch = batch.time_slice(int(batch.t_start_ns or 0) + int(round(start_offset_s * 1e9)), int(batch.t_end_ns or 0) + 1)
+    res = replay(eng, batch, batch_seconds)
     t_end = int(rec.batch.t_end_ns or 0) + 1
     report = phone_energy(res, t_end)
     ev: dict[str, int] = {}
@@ -159,7 +166,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     n, e, _h = to_true_north(np.array([p.north for p in pos]), np.array([p.east for p in pos]),
                              np.array([p.heading_rad for p in pos]), decl)
     return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.column_stack([n, e]).reshape(-1, 2),
-                       np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev)
+                       np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev,
+                       eng.late_samples)
 
 
 def baseline_track(rec: Recording, weinberg_k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -232,12 +240,18 @@ def _surveyed(rec: Recording) -> float:
 
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
                   batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
-                  max_heading_std_rad: float | None = None) -> dict[str, Any]:
+                  max_heading_std_rad: float | None = None, phases: int = 1) -> dict[str, Any]:
     """The ``pednav eval ipin`` document for loaded recordings (see the module docstring).
 
     Every trial is replayed always-on (the energy baseline; its steps also fit the Weinberg constant of the
     others) and, with ``mode="auto"``, energy-aware; the trial's row reports ``mode``'s track; ``always_on``
     and ``baseline`` hold the same metrics of the always-on replay and of the simple baseline.
+
+    ``phases`` > 1: both replays are repeated with the upload batches' boundaries moved by ``k / phases`` of a
+    batch (``k = 1 .. phases - 1``; the replay starts that much later, inside the calibration manoeuvre before
+    the first landmark). An energy-aware engine switches its sensors at batch boundaries, so whether the
+    gyroscope is back in time for a turn depends on where they fall: ``doc["phases"]`` holds the medians of each
+    phase and their mean, the figure that does not depend on that luck (the rows are phase 0's).
     """
     from energy.phone_engine import PhoneEngineConfig
 
@@ -270,13 +284,63 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
                "accuracy_ratio": e.mean_err_m / e_on.mean_err_m if e_on.mean_err_m > 0 else None,
                "gyro_on_fraction": run.gyro_on_fraction, "weinberg_k": k, "landmarks": int(len(T)),
                "phone": (rec.aux.get("device") or {}).get("Model"), "events": run.events,
-               "always_on": {**e_on.row(), "energy_mj": on.energy_mj},
+               "late_samples": run.late_samples,
+               "always_on": {**e_on.row(), "energy_mj": on.energy_mj, "late_samples": on.late_samples},
                "baseline": {**e_b.row(), "weinberg_k": kb}}
         trials.append(row)
     doc = {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}
+    if phases > 1:
+        doc["phases"] = _phases(recs, trials, mode, placement, batch_seconds, max_heading_std_rad, int(phases), progress)
     if max_heading_std_rad is not None:
         doc["max_heading_std_rad"] = max_heading_std_rad
     return doc
+
+
+def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, placement: str | None,
+            batch_seconds: float, max_heading_std_rad: float | None, phases: int,
+            progress: Callable[[str], None] | None) -> dict[str, Any]:
+    """Median and worst mean landmark error, median 75th percentile and median energy ratio of ``mode`` and of
+    always-on for each batch phase (phase 0: ``trials``), their means over the phases, and each trial's mean
+    error averaged over the phases."""
+    rows: list[list[dict[str, float]]] = [[{"mean": t["mean_err_m"], "p75": t["p75_err_m"], "on": t["always_on"]["mean_err_m"],
+                                             "on_p75": t["always_on"]["p75_err_m"], "energy": t["energy_ratio"]}
+                                            for t in trials]]
+    ks = {t["name"]: t["weinberg_k"] for t in trials}
+    for k in range(1, phases):
+        off = k * batch_seconds / phases
+        per = []
+        for rec in recs:
+            if progress:
+                progress(f"{rec.name} phase {k}")
+            T, L = _truth(rec)
+            on = run_phone(rec, "always-on", ks[rec.name], placement, batch_seconds, start_offset_s=off)
+            run = on if mode == "always-on" else run_phone(rec, mode, ks[rec.name], placement, batch_seconds,
+                                                           max_heading_std_rad, start_offset_s=off)
+            e, e_on = landmark_errors(T, L, run.t_ns, run.ne, run.step_m), landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
+            per.append({"mean": e.mean_err_m, "p75": e.p75_err_m, "on": e_on.mean_err_m, "on_p75": e_on.p75_err_m,
+                        "energy": run.energy_mj / on.energy_mj})
+        rows.append(per)
+    out: list[dict[str, Any]] = []
+    for k, per in enumerate(rows):
+        med = {f: float(np.median([r[f] for r in per])) for f in ("mean", "p75", "on", "on_p75", "energy")}
+        out.append({"offset_s": k * batch_seconds / phases, "mean_err_m": med["mean"], "p75_err_m": med["p75"],
+                    "worst_mean_err_m": float(max(r["mean"] for r in per)), "energy_ratio": med["energy"],
+                    "always_on": {"mean_err_m": med["on"], "p75_err_m": med["on_p75"],
+                                  "worst_mean_err_m": float(max(r["on"] for r in per))},
+                    "ratio_of_medians": med["mean"] / med["on"] if med["on"] > 0 else None})
+
+    def avg(key: str, part: str | None = None) -> float:
+        return float(np.mean([(p[part] if part else p)[key] for p in out]))
+
+    return {"phases": phases, "per_phase": out,
+            "mean": {"mean_err_m": avg("mean_err_m"), "p75_err_m": avg("p75_err_m"),
+                     "worst_mean_err_m": avg("worst_mean_err_m"), "energy_ratio": avg("energy_ratio"),
+                     "ratio_of_medians": float(np.mean([p["ratio_of_medians"] for p in out])),
+                     "always_on": {"mean_err_m": avg("mean_err_m", "always_on"), "p75_err_m": avg("p75_err_m", "always_on"),
+                                   "worst_mean_err_m": avg("worst_mean_err_m", "always_on")}},
+            "trials": [{"name": t["name"], "mean_err_m": float(np.mean([rows[k][i]["mean"] for k in range(phases)])),
+                        "always_on_mean_err_m": float(np.mean([rows[k][i]["on"] for k in range(phases)]))}
+                       for i, t in enumerate(trials)]}
 
 
 def _stats(values: list[float], worst: str) -> dict[str, Any]:

@@ -77,6 +77,38 @@ def test_works_with_what_the_device_sends() -> None:
     assert not any(np.isnan(pos).ravel())
 
 
+def _lagged(batch: SensorBatch, lag_s: float, every_s: float) -> list[SensorBatch]:
+    """Upload batches of ``every_s`` in which the magnetometer's samples arrive ``lag_s`` after their time stamps
+    (as a decimating filter's delay delivers them), the other streams at once."""
+    t0, t1 = int(batch.t_start_ns), int(batch.t_end_ns) + 1
+    lag, step = int(lag_s * 1e9), int(every_s * 1e9)
+    out = []
+    for a in range(t0, t1, step):
+        b = min(a + step, t1)
+        now = batch.time_slice(a, b)
+        m = (batch.mag_t_ns >= a - lag) & (batch.mag_t_ns < b - lag)
+        out.append(SensorBatch(acc_t_ns=now.acc_t_ns, acc=now.acc, gyr_t_ns=now.gyr_t_ns, gyr=now.gyr,
+                               mag_t_ns=batch.mag_t_ns[m], mag=batch.mag[m]))
+    return out
+
+
+def test_late_samples_are_counted_per_stream() -> None:
+    """A magnetometer lagging by more than ``stream_wait_s`` loses the samples whose time the merge has passed:
+    they are counted on their stream (none when it is on time), and the count survives the state round trip."""
+    rec = _rec("phone-walk")
+    e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
+    _positions(e, _lagged(rec.batch, 0.0, 1.0))
+    assert e.late_samples == {"acc": 0, "gyr": 0, "mag": 0}
+    wait = e.config.stream_wait_s
+    e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
+    batches = _lagged(rec.batch, wait + 0.3, 1.0)
+    for b in batches[: len(batches) // 2]:
+        e.feed(b)
+    late = e.late_samples
+    assert late["mag"] > 0 and late["acc"] == late["gyr"] == 0
+    assert engine_from_bytes(e.to_bytes()).late_samples == late  # type: ignore[attr-defined]
+
+
 def test_sensor_configuration_follows_behaviour() -> None:
     rec = _rec("phone-walk")
     on = replay(PhoneEngine("always-on", anchor=ANCHOR), rec.batch, 1.0)
@@ -175,6 +207,40 @@ def test_ipin_trial_beats_standing_still(ipin_dir) -> None:  # type: ignore[no-u
     standing = float(np.mean(np.linalg.norm(L[1:] - L[0], axis=1)))
     assert e.mean_err_m < 0.35 * standing
     assert e.path_ratio == pytest.approx(1.0, abs=0.08)
+
+
+def test_sm_g930f_walker_takes_longer_steps_at_no_larger_feature(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """The diagnosis of docs/phone.md "Known limits" (clients.evaluation.phone_step_length): the SM-G930F walker's
+    steps are more than 15 % longer than an SM-A520F walker's whose Weinberg feature and walking-band vertical
+    power are larger: no amplitude feature tells his steps apart."""
+    from clients.evaluation.phone_step_length import trial_statistics
+    from clients.importers import load
+
+    g = trial_statistics(load(ipin_dir / "IPIN2023_T3_TrainingTrial21_repetition01.txt"))
+    a = trial_statistics(load(ipin_dir / "IPIN2023_T3_TrainingTrial24_repetition01.txt"))
+    assert (g["phone"], a["phone"]) == ("SM-G930F", "SM-A520F")
+    assert g["step_m"] > 1.15 * a["step_m"]
+    assert g["weinberg"] < a["weinberg"] and g["vert_power"] < a["vert_power"] and g["period_s"] > a["period_s"]
+
+
+def test_ipin_batch_phases(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """``evaluate_ipin(phases=2)``: phase 0 is the document's own rows; the other phase replays with the batch
+    boundaries half a batch later (a different replay of the same walks: the energy-aware track changes, the
+    always-on one hardly); the means are the means of the phases."""
+    from clients.evaluation.ipin import evaluate_ipin
+    from clients.importers import load
+
+    recs = [load(ipin_dir / f"IPIN2023_T3_Training{n}.txt") for n in ("Trial23_repetition01", "Trial27_repetition01")]
+    doc = evaluate_ipin(recs, mode="auto", phases=2)
+    ph = doc["phases"]
+    p0, p1 = ph["per_phase"]
+    assert (p0["offset_s"], p1["offset_s"]) == (0.0, 0.5)
+    assert p0["mean_err_m"] == pytest.approx(doc["summary"]["mean_err_m"]["median"], abs=1e-12)
+    assert p0["always_on"]["mean_err_m"] == pytest.approx(doc["summary"]["always_on"]["mean_err_m"]["median"], abs=1e-12)
+    assert p1["mean_err_m"] != p0["mean_err_m"]
+    assert p1["always_on"]["mean_err_m"] == pytest.approx(p0["always_on"]["mean_err_m"], rel=0.25)
+    assert ph["mean"]["mean_err_m"] == pytest.approx(0.5 * (p0["mean_err_m"] + p1["mean_err_m"]), abs=1e-12)
+    assert [t["name"] for t in ph["trials"]] == [t["name"] for t in doc["trials"]]
 
 
 
