@@ -485,6 +485,8 @@ def _check_array(name: str, a: np.ndarray, n: int, allow_nan: bool) -> np.ndarra
     a = np.asarray(a, dtype=np.float64)
     if a.ndim != 2 or a.shape != (n, 3):
         raise ValueError(f"{name}: expected shape ({n}, 3), got {a.shape}")
+    if np.isfinite(a).all():  # the common case in one pass; else the checks below say what is wrong
+        return np.ascontiguousarray(a)
     if np.isinf(a).any():
         raise ValueError(f"{name}: contains inf")
     if allow_nan:

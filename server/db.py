@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.settings import Settings
@@ -13,6 +14,7 @@ from server.settings import Settings
 __all__ = ["make_engine", "make_sessionmaker", "migrate", "session_scope"]
 
 _HERE = Path(__file__).resolve().parent
+_LOCK_CLASS = 0x7065646E  # "pedn": first key of pednav's PostgreSQL advisory locks (second: the schema's hash)
 
 
 def make_engine(settings: Settings) -> Engine:
@@ -42,6 +44,9 @@ def make_engine(settings: Settings) -> Engine:
         @event.listens_for(eng, "connect")
         def _pg_schema(dbapi_conn, _rec) -> None:  # type: ignore[no-untyped-def]
             cur = dbapi_conn.cursor()
+            # concurrent CREATE SCHEMA IF NOT EXISTS of one name can still collide (unique violation in
+            # pg_namespace): new connections of several workers take turns (lock released by the commit)
+            cur.execute("SELECT pg_advisory_xact_lock(%s, hashtext(%s))", (_LOCK_CLASS, schema))
             cur.execute(f'CREATE SCHEMA IF NOT EXISTS "{schema}"')
             cur.execute(f'SET search_path TO "{schema}"')
             cur.close()
@@ -64,9 +69,41 @@ def migrate(engine: Engine, revision: str = "head") -> None:
     # a connection NOT in a transaction: the environment (migrations/env.py) runs each revision in a transaction
     # of its own; inside one begun here every revision would share it, and SQLite's foreign keys could not be
     # switched off for revisions that rebuild a referenced table (the PRAGMA is a no-op inside a transaction)
-    with engine.connect() as conn:
+    with engine.connect() as conn, _migration_lock(conn):
         cfg.attributes["connection"] = conn
         command.upgrade(cfg, revision)
+
+
+@contextmanager
+def _migration_lock(conn: Connection) -> Iterator[None]:
+    """Make migrations of one database take turns: several API workers start at once and each migrates on
+    startup; without it two of them create the version table (or apply a revision) together and one fails
+    (PostgreSQL: unique violation; SQLite: table already exists). The later ones then find the database at head
+    and do nothing. PostgreSQL: a session advisory lock per schema (kept across the revisions' own
+    transactions); SQLite: an exclusive lock on a file beside the database (in-memory databases: none)."""
+    if conn.dialect.name == "postgresql":
+        conn.exec_driver_sql("SELECT pg_advisory_lock(%s, hashtext(current_schema()))", (_LOCK_CLASS,))
+        conn.commit()
+        try:
+            yield
+        finally:
+            if conn.in_transaction():
+                conn.rollback()
+            conn.exec_driver_sql("SELECT pg_advisory_unlock(%s, hashtext(current_schema()))", (_LOCK_CLASS,))
+            conn.commit()
+        return
+    path = conn.engine.url.database if conn.dialect.name == "sqlite" else None
+    if not path or path == ":memory:" or path.startswith("file:"):
+        yield
+        return
+    import fcntl
+
+    with open(f"{path}.migrate-lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def session_scope(factory: sessionmaker[Session]) -> Iterator[Session]:

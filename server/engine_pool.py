@@ -95,14 +95,16 @@ def _unpack_streams(counts: tuple[int, ...], buf: bytearray) -> dict[str, np.nda
 
 def _feed(
     session_id: int, version: int, state: bytes | tuple[bytes, list[bytes]] | None, seq: int, counts: tuple[int, ...],
-    buf: bytearray, want_state: bool = True,
+    buf: bytearray, want_state: bool = True, encode_raw: bool = True,
 ) -> tuple[Any, ...]:
     """In the helper: feed one batch; ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
 
     ``state`` None: continue the cached engine at ``version`` ("miss" without one); else restore ``state`` (a
     stored blob, or a blob and the stored raw batches after its checkpoint, :func:`server.ingest.replay_engine`),
     also when an engine is cached at ``version`` (the worker does not vouch for it, see the module docstring).
-    ``want_state``: the answer carries the engine's new state (a checkpoint is due).
+    ``want_state``: the answer carries the engine's new state (a checkpoint is due). ``encode_raw`` False: the
+    worker has the batch's canonical bytes (:func:`server.formats.decode_upload`); the answer's ``raw`` and
+    ``digest`` are left empty for it to fill in (nor are the bytes sent back).
     """
     from energy.engines import engine_from_bytes
     from models.batch import BatchError, SensorBatch
@@ -118,7 +120,10 @@ def _feed(
     else:
         return ("miss",)
     try:
-        fed = feed_engine(engine, SensorBatch(**_unpack_streams(counts, buf)), session_id, seq, want_state)
+        fed = feed_engine(engine, SensorBatch(**_unpack_streams(counts, buf)), session_id, seq, want_state,
+                          None if encode_raw else b"")
+        if not encode_raw:
+            fed = fed._replace(digest="")
     except BatchError as exc:  # sent back as plain values (the worker raises its own BatchError from them)
         return ("batch_error", exc.field, exc.problem)
     _CACHE[session_id] = (version + 1, engine)
@@ -266,12 +271,13 @@ class EnginePool:
             self._committed.pop(session_id, None)
 
     def feed(self, session_id: int, version: int, state: bytes | tuple[bytes, list[bytes]] | None, seq: int,
-             streams: dict[str, np.ndarray], want_state: bool = True) -> tuple[Any, ...]:
+             streams: dict[str, np.ndarray], want_state: bool = True, encode_raw: bool = True) -> tuple[Any, ...]:
         """Feed one batch in the session's helper: ("ok", Fed) | ("miss",) | ("batch_error", field, problem).
 
         ``state`` None: the helper's cached engine at ``version`` (only after :meth:`take`); else the engine
         restored from ``state`` (a stored blob, or a blob and the stored raw batches after its checkpoint; the
-        helper's cached one is then never used). ``want_state``: the answer carries the new engine state."""
+        helper's cached one is then never used). ``want_state``: the answer carries the new engine state.
+        ``encode_raw`` False: the answer's ``raw`` and ``digest`` are empty (the caller has the canonical bytes)."""
         h = self._helper(session_id)
         waited = 0.0
         while True:  # a free channel; give up at once when the helper died meanwhile (its channels never free)
@@ -285,7 +291,7 @@ class EnginePool:
                 if waited >= 120.0:
                     raise EngineHelperError("no engine helper channel free for 120 s") from None
         try:
-            conn.send((session_id, version, state, seq, *_pack_streams(streams), want_state))
+            conn.send((session_id, version, state, seq, *_pack_streams(streams), want_state, encode_raw))
             out: tuple[Any, ...] = conn.recv()
         except (EOFError, OSError) as exc:  # the helper died: this pipe is out of step, do not reuse it
             h.broken = True

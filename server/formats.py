@@ -34,6 +34,7 @@ __all__ = [
     "encode_json",
     "encode_msgpack",
     "canonical_bytes",
+    "decode_upload",
     "digest",
 ]
 
@@ -146,7 +147,10 @@ def _from_json(doc: Any, limit: int) -> SensorBatch:
     return SensorBatch(**kw)
 
 
-def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
+def _from_msgpack(doc: Any, limit: int) -> tuple[SensorBatch, bytes | None]:
+    """The batch of a msgpack document, and its :func:`canonical_bytes` when they follow from the document alone
+    (every stream in ``<f8`` with ``t0``/``dt`` timestamps, the form :func:`encode_msgpack` writes for the
+    server): the canonical document holds the same byte strings, so re-encoding the arrays is not needed."""
     if not isinstance(doc, dict):
         raise BatchError("body", "must be a msgpack map with streams acc/gyr/mag")
     if doc.get("v") != 1:
@@ -155,6 +159,7 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
     if unknown:
         raise BatchError(str(sorted(map(str, unknown))[0]), "unknown stream")
     kw: dict[str, np.ndarray] = {}
+    canon: dict[str, Any] | None = {"v": 1}  # encode_msgpack's document of the batch, while it can be built here
     for name in STREAMS:
         s = doc.get(name)
         if s is None:
@@ -188,12 +193,30 @@ def _from_msgpack(doc: Any, limit: int) -> SensorBatch:
             else:
                 deltas = np.frombuffer(dt, dtype="<i4").astype(np.int64)
                 t = int(t0) + np.concatenate([np.zeros(1, dtype=np.int64), np.cumsum(deltas)])
+                if canon is not None and dtype == "<f8":
+                    # what encode_msgpack(batch, "<f8") writes for this stream: the same values' bytes, t[0] = t0
+                    # and the same int32 differences
+                    canon[name] = {"n": n, "dtype": dtype, "xyz": xyz, "t0": int(t0), "dt": dt}
+                else:
+                    canon = None
+        if "t" in s and n:
+            canon = None  # int64 timestamps: their canonical form (t0/dt or t) needs the differences
         kw[f"{name}_t_ns"], kw[name] = t, v
-    return SensorBatch(**kw)
+    raw = None if canon is None else msgpack.packb(canon, use_bin_type=True)
+    return SensorBatch(**kw), raw
 
 
 def decode_batch(body: bytes, content_type: str | None, max_samples: int, *, allow_empty: bool = False) -> SensorBatch:
-    """Parse a request body into a :class:`SensorBatch` (not yet validated for plausibility).
+    """Parse a request body into a :class:`SensorBatch` (not yet validated for plausibility); see
+    :func:`decode_upload`."""
+    return decode_upload(body, content_type, max_samples, allow_empty=allow_empty)[0]
+
+
+def decode_upload(body: bytes, content_type: str | None, max_samples: int, *,
+                  allow_empty: bool = False) -> tuple[SensorBatch, bytes | None]:
+    """Parse a request body into a :class:`SensorBatch` (not yet validated for plausibility), with its
+    :func:`canonical_bytes` when the body's form gives them without re-encoding (msgpack, ``<f8``, ``t0``/``dt``
+    timestamps: what the SDK sends for foot sensors), else None (call :func:`canonical_bytes`).
 
     ``allow_empty``: take a batch without any sample (stored batches, re-processed as they were stored). An
     upload without samples is refused: ``{}`` was accepted and consumed a sequence number for nothing (a device
@@ -212,7 +235,7 @@ def decode_batch(body: bytes, content_type: str | None, max_samples: int, *, all
             doc = msgpack.unpackb(body, raw=False, strict_map_key=True, max_bin_len=len(body), max_array_len=16, max_map_len=16)
         except Exception as exc:  # noqa: BLE001 - any unpack failure is a client error
             raise BatchError("body", f"not valid msgpack: {exc}") from None
-        batch = _from_msgpack(doc, max_samples)
+        batch, raw = _from_msgpack(doc, max_samples)
     elif ctype == JSON_TYPE:
         try:
             doc = json.loads(body)
@@ -220,13 +243,13 @@ def decode_batch(body: bytes, content_type: str | None, max_samples: int, *, all
             raise BatchError("body", f"not valid JSON: {exc}") from None
         except RecursionError:
             raise BatchError("body", "JSON nested too deeply") from None
-        batch = _from_json(doc, max_samples)
+        batch, raw = _from_json(doc, max_samples), None
     else:
         raise BatchError("content-type", f"unsupported {ctype!r}; use {JSON_TYPE} or {MSGPACK_TYPE}")
     if not allow_empty and not any(batch.stream(name)[0].size for name in STREAMS):
         raise BatchError("body", "a batch without samples (every stream missing or empty); send batches that hold "
                                  "samples (the sequence number stays free)")
-    return batch
+    return batch, raw
 
 
 def canonical_bytes(batch: SensorBatch) -> bytes:

@@ -182,15 +182,20 @@ class EngineHost:
 
     def start(self) -> None:
         """At server start: spawn the engine helpers (they warm up themselves), or warm up this process's engine
-        in a background thread (``warm``)."""
+        in a background thread (``warm``); the worker's own compiled code on the upload path too
+        (:func:`server.warmup.warm_worker`)."""
         if self.pool is not None:
             self.pool.start()
-        elif not self._warmed.is_set():
+        if not self._warmed.is_set():
+            pool = self.pool
+
             def warm() -> None:
-                from server.warmup import warm_up
+                from server.warmup import warm_up, warm_worker
 
                 try:
-                    warm_up(self.engine_cls)
+                    warm_worker()
+                    if pool is None:
+                        warm_up(self.engine_cls)
                 finally:
                     self._warmed.set()
 
@@ -199,7 +204,7 @@ class EngineHost:
     def ready(self) -> bool:
         """The engine's kernels are compiled and loaded: an upload is answered within the normal latency."""
         if self.pool is not None:
-            return not self.warm or self.pool.ready()
+            return self._warmed.is_set() and (not self.warm or self.pool.ready())
         return self._warmed.is_set()
 
     @property
@@ -492,23 +497,29 @@ class Fed(NamedTuple):
     n_mag: int
 
 
-def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int, want_state: bool = True) -> Fed:
+def feed_engine(engine: EngineLike, batch: SensorBatch, session_id: int, seq: int, want_state: bool = True,
+                raw: bytes | None = None) -> Fed:
     """Feed ``batch`` as number ``seq`` and encode everything that is stored for it, the engine's state only with
-    ``want_state`` (``BatchError`` from the engine's validation passes through; the engine is then unchanged)."""
+    ``want_state`` (``BatchError`` from the engine's validation passes through; the engine is then unchanged).
+    ``raw``: the batch's :func:`~server.formats.canonical_bytes` when the decoder had them
+    (:func:`~server.formats.decode_upload`), else they are encoded here."""
     upd = engine.feed(batch)
     resp, text = _answer(session_id, seq, seq + 1, upd)
-    raw = canonical_bytes(batch)
+    if raw is None:
+        raw = canonical_bytes(batch)
     return Fed(resp, text, raw, digest(raw), engine.to_bytes() if want_state else None, len(batch.acc_t_ns),
                len(batch.gyr_t_ns), len(batch.mag_t_ns))
 
 
 def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: SensorBatch,
-              load_blob: Callable[[], bytes], load_raws: Callable[[int], list[bytes]], every: int) -> Fed:
+              load_blob: Callable[[], bytes], load_raws: Callable[[int], list[bytes]], every: int,
+              raw: bytes | None = None) -> Fed:
     """Feed ``batch`` through the engine helper process: its cached engine when this worker committed
     ``version`` from it (:meth:`EnginePool.take`) and the helper still holds it, else the stored state
     ``load_blob()`` and, for a checkpoint, the stored batches after it (``load_raws(n)``); ``BatchError`` from the
     engine's validation is raised here. The answer carries the engine state when :func:`checkpoint_due` (``every``
-    batches). Call ``host.remember(session_id, version + 1, None)`` after the commit."""
+    batches). ``raw``: the batch's canonical bytes when the decoder had them (the helper then neither encodes nor
+    sends them back). Call ``host.remember(session_id, version + 1, None)`` after the commit."""
     streams: dict[str, Any] = {}
     for name in STREAMS:
         streams[f"{name}_t_ns"], streams[name] = batch.stream(name)
@@ -516,7 +527,8 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
     if pool.take(session_id, version):
         try:
             with phase("engine"):
-                out = pool.feed(session_id, version, None, seq, streams, checkpoint_due(seq, every, None, False))
+                out = pool.feed(session_id, version, None, seq, streams, checkpoint_due(seq, every, None, False),
+                                raw is None)
         except EngineHelperDied:  # its cached engine died with it: a fresh helper restores the stored state
             out = ("miss",)
     if out[0] == "miss":
@@ -528,7 +540,7 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
         for attempt in (1, 2):  # a helper that dies under the request costs one retry on a fresh one
             try:
                 with phase("engine"):
-                    out = pool.feed(session_id, version, stored, seq, streams, want)
+                    out = pool.feed(session_id, version, stored, seq, streams, want, raw is None)
                 break
             except EngineHelperDied as exc:
                 if attempt == 2:
@@ -538,6 +550,8 @@ def pool_feed(pool: EnginePool, session_id: int, version: int, seq: int, batch: 
                         retry_after_s=2) from exc
     if out[0] == "batch_error":
         raise BatchError(out[1], out[2])
+    if raw is not None:
+        return out[1]._replace(raw=raw, digest=digest(raw))
     return out[1]
 
 

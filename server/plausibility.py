@@ -20,12 +20,36 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from models.batch import BatchError, SensorBatch
 
 __all__ = ["STILL_GYRO", "StillGyroCheck"]
 
 _G = 9.80665
+
+
+@njit(cache=True)
+def _spans_beyond(t, a, lo, hi, limit):  # pragma: no cover - compiled
+    """Whether some axis of the rows of ``a`` with ``lo <= t <= hi`` spans more than ``limit`` (max - min); False
+    when a value there is not finite (left to the full test)."""
+    mn = np.full(3, np.inf)
+    mx = np.full(3, -np.inf)
+    for i in range(t.shape[0]):
+        if t[i] < lo or t[i] > hi:
+            continue
+        for k in range(3):
+            v = a[i, k]
+            if not np.isfinite(v):
+                return False
+            if v < mn[k]:
+                mn[k] = v
+            if v > mx[k]:
+                mx[k] = v
+    for k in range(3):
+        if mx[k] - mn[k] > limit:
+            return True
+    return False
 
 
 @dataclass(frozen=True)
@@ -83,6 +107,11 @@ class StillGyroCheck:
         lo, hi = max(int(t_a[0]), int(t_g[0])), min(int(t_a[-1]), int(t_g[-1]))
         span_s = (hi - lo) / 1e9
         if span_s < self.min_still_s:
+            return None
+        if _spans_beyond(np.ascontiguousarray(t_a), np.ascontiguousarray(acc), lo, hi, 2.0 * self.still_tol_ms2 + 1e-6):
+            # an axis spans more than twice the tolerance, so a sample departs from any mean by more than it on
+            # that axis alone: not still, as the test below would find (one pass instead of its ~20 us of array
+            # operations on every walking batch)
             return None
         ka = (t_a >= lo) & (t_a <= hi)
         kg = (t_g >= lo) & (t_g <= hi)

@@ -21,7 +21,7 @@ import numpy as np
 
 from models.batch import SensorBatch
 
-__all__ = ["warm_signal", "warm_up"]
+__all__ = ["warm_signal", "warm_up", "warm_worker"]
 
 _G = 9.80665
 _MODES = ("auto", "zupt", "pdr")
@@ -51,10 +51,25 @@ def warm_signal(seconds: float = 45.0, rate_hz: float = 100.0) -> SensorBatch:
     return SensorBatch(acc_t_ns=t_ns, acc=acc, gyr_t_ns=t_ns.copy(), gyr=gyr, mag_t_ns=t_ns.copy(), mag=mag)
 
 
+def warm_worker() -> float:
+    """The server worker's own compiled code on the upload path (:mod:`server.plausibility`'s pre-test), which
+    runs where the request is decoded, also when the engines run in helper processes; returns the seconds it
+    took."""
+    from server.plausibility import STILL_GYRO
+
+    t0 = time.perf_counter()
+    for part in warm_signal(seconds=8.0).split_seconds(1.0):  # still and walking batches
+        STILL_GYRO.examine(part)
+    return time.perf_counter() - t0
+
+
 def warm_up(engine_cls: Any, modes: tuple[str, ...] = _MODES) -> float:
     """Feed :func:`warm_signal` through ``engine_cls`` in each mode as the server would (1-s batches, state to
     bytes and back after each, flush at the end); returns the seconds it took (compilation included)."""
+    from energy.gait_dr import warm_kernels
+
     t0 = time.perf_counter()
+    warm_kernels()  # the step-event kernels: the signal below yields no step event
     parts = warm_signal().split_seconds(1.0)
     for mode in modes:
         engine = engine_cls(mode=mode)

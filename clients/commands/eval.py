@@ -509,6 +509,10 @@ def _run_behaviour(args: argparse.Namespace) -> int:
         print(json.dumps(doc))
         return 0
     for rate, v in doc["rates"].items():
+        if args.confusion:
+            print(f"{rate} Hz: labelled[recognised s: stand walk run other] | wrong s by context "
+                  f"({'/'.join(behaviour.CONTEXTS)}) labelled>recognised")
+            print("\n".join(behaviour.confusion_table(v["recordings"])))
         s = v["summary"]
         print(f"{rate:>9} Hz  walk/run share mean {_fmt(s['walk_run_share_mean'], '.3f')} worst "
               f"{_fmt(s['walk_run_share_worst'], '.3f')} ({s['worst_recording']}), other share "
@@ -737,6 +741,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pb.add_argument("--rate-hz", type=float, action="append", default=None, metavar="HZ",
                     help="also de-sampled to HZ (repeatable), as a sensor set to HZ would deliver it")
     pb.add_argument("--json", action="store_true", help="print one JSON document")
+    pb.add_argument("--confusion", action="store_true",
+                    help="print per recording the labelled x recognised seconds and where the wrong time lies "
+                         "(first seconds of a gait, last before a stop, after a pace change or an unscored stretch, "
+                         "steady gait); the JSON has it as each recording's confusion_s and missed_s")
     pb.set_defaults(func=_run_behaviour)
     pi = esub.add_parser("ipin", help="GetSensorData phone logfiles with surveyed landmarks (IPIN 2023 Track 3): "
                                       "landmark errors, path ratio, steps, energy against always-on")

@@ -25,7 +25,10 @@ Metrics per recording (:func:`score`): ``walk_run_share`` = fraction of the labe
 left out) the recogniser labels with the gait of the label; ``other_share`` likewise for ``other``; ``stand_share``;
 ``stand_left_s`` / ``stand_entered_s``: per labelled stand boundary inside the recording (not its start or end),
 the time from the boundary to the recogniser's change of label out of / into ``stand`` (negative: before it),
-``None`` when it never changed within ``BOUNDARY_WINDOW_S``.
+``None`` when it never changed within ``BOUNDARY_WINDOW_S``. Where the wrong time lies (:func:`missed_by_context`:
+the first seconds of a gait after a stand, the last before a stop, after a change of pace, after an unscored stretch,
+or steady gait) is each row's ``missed_s``; :func:`confusion_table` prints it per recording (``pednav eval behaviour
+--confusion``).
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ __all__ = [
     "read_labels",
     "write_labels",
     "score",
+    "CONTEXTS",
+    "missed_by_context",
+    "confusion_table",
     "summarise",
     "labelled_recordings",
     "evaluate",
@@ -328,6 +334,81 @@ def score(decisions: Sequence[tuple[float, str]], ranges: Sequence[LabelRange], 
             "confusion_s": {k: {g: round(x, 2) for g, x in v.items()} for k, v in confusion.items()}}
 
 
+CONTEXTS: tuple[str, ...] = ("start", "stop", "pace", "hole", "steady")
+_CONTEXT_S = 2.0  # s: the reach of each context below
+
+
+def _context(t: float, stands: Sequence[LabelRange], holes: Sequence[LabelRange],
+             changes: Sequence[float]) -> str:
+    """Where a moment of labelled gait lies (first match of :data:`CONTEXTS`): ``start`` within ``_CONTEXT_S``
+    after the end of the settling time that follows a stand (1-3 s into a gait); ``stop`` within ``_CONTEXT_S``
+    before a stand begins; ``pace`` within ``_CONTEXT_S`` after the labelled gait changed (walk <-> run, gdin);
+    ``hole`` within ``_CONTEXT_S`` after an unscored stretch inside the gait (a 1-2 s stop, a stride whose foot
+    contradicts the trial's label, an in-between pace); ``steady`` otherwise."""
+    if any(0.0 <= t - s.t1_s - SETTLE_S < _CONTEXT_S for s in stands):
+        return "start"
+    if any(0.0 <= s.t0_s - t < _CONTEXT_S for s in stands):
+        return "stop"
+    if any(0.0 <= t - c < _CONTEXT_S for c in changes):
+        return "pace"
+    if any(0.0 <= t - h.t1_s < _CONTEXT_S for h in holes):
+        return "hole"
+    return "steady"
+
+
+def missed_by_context(decisions: Sequence[tuple[float, str]], ranges: Sequence[LabelRange],
+                      step_s: float = 0.05) -> dict[str, dict[str, dict[str, float]]]:
+    """Where the labelled walk/run/other time the recogniser gets wrong goes: ``{context: {labelled: {recognised:
+    seconds}}}`` over the contexts of :data:`CONTEXTS` (see :func:`_context`), sampled every ``step_s`` [s] as
+    :func:`score` does (only wrong time is counted; ``ignore`` left out)."""
+    td = np.array([d[0] for d in decisions], dtype=float)
+    lab = np.array([d[1] for d in decisions], dtype=object)
+    stands = [r for r in ranges if r.label == "stand"]
+    settles = {s.t1_s for s in stands}
+    holes = [r for r in ranges if r.label == "ignore" and r.t0_s not in settles]
+    gaits = [r for r in ranges if r.label in ("walk", "run")]
+    changes = [b.t0_s for a, b in zip(gaits, gaits[1:]) if a.label != b.label and b.t0_s - a.t1_s < _CONTEXT_S]
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for r in ranges:
+        if r.label not in ("walk", "run", "other"):
+            continue
+        t = np.arange(r.t0_s + step_s / 2, r.t1_s, step_s)
+        got = _label_at(td, lab, t)
+        for x, g in zip(t[got != r.label], got[got != r.label]):
+            row = out.setdefault(_context(float(x), stands, holes, changes), {}).setdefault(r.label, {})
+            row[str(g)] = row.get(str(g), 0.0) + step_s
+    return {c: {k: {g: round(x, 2) for g, x in v.items()} for k, v in out[c].items()} for c in CONTEXTS if c in out}
+
+
+def confusion_table(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Text lines, one per recording and one for all: labelled x recognised seconds of walk/run/other time (the
+    ``confusion_s`` of :func:`score`) and the wrong seconds by context and recognised label (``missed_s`` of
+    :func:`missed_by_context`), e.g. ``start walk>other 1.2`` = 1.2 s of labelled walking 1-3 s after a stand
+    recognised as ``other``."""
+    def cells(conf: dict[str, dict[str, float]]) -> str:
+        got = ("stand", "walk", "run", "other")
+        return " ".join(f"{k}[" + " ".join(f"{g[0]}{conf[k].get(g, 0.0):.1f}" for g in got) + "]"
+                        for k in ("walk", "run", "other") if k in conf)
+
+    def missed(m: dict[str, dict[str, dict[str, float]]]) -> str:
+        items = [(x, f"{c} {k}>{g}") for c, v in m.items() for k, w in v.items() for g, x in w.items() if x > 0]
+        return ", ".join(f"{name} {x:.1f}" for x, name in sorted(items, key=lambda i: -i[0]))
+
+    out, conf_all, miss_all = [], {}, {}
+    for r in rows:
+        out.append(f"{r['name']:<30} {cells(r['confusion_s'])} | missed: {missed(r['missed_s'])}")
+        for k, v in r["confusion_s"].items():
+            for g, x in v.items():
+                conf_all.setdefault(k, {})[g] = conf_all.setdefault(k, {}).get(g, 0.0) + x
+        for c, v in r["missed_s"].items():
+            for k, w in v.items():
+                for g, x in w.items():
+                    d = miss_all.setdefault(c, {}).setdefault(k, {})
+                    d[g] = d.get(g, 0.0) + x
+    out.append(f"{'all':<30} {cells(conf_all)} | missed: {missed(miss_all)}")
+    return out
+
+
 def _finite(values: Iterable[float | None]) -> list[float]:
     return [float(v) for v in values if v is not None and math.isfinite(v)]
 
@@ -395,7 +476,8 @@ def evaluate(root: Path, rates_hz: Sequence[float | None] = (None,), ranges: Seq
             if rate is not None and rate < 0.9 * b.rate_hz("acc"):
                 b = desample(b, rate)
             t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+            dec = BehaviourRecognizer().process(t, b.acc)
             rows.append({"name": f"{key[0]}/{key[1]}", "rate_hz": round(float(b.rate_hz("acc")), 1),
-                         **score(BehaviourRecognizer().process(t, b.acc), rr)})
+                         **score(dec, rr), "missed_s": missed_by_context(dec, rr)})
         out["rates"]["recorded" if rate is None else f"{rate:g}"] = {"summary": summarise(rows), "recordings": rows}
     return out

@@ -123,8 +123,10 @@ def leave_one_group_out(root: Path, rates_hz: Sequence[float | None] = (None, 25
                 mb.STAND_ENTER_S = fitted
                 b = batches[(*k, rk)]
                 t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+                dec = mb.BehaviourRecognizer().process(t, b.acc)
                 rows.append({"name": f"{k[0]}/{k[1]}", "group": g, "rate_hz": round(float(b.rate_hz("acc")), 1),
-                             "stand_enter_s": fitted, **bh.score(mb.BehaviourRecognizer().process(t, b.acc), groups[k])})
+                             "stand_enter_s": fitted, **bh.score(dec, groups[k]),
+                             "missed_s": bh.missed_by_context(dec, groups[k])})
                 if progress is not None:
                     progress(f"{rk} {k[1]}")
             longest = {h: max((float(q.max()) for q in qs if q.size), default=0.0) for h, qs in quiet.items()}

@@ -11,9 +11,11 @@ import pytest
 from clients.evaluation.behaviour import (
     LABEL_TABLE,
     LabelRange,
+    confusion_table,
     derive_labels,
     evaluate,
     foot_still,
+    missed_by_context,
     read_labels,
     score,
     summarise,
@@ -40,6 +42,27 @@ def test_shares_count_time_with_the_labelled_gait_and_leave_ignored_time_out() -
     assert s["stand_left_s"] == [pytest.approx(1.5)]  # left stand at 11.5 s, the boundary at 10 s
     assert s["stand_entered_s"] == [pytest.approx(0.25)]  # entered at 21.25 s
     assert s["confusion_s"]["walk"] == pytest.approx({"stand": 0.5, "walk": 8.5, "run": 1.0, "other": 0.0})
+
+
+def test_wrong_time_is_placed_by_context() -> None:
+    """Wrong time 1-3 s into a gait is ``start``, the last 2 s before a stand ``stop``, the 2 s after a change of
+    labelled gait ``pace``, the 2 s after an unscored stretch inside the gait ``hole``, the rest ``steady``."""
+    ranges = [_r(0, 10, "stand"), _r(10, 11, "ignore"), _r(11, 20, "walk"), _r(20, 21, "ignore"), _r(21, 30, "walk"),
+              _r(30, 40, "run"), _r(40, 50, "stand")]
+    dec = [(0.25 * k, "stand") for k in range(1, 41)] + [(0.25 * k, "other") for k in range(41, 49)] \
+        + [(0.25 * k, "walk") for k in range(49, 84)] + [(0.25 * k, "run") for k in range(84, 89)] \
+        + [(0.25 * k, "walk") for k in range(89, 100)] + [(0.25 * k, "walk") for k in range(100, 125)] \
+        + [(0.25 * k, "run") for k in range(125, 155)] + [(0.25 * k, "stand") for k in range(155, 200)]
+    m = missed_by_context(dec, ranges)
+    assert m["start"] == {"walk": {"other": pytest.approx(1.25)}}  # other until 12.25 s (label at 11-12.25)
+    assert m["hole"] == {"walk": {"run": pytest.approx(1.25)}}  # run from 21 to 22.25 s
+    assert m["pace"] == {"run": {"walk": pytest.approx(1.25)}}  # walk until 31.25 s
+    assert "steady" not in m
+    assert m["stop"] == {"run": {"stand": pytest.approx(1.25)}}  # stand from 38.75 s
+    assert sum(x for c in m.values() for v in c.values() for x in v.values()) == pytest.approx(5.0)
+    s = score(dec, ranges)
+    lines = confusion_table([{"name": "x/rec", **s, "missed_s": m}])
+    assert lines[0].startswith("x/rec") and "start walk>other 1.2" in lines[0] and lines[-1].startswith("all")
 
 
 def test_a_boundary_never_crossed_is_missed_and_counted() -> None:
@@ -83,3 +106,20 @@ def test_recogniser_figures_on_the_labelled_recordings(data_root: Path) -> None:
         assert s["stand_boundaries_missed"] == 0, rate
         assert s["stand_left_median_abs_s"] <= 1.0 and s["stand_entered_median_abs_s"] <= 1.3, rate
         assert s["walk_run_share_mean"] >= 0.91, rate  # 0.929 and 0.923 before the stand rule
+
+
+@pytest.mark.slow
+def test_cli_prints_the_confusion_by_recording(data_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`pednav eval behaviour --confusion`: one line per labelled recording with its labelled x recognised seconds
+    and where the wrong time lies, one line for all, then the summary."""
+    from clients.cli import main
+
+    assert main(["eval", "behaviour", str(data_root), "--confusion"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = [x for x in lines if x.startswith(("vicon/", "gdin/", "gaitmap/"))]
+    assert len(rows) == len(read_labels_recordings()) and all("| missed:" in x for x in rows)
+    assert any(x.startswith("all ") and "walk[" in x for x in lines) and "walk/run share mean" in lines[-1]
+
+
+def read_labels_recordings() -> set[tuple[str, str]]:
+    return {(r.dataset, r.recording) for r in read_labels(LABEL_TABLE)}

@@ -189,3 +189,55 @@ def test_an_absolute_heading_weighs_the_motion_models() -> None:
     est.predict_free()
     est.update_heading(60 * DEG, (2 * DEG) ** 2)
     assert est.mu[1] > 0.9 and abs(wrap(est.heading - 60 * DEG)) < 3 * DEG
+
+
+def test_mixture_moments_kernel_equals_the_numpy_form() -> None:
+    """The compiled moment matching of the IMM gives what the numpy form gave, to the bit (angles near the wrap,
+    equal means, degenerate weights)."""
+    from models.heading import HeadingEstimator, _wrap_all
+
+    def reference(w, x, p, ref):  # type: ignore[no-untyped-def]
+        d = _wrap_all(x - ref[None, :])
+        m = w @ d
+        cov = np.zeros_like(p[0])
+        for i in range(len(w)):
+            e = d[i] - m
+            cov += w[i] * (p[i] + np.outer(e, e))
+        return _wrap_all(ref + m), cov
+
+    rng = np.random.default_rng(3)
+    for k in range(3000):
+        w = rng.random(2) if k % 7 else np.array([1.0, 0.0])
+        w = w / w.sum()
+        x = rng.uniform(-np.pi, np.pi, (2, 3)) if k % 3 else np.array([[3.1, 0.2, 0.0], [-3.1, 0.1, 0.0]])
+        if k % 5 == 0:
+            x[1] = x[0]
+        a = rng.normal(size=(2, 3, 3))
+        p = a @ a.transpose(0, 2, 1)
+        ref = x[k % 2]
+        mean, cov = HeadingEstimator._moments(w, x, p, ref)
+        m0, c0 = reference(w, x, p, ref)
+        assert mean.tobytes() == m0.tobytes() and cov.tobytes() == c0.tobytes()
+
+
+def test_imm_mixing_kernel_equals_the_numpy_form() -> None:
+    """The compiled IMM interaction step gives the numpy form's mixed starts and probabilities to the bit."""
+    from models.heading import _mix_kernel
+
+    rng = np.random.default_rng(5)
+    for k in range(2000):
+        mu = rng.random(2) if k % 11 else np.array([1.0, 0.0])
+        mu = mu / mu.sum()
+        a, b = rng.random(2) * 0.3
+        pi = np.array([[1 - a, a], [1 - b, b]])
+        x = rng.uniform(-np.pi, np.pi, (2, 3))
+        q = rng.normal(size=(2, 3, 3))
+        p = q @ q.transpose(0, 2, 1)
+        cbar = mu @ pi
+        w = (pi * mu[:, None]) / np.maximum(cbar, 1e-300)[None, :]
+        ref = [HeadingEstimator._moments(w[:, j], x, p, x[j]) for j in range(2)]
+        x0, p0, cb = np.empty_like(x), np.empty_like(p), np.empty(2)
+        _mix_kernel(mu, pi, x, p, x0, p0, cb)
+        assert cb.tobytes() == cbar.tobytes()
+        assert x0.tobytes() == np.array([r[0] for r in ref]).tobytes()
+        assert p0.tobytes() == np.array([r[1] for r in ref]).tobytes()

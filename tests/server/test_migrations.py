@@ -26,20 +26,24 @@ _SESSION_CHILDREN = ("batches", "positions", "events", "sensorlogger_links", "se
 
 
 @pytest.fixture
-def empty_db(backend: str, tmp_path) -> Iterator[Engine]:  # type: ignore[no-untyped-def]
-    """An engine on a new, empty database (SQLite file; PostgreSQL: a schema of its own, dropped afterwards)."""
+def empty_settings(backend: str, tmp_path) -> Iterator[Settings]:  # type: ignore[no-untyped-def]
+    """Settings of a new, empty database (SQLite file; PostgreSQL: a schema of its own, dropped afterwards)."""
     if backend == "sqlite":
-        eng = make_engine(Settings(database_url=f"sqlite:///{tmp_path / 'old.db'}"))
-        yield eng
-        eng.dispose()
+        yield Settings(database_url=f"sqlite:///{tmp_path / 'old.db'}")
         return
     schema = f"m_{uuid.uuid4().hex[:12]}"
-    eng = make_engine(Settings(database_url=PG_URL, db_schema=schema))
-    yield eng
-    eng.dispose()
+    yield Settings(database_url=PG_URL, db_schema=schema)
     admin = make_engine(Settings(database_url=PG_URL))
     drop_schema(admin, schema)
     admin.dispose()
+
+
+@pytest.fixture
+def empty_db(empty_settings: Settings) -> Iterator[Engine]:
+    """An engine on a new, empty database."""
+    eng = make_engine(empty_settings)
+    yield eng
+    eng.dispose()
 
 
 def _head() -> str:
@@ -240,3 +244,28 @@ def test_deleting_the_newest_session_never_hands_its_id_to_the_next(client, app,
         db.commit()
     again = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
     assert again != newest and again > first
+
+
+def _migrate_in_process(settings: Settings) -> None:
+    eng = make_engine(settings)
+    try:
+        migrate(eng)
+    finally:
+        eng.dispose()
+
+
+def test_workers_starting_together_migrate_one_after_the_other(empty_settings, empty_db) -> None:  # type: ignore[no-untyped-def]
+    """Every API worker process migrates on startup; several starting at once on an empty database must all
+    succeed (without the migration lock two of them created the version table together: PostgreSQL unique
+    violation, SQLite "table alembic_version already exists"; found by ``pednav bench load --workers 2``)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    n = 4
+    with ProcessPoolExecutor(n, mp_context=mp.get_context("spawn")) as pool:
+        list(pool.map(int, range(n)))  # every process started (imports done) before the migrations race
+        results = [pool.submit(_migrate_in_process, empty_settings) for _ in range(n)]
+        errors = [r.exception(timeout=120) for r in results]
+    assert errors == [None] * n, errors
+    with empty_db.connect() as conn:
+        assert MigrationContext.configure(conn).get_current_revision() == _head()

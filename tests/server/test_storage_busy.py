@@ -100,7 +100,7 @@ def test_an_upload_whose_session_changes_under_every_attempt_is_503(settings, cl
     before = _stored(client, tok, sid)
     calls: list[int] = []
 
-    def raced(self, cur, session_id, seq, batch, sess):  # type: ignore[no-untyped-def]
+    def raced(self, cur, session_id, seq, batch, sess, *rest):  # type: ignore[no-untyped-def]
         calls.append(seq)
         raise upload._Raced()
 

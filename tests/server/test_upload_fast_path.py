@@ -75,3 +75,30 @@ def test_fast_path_answers_as_the_route(settings) -> None:  # type: ignore[no-un
     assert [x[2] for x in fast[:2]] == ["false", "true"] and fast[0][1] == fast[1][1]
     for a, b in zip(fast, route):
         assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def test_decoded_canonical_bytes_equal_the_encoded_ones() -> None:
+    """``decode_upload`` gives the canonical bytes without re-encoding only where they are those
+    ``canonical_bytes`` encodes (f8 with t0/dt, streams in any order, one sample, an empty stream), and None for
+    bodies whose canonical form differs from theirs (f4 values, int64 timestamps)."""
+    import msgpack
+    import numpy as np
+
+    from models.batch import SensorBatch
+    from server.formats import canonical_bytes, decode_upload
+
+    b = still_batch(T0, seed=3)
+    one = SensorBatch(acc_t_ns=b.acc_t_ns[:1], acc=b.acc[:1], gyr_t_ns=b.gyr_t_ns[:1], gyr=b.gyr[:1])
+    doc = msgpack.unpackb(encode_msgpack(b), raw=False)
+    reordered = msgpack.packb({k: doc[k] for k in reversed(list(doc))}, use_bin_type=True)
+    empty_mag = msgpack.packb({**doc, "mag": {"n": 0, "dtype": "<f8", "xyz": b"", "t0": 0, "dt": b""}}, use_bin_type=True)
+    t_form = msgpack.packb({**doc, "acc": {"n": len(b.acc_t_ns), "dtype": "<f8", "xyz": b.acc.tobytes(),
+                                           "t": b.acc_t_ns.astype("<i8").tobytes()}}, use_bin_type=True)
+    for body, given in ((encode_msgpack(b), True), (encode_msgpack(one), True), (reordered, True),
+                        (empty_mag, True), (encode_msgpack(b, "<f4"), False), (t_form, False)):
+        batch, raw = decode_upload(body, MSGPACK_TYPE, 10**6)
+        assert (raw is not None) == given
+        if raw is not None:
+            assert raw == canonical_bytes(batch)
+    assert decode_upload(encode_json(b), "application/json", 10**6)[1] is None
+    assert np.array_equal(decode_upload(reordered, MSGPACK_TYPE, 10**6)[0].acc, b.acc)
