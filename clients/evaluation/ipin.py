@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,7 +39,7 @@ import numpy as np
 from clients.recording import Recording
 
 __all__ = ["LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
-           "baseline_track", "evaluate_ipin", "ipin_summary", "TRIAL_FIELDS"]
+           "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "TRIAL_FIELDS"]
 
 TRIAL_FIELDS = ("name", "mean_err_m", "p75_err_m", "final_err_m", "path_ratio", "steps", "energy_ratio")
 POWER_PROFILE = "phone-bmi270"
@@ -95,6 +97,29 @@ def landmark_errors(truth_t_ns: np.ndarray, truth_ne: np.ndarray, pos_t_ns: np.n
     ratio = float(np.sum(np.asarray(step_m, dtype=float)[inside]) / truth_len) if truth_len > 0 else math.nan
     return LandmarkErrors(err, float(np.mean(err)), float(np.percentile(err, 75)), float(err[-1]), ratio,
                           int(inside.sum()))
+
+
+def ipin_logfiles(directory: str | None) -> tuple[Path, list[Path]]:
+    """The GetSensorData logfiles (``*.txt``) of ``directory`` or of its ``logfiles`` folder (default
+    ``PEDNAV_DATA/ipin2023-t3-phone``): ``(folder looked in, sorted files)``."""
+    d = Path(directory) if directory else Path(os.environ.get("PEDNAV_DATA", "../shared/datasets")) / "ipin2023-t3-phone"
+    return d, sorted((d / "logfiles" if (d / "logfiles").is_dir() else d).glob("*.txt"))
+
+
+def logfile_cli(prog: str, description: str, argv: Sequence[str] | None) -> tuple[Any, list[Path]] | None:
+    """Command line of the phone diagnosis scripts (``DIR``, ``--json``): ``(arguments, logfiles)``, or None after
+    printing one line when the folder holds no logfile."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("dir", nargs="?", help="folder of logfiles (default: PEDNAV_DATA/ipin2023-t3-phone)")
+    ap.add_argument("--json", action="store_true", help="print one JSON document")
+    a = ap.parse_args(argv)
+    d, files = ipin_logfiles(a.dir)
+    if not files:
+        print(f"error: no GetSensorData logfiles in {d}")
+        return None
+    return a, files
 
 
 def route_of(name: str) -> str:

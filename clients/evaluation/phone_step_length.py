@@ -19,11 +19,8 @@ statistics use the surveyed length, so they are for diagnosis, not for fitting.
 
 from __future__ import annotations
 
-import argparse
 import json
-import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,17 +73,13 @@ def trial_statistics(rec: Recording) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from clients.evaluation.ipin import logfile_cli
     from clients.importers import load
 
-    ap = argparse.ArgumentParser(prog="python -m clients.evaluation.phone_step_length", description=__doc__.split("\n")[0])
-    ap.add_argument("dir", nargs="?", help="folder of logfiles (default: PEDNAV_DATA/ipin2023-t3-phone)")
-    ap.add_argument("--json", action="store_true", help="print one JSON document")
-    a = ap.parse_args(argv)
-    d = Path(a.dir) if a.dir else Path(os.environ.get("PEDNAV_DATA", "../shared/datasets")) / "ipin2023-t3-phone"
-    files = sorted((d / "logfiles" if (d / "logfiles").is_dir() else d).glob("*.txt"))
-    if not files:
-        print(f"error: no GetSensorData logfiles in {d}")
+    parsed = logfile_cli("python -m clients.evaluation.phone_step_length", __doc__.split("\n")[0], argv)
+    if parsed is None:
         return 2
+    a, files = parsed
     rows = [trial_statistics(load(f)) for f in files]
     if a.json:
         print(json.dumps(rows, indent=1))
