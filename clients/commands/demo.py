@@ -57,7 +57,24 @@ class LocalServer:
             if time.monotonic() > deadline or not self.thread.is_alive():
                 raise RuntimeError("the demo server did not start")
             time.sleep(0.05)
+        self._wait_ready(time.monotonic() + 300)
         return self
+
+    def _wait_ready(self, deadline: float) -> None:
+        """Wait for ``/healthz`` 200: the engines are loaded, so the first upload is not answered 503."""
+        import urllib.error
+        import urllib.request
+
+        while True:
+            try:
+                with urllib.request.urlopen(self.url + "/healthz", timeout=5):
+                    return
+            except urllib.error.HTTPError as exc:
+                if exc.code != 503:
+                    raise
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("the demo server's engines did not get ready")
+            time.sleep(0.1)
 
     def __exit__(self, *exc: object) -> None:
         self.server.should_exit = True
