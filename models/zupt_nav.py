@@ -481,6 +481,23 @@ class NavOutput:
         )
 
 
+def _inputs_checked(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None,
+                    t_last: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """``(t, acc, gyr, mag)`` as :meth:`ZuptNavigator.process` would check and convert them, when they are
+    already C-contiguous float64 arrays of the right shapes, not empty, and pass its checks (one compiled pass,
+    :func:`models._zupt_kernel.inputs_ok`); else None (the checks in Python then say what is wrong)."""
+    for a in (t, acc, gyr) if mag is None else (t, acc, gyr, mag):
+        if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+            return None
+    n = t.shape[0]
+    if (n == 0 or t.ndim != 1 or acc.shape != (n, 3) or gyr.shape != (n, 3)
+            or (mag is not None and mag.shape != (n, 3))):
+        return None
+    if mag is None:
+        mag = np.full((n, 3), np.nan)
+    return (t, acc, gyr, mag) if _k.inputs_ok(t, acc, gyr, mag, t_last) else None
+
+
 def _check_array(name: str, a: np.ndarray, n: int, allow_nan: bool) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     if a.ndim != 2 or a.shape != (n, 3):
@@ -614,6 +631,11 @@ class ZuptNavigator:
         mag : ndarray (N, 3) or None
             Magnetic field [uT], body frame; NaN rows = no magnetometer sample at that time.
         """
+        fast = _inputs_checked(t_s, acc, gyr, mag, self._t_last)
+        if fast is not None:  # the common case: arrays as the checks below would pass and convert them
+            self._t_last = float(fast[0][-1])
+            self._append(*self._clip.push(*fast))
+            return self._run(final=False)
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         n = t.shape[0]
         if not np.all(np.isfinite(t)):
