@@ -186,7 +186,9 @@ class _LowRate:
         """
         if len(t_s) == 0:
             return t_s, x
-        prev = np.concatenate([[self.prev_t], t_s[:-1]])
+        prev = np.empty(len(t_s))  # = np.concatenate([[self.prev_t], t_s[:-1]]), without its generic machinery
+        prev[0] = self.prev_t
+        prev[1:] = t_s[:-1]
         step = t_s - prev  # interval before each sample [s]
         fast = step < 1.0 / (1.6 * self.rate_hz)
         if self.dec is None and not fast.any():
@@ -218,6 +220,8 @@ class _LowRate:
                 outs_t.append(t_s[lo:hi])
                 outs_x.append(x[lo:hi])
         self.prev_t = float(t_s[-1])
+        if len(outs_t) == 1:  # one run (the common case): its output as it is
+            return self._newer(outs_t[0], outs_x[0])
         return self._newer(np.concatenate(outs_t), np.concatenate(outs_x))
 
     def _newer(self, out_s: np.ndarray, out_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
