@@ -355,10 +355,15 @@ class GaitPipeline:
             self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
         if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_peak:
             live = {e.index for e in self.queue}
-            self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
-            self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
-            self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
-            self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
+            # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
+            if self.stance_mag.keys() - live:
+                self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
+            if self.stance_acc.keys() - live:
+                self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
+            if self.stance_swing.keys() - live:
+                self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
+            if self.stride_peak.keys() - live:
+                self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
 
     def _queue_event(self, e: StepEvent) -> None:
         """A new step event joins the queue with the stance field and specific force of its stillest window,
