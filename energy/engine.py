@@ -445,7 +445,8 @@ class Engine:
         has = ~np.isnan(gyr[:, 0])
         if has.any():
             idx = np.flatnonzero(has)
-            ts = t_s[idx]
+            every = len(idx) == len(t_s)
+            ts = t_s if every else t_s[idx]
             # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
             # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
             # loses the accelerometer too and splits only beyond gyro_gap_s. (np.diff with prepend, written
@@ -466,7 +467,7 @@ class Engine:
                         self._ops.append(("end",))
                     self._ops.append(("start", float(ts[lo])))
                     self._seg_open = True
-                sel = idx[lo:hi]
+                sel = slice(lo, hi) if every else idx[lo:hi]  # (a gyroscope sample on every row: views)
                 m = mag[sel]
                 self._ops.append(("samples", ts[lo:hi], acc[sel], gyr[sel], m if np.any(~np.isnan(m[:, 0])) else None))
             self._last_gyr_s = float(ts[-1])

@@ -186,7 +186,9 @@ class _LowRate:
         """
         if len(t_s) == 0:
             return t_s, x
-        prev = np.concatenate([[self.prev_t], t_s[:-1]])
+        prev = np.empty(len(t_s))  # = np.concatenate([[self.prev_t], t_s[:-1]]), without its generic machinery
+        prev[0] = self.prev_t
+        prev[1:] = t_s[:-1]
         step = t_s - prev  # interval before each sample [s]
         fast = step < 1.0 / (1.6 * self.rate_hz)
         if self.dec is None and not fast.any():
@@ -218,6 +220,8 @@ class _LowRate:
                 outs_t.append(t_s[lo:hi])
                 outs_x.append(x[lo:hi])
         self.prev_t = float(t_s[-1])
+        if len(outs_t) == 1:  # one run (the common case): its output as it is
+            return self._newer(outs_t[0], outs_x[0])
         return self._newer(np.concatenate(outs_t), np.concatenate(outs_x))
 
     def _newer(self, out_s: np.ndarray, out_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -351,10 +355,15 @@ class GaitPipeline:
             self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
         if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_peak:
             live = {e.index for e in self.queue}
-            self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
-            self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
-            self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
-            self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
+            # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
+            if self.stance_mag.keys() - live:
+                self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
+            if self.stance_acc.keys() - live:
+                self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
+            if self.stance_swing.keys() - live:
+                self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
+            if self.stride_peak.keys() - live:
+                self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
 
     def _queue_event(self, e: StepEvent) -> None:
         """A new step event joins the queue with the stance field and specific force of its stillest window,

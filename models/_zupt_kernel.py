@@ -1529,3 +1529,23 @@ def run_kernel(t, acc, gyr, mag, sat_in, sig_in, i0, final, x, P, fs, ist, par, 
         ist[4] += 1
         n_st += 1
     return i, n_st
+
+
+@njit(cache=True)
+def inputs_ok(t, acc, gyr, mag, t_last):
+    """True when :meth:`models.zupt_nav.ZuptNavigator.process`'s checks of its inputs pass, in one pass: ``t``
+    (N,) [s] finite and strictly increasing after ``t_last`` [s], ``acc`` and ``gyr`` (N, 3) finite, each row of
+    ``mag`` (N, 3) finite or all NaN. False: the checks in Python say what is wrong."""
+    prev = t_last
+    for i in range(t.shape[0]):
+        v = t[i]
+        if not (np.isfinite(v) and v > prev):
+            return False
+        prev = v
+        for j in range(3):
+            if not (np.isfinite(acc[i, j]) and np.isfinite(gyr[i, j])):
+                return False
+        a, b, c = mag[i, 0], mag[i, 1], mag[i, 2]
+        if not ((np.isfinite(a) and np.isfinite(b) and np.isfinite(c)) or (np.isnan(a) and np.isnan(b) and np.isnan(c))):
+            return False
+    return True

@@ -251,7 +251,11 @@ class ClipRepair:
         self._par = config.to_array()
         self._peaks = np.zeros(12)
         # one row per sample: t, acc+gyr as recorded, as repaired, mag, 1-sigma errors, flags (columns _T .. _F)
-        self._buf = np.zeros((0, _NCOL))
+        # the held rows: the view _buf of rows _lo .. of the storage _store (grown by doubling, the held rows moved
+        # to its front when its end is reached, so a batch does not re-allocate them)
+        self._store = np.zeros((0, _NCOL))
+        self._lo = 0
+        self._buf = self._store[:0]
         self._n_tail = 0  # leading rows already released (context for the next runs)
         self._scanned = 0  # rows flagged so far
 
@@ -263,13 +267,24 @@ class ClipRepair:
         flagged value (0 elsewhere). ``final``: the recording ends here, release everything."""
         k = len(t)
         if k:
-            new = np.zeros((k, _NCOL))
+            n = self._buf.shape[0]
+            st, lo = self._store, self._lo
+            if lo + n + k > st.shape[0]:
+                if 2 * (n + k) > st.shape[0]:
+                    st = np.empty((max(2 * (n + k), 256), _NCOL))
+                    st[:n] = self._buf
+                    self._store = st
+                else:
+                    st[:n] = self._buf.copy()  # (overlapping ranges: through a copy)
+                lo = self._lo = 0
+            new = st[lo + n:lo + n + k]
             new[:, _T] = t
             new[:, _V:_V + 3] = acc
             new[:, _V + 3:_R] = gyr
             new[:, _R:_M] = new[:, _V:_R]
             new[:, _M:_S] = mag
-            self._buf = np.concatenate([self._buf, new]) if len(self._buf) else new
+            new[:, _S:] = 0.0
+            self._buf = st[lo:lo + n + k]
         buf = self._buf
         self._scanned = _scan(buf, self._scanned, final, self._peaks, self._par)
         lo = self._n_tail
@@ -279,6 +294,7 @@ class ClipRepair:
             self.reset()
         else:
             keep_from = max(release - 2 * int(self.config.fit_n), 0)  # the context the next runs may fit to
+            self._lo += keep_from
             self._buf = buf[keep_from:]
             self._n_tail = release - keep_from
             self._scanned -= keep_from
@@ -288,7 +304,8 @@ class ClipRepair:
     def reset(self) -> None:
         """Forget the held rows (the recording ended, or a new segment of data starts after a gap: no row is context
         for what follows); the peaks stay (they are the sensor's range)."""
-        self._buf = np.zeros((0, _NCOL))
+        self._lo = 0
+        self._buf = self._store[:0]
         self._n_tail = 0
         self._scanned = 0
 
@@ -306,7 +323,8 @@ class ClipRepair:
         """Restore from :meth:`get_state` output."""
         obj = cls(config)
         obj._peaks = np.asarray(d["peaks"], dtype=np.float64).reshape(12)
-        obj._buf = np.asarray(d["buf"], dtype=np.float64).reshape(-1, _NCOL).copy()
+        obj._store = np.asarray(d["buf"], dtype=np.float64).reshape(-1, _NCOL).copy()
+        obj._buf = obj._store
         obj._n_tail = int(d["n_tail"])
         obj._scanned = int(d["scanned"])
         return obj

@@ -481,6 +481,23 @@ class NavOutput:
         )
 
 
+def _inputs_checked(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None,
+                    t_last: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """``(t, acc, gyr, mag)`` as :meth:`ZuptNavigator.process` would check and convert them, when they are
+    already C-contiguous float64 arrays of the right shapes, not empty, and pass its checks (one compiled pass,
+    :func:`models._zupt_kernel.inputs_ok`); else None (the checks in Python then say what is wrong)."""
+    for a in (t, acc, gyr) if mag is None else (t, acc, gyr, mag):
+        if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+            return None
+    n = t.shape[0]
+    if (n == 0 or t.ndim != 1 or acc.shape != (n, 3) or gyr.shape != (n, 3)
+            or (mag is not None and mag.shape != (n, 3))):
+        return None
+    if mag is None:
+        mag = np.full((n, 3), np.nan)
+    return (t, acc, gyr, mag) if _k.inputs_ok(t, acc, gyr, mag, t_last) else None
+
+
 def _check_array(name: str, a: np.ndarray, n: int, allow_nan: bool) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     if a.ndim != 2 or a.shape != (n, 3):
@@ -525,12 +542,10 @@ class ZuptNavigator:
                 raise ValueError(f"mag_reference: expected a finite NED field of 5-200 uT, got {ref}")
             self._fs[_k.FS["ref0"] : _k.FS["ref2"] + 1] = ref
             self._fs[_k.FS["ref_valid"]] = 1.0
-        self._bt = np.zeros(0)
-        self._ba = np.zeros((0, 3))
-        self._bg = np.zeros((0, 3))
-        self._bm = np.zeros((0, 3))
-        self._bs = np.zeros(0, dtype=np.uint8)  # clipped axes per sample
-        self._bsig = np.zeros((0, 6))  # ... and the 1-sigma errors of their (repaired) values
+        # the kernel's buffer: t, acc, gyr, mag, clipped axes per sample and the 1-sigma errors of their
+        # (repaired) values; rows _lo .. _hi - 1 of the storage _st, seen through the views _bt .. _bsig
+        self._set_buffer(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+                         np.zeros(0, dtype=np.uint8), np.zeros((0, 6)))
         self._next = 0  # index in the buffer of the first unprocessed sample
         self._t_last = -math.inf
         self._clip = ClipRepair(self.config.saturation())
@@ -616,6 +631,11 @@ class ZuptNavigator:
         mag : ndarray (N, 3) or None
             Magnetic field [uT], body frame; NaN rows = no magnetometer sample at that time.
         """
+        fast = _inputs_checked(t_s, acc, gyr, mag, self._t_last)
+        if fast is not None:  # the common case: arrays as the checks below would pass and convert them
+            self._t_last = float(fast[0][-1])
+            self._append(*self._clip.push(*fast))
+            return self._run(final=False)
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         n = t.shape[0]
         if not np.all(np.isfinite(t)):
@@ -632,15 +652,46 @@ class ZuptNavigator:
         self._append(*self._clip.push(t, acc, gyr, mag))
         return self._run(final=False)
 
+    def _set_buffer(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
+                    sig: np.ndarray) -> None:
+        """The buffer becomes these rows (the arrays are its storage from now on)."""
+        self._st = (t, acc, gyr, mag, sat, sig)
+        self._lo, self._hi = 0, t.shape[0]
+        self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = self._st
+
     def _append(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
                 sig: np.ndarray) -> None:
-        """Samples the clipping repair has decided join the kernel's buffer."""
-        self._bt = np.concatenate([self._bt, t])
-        self._ba = np.concatenate([self._ba, acc])
-        self._bg = np.concatenate([self._bg, gyr])
-        self._bm = np.concatenate([self._bm, mag])
-        self._bs = np.concatenate([self._bs, sat])
-        self._bsig = np.concatenate([self._bsig, sig])
+        """Samples the clipping repair has decided join the kernel's buffer.
+
+        The rows are written into preallocated storage (grown by doubling, the kept rows moved to its front
+        when the end is reached), so a batch costs no re-allocation of the whole buffer; the views ``_bt`` ..
+        ``_bsig`` hold the same values as a concatenation would."""
+        k = t.shape[0]
+        if k == 0:
+            return
+        st, lo, hi = self._st, self._lo, self._hi
+        if hi + k > st[0].shape[0]:
+            n = hi - lo
+            if 2 * (n + k) > st[0].shape[0]:
+                cap = max(2 * (n + k), 256)
+                new = tuple(np.empty((cap,) + a.shape[1:], dtype=a.dtype) for a in st)
+                for a, b in zip(new, st):
+                    a[:n] = b[lo:hi]
+                self._st = st = new
+            else:
+                for a in st:
+                    a[:n] = a[lo:hi].copy()  # (overlapping ranges: through a copy)
+            lo, hi = 0, n
+        for a, v in zip(st, (t, acc, gyr, mag, sat, sig)):
+            a[hi:hi + k] = v
+        self._lo, self._hi = lo, hi + k
+        self._views()
+
+    def _views(self) -> None:
+        lo, hi = self._lo, self._hi
+        st = self._st
+        self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = (
+            st[0][lo:hi], st[1][lo:hi], st[2][lo:hi], st[3][lo:hi], st[4][lo:hi], st[5][lo:hi])
 
     def flush(self) -> NavOutput:
         """End of recording: process the samples held back for the detector's look-ahead (and the clipping
@@ -696,12 +747,8 @@ class ZuptNavigator:
         keep = int(np.searchsorted(t, tn - self.config.half_window_s - self.config.erosion_s, side="left"))
         keep = max(min(keep, self._next) - 2, 0)
         if keep:
-            self._bt = t[keep:].copy()
-            self._ba = self._ba[keep:].copy()
-            self._bg = self._bg[keep:].copy()
-            self._bm = self._bm[keep:].copy()
-            self._bs = self._bs[keep:].copy()
-            self._bsig = self._bsig[keep:].copy()
+            self._lo += keep  # (the storage's rows before _lo are reused by _append)
+            self._views()
             self._next -= keep
 
     def run(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray | None = None) -> NavOutput:
@@ -770,12 +817,8 @@ class ZuptNavigator:
         if acc_rest is not None:
             self._x[0:4] = dcm_to_quat(align_at_rest(acc_rest))
         self.reset(position_ned, heading_rad)
-        self._bt = np.zeros(0)
-        self._ba = np.zeros((0, 3))
-        self._bg = np.zeros((0, 3))
-        self._bm = np.zeros((0, 3))
-        self._bs = np.zeros(0, dtype=np.uint8)
-        self._bsig = np.zeros((0, 6))
+        self._set_buffer(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
+                         np.zeros(0, dtype=np.uint8), np.zeros((0, 6)))
         self._clip.reset()
         self._next = 0
         for name in ("in_stance", "has_prev", "has_prev_stance"):
@@ -817,14 +860,17 @@ class ZuptNavigator:
         nav._fs = np.zeros(_k.N_FS)
         nav._fs[: fs.size] = fs  # states saved before newer float-state entries were added restore with zeros
         nav._is = np.array(d["is"], dtype=np.int64).reshape(_k.N_IS)
-        nav._bt = np.array(d["buf_t"], dtype=np.float64).reshape(-1)
-        nav._ba = np.array(d["buf_acc"], dtype=np.float64).reshape(-1, 3)
-        nav._bg = np.array(d["buf_gyr"], dtype=np.float64).reshape(-1, 3)
-        nav._bm = np.array(d["buf_mag"], dtype=np.float64).reshape(-1, 3)
-        n = nav._bt.shape[0]
+        bt = np.array(d["buf_t"], dtype=np.float64).reshape(-1)
+        n = bt.shape[0]
         # states saved before range clipping was repaired: nothing flagged, nothing held back
-        nav._bs = np.array(d.get("buf_sat", np.zeros(n)), dtype=np.uint8).reshape(n)
-        nav._bsig = np.array(d.get("buf_sat_sigma", np.zeros((n, 6))), dtype=np.float64).reshape(n, 6)
+        nav._set_buffer(
+            bt,
+            np.array(d["buf_acc"], dtype=np.float64).reshape(-1, 3),
+            np.array(d["buf_gyr"], dtype=np.float64).reshape(-1, 3),
+            np.array(d["buf_mag"], dtype=np.float64).reshape(-1, 3),
+            np.array(d.get("buf_sat", np.zeros(n)), dtype=np.uint8).reshape(n),
+            np.array(d.get("buf_sat_sigma", np.zeros((n, 6))), dtype=np.float64).reshape(n, 6),
+        )
         if "clip" in d:
             nav._clip = ClipRepair.from_state(nav.config.saturation(), d["clip"])
         nav._next = int(d["next"])

@@ -154,6 +154,22 @@ def test_bad_input_raises_named_error(mutate, match):
         ZuptNavigator().process(*mutate(t, acc, gyr))
 
 
+def test_magnetometer_rows_are_a_sample_or_all_nan():
+    """The compiled check of the inputs (models._zupt_kernel.inputs_ok) lets through what the Python checks
+    accept and leaves to them what they refuse."""
+    t = np.arange(20) / 200.0
+    acc = np.tile([0.0, 0.0, -G], (20, 1))
+    mag = np.tile([20.0, 0.0, 40.0], (20, 1))
+    mag[5] = np.nan
+    ZuptNavigator().process(t, acc, np.zeros((20, 3)), mag)  # a row without a sample: accepted
+    mag[6, 1] = np.nan
+    with pytest.raises(ValueError, match="mag: row 6 is partly NaN"):
+        ZuptNavigator().process(t, acc, np.zeros((20, 3)), mag)
+    mag[6, 1] = np.inf
+    with pytest.raises(ValueError, match="mag: contains inf"):
+        ZuptNavigator().process(t, acc, np.zeros((20, 3)), mag)
+
+
 def test_time_must_increase_across_calls():
     t = np.arange(20) / 200.0
     acc = np.tile([0.0, 0.0, -G], (20, 1))
