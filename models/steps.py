@@ -114,36 +114,6 @@ class StepEvent:
                    (float(r[6]), float(r[7]), float(r[8])), 0.5 < r[9] < 1.5, int(r[10]), r[9] > 1.5)
 
 
-class _Grow:
-    """A float64 sequence appended at the end and dropped from the front without concatenations: rows
-    ``[lo, hi)`` of a buffer that is replaced by one twice the size needed when it has no room left."""
-
-    __slots__ = ("buf", "lo", "hi")
-
-    def __init__(self) -> None:
-        self.set(np.zeros(0))
-
-    def view(self) -> np.ndarray:
-        return self.buf[self.lo:self.hi]
-
-    def set(self, v: np.ndarray, room: int = 0) -> None:
-        v = np.asarray(v, dtype=np.float64).reshape(-1)
-        self.buf = np.empty(max(64, 2 * (v.size + room)))
-        self.buf[:v.size] = v
-        self.lo, self.hi = 0, v.size
-
-    def append(self, x: np.ndarray) -> None:
-        n = x.shape[0]
-        if self.hi + n > self.buf.size:
-            self.set(self.view(), n)
-        self.buf[self.hi:self.hi + n] = x
-        self.hi += n
-
-    def drop(self, k: int) -> None:
-        """Drop the first ``k`` values (as ``[k:]`` slices: all of them when ``k`` exceeds the length)."""
-        self.lo = min(self.lo + k, self.hi)
-
-
 class StepSegmenter:
     """Streaming accelerometer-only step segmentation (any rate, gyroscope not required).
 
@@ -245,8 +215,8 @@ class StepSegmenter:
         self._win = np.zeros((0, 3))  # last w-1 filtered samples
         # per filtered sample (index b0 + j; indices count the samples, except that a long decided quiet
         # stretch counts as its ends plus one sample, see _collapse_quiet): time [s] ...
-        self._gt = _Grow()  # ... (rows of preallocated storage, read through _bt and _bm)
-        self._gm = _Grow()  # ... and |a| [m/s^2]
+        self._bt = np.zeros(0)
+        self._bm = np.zeros(0)  # ... and |a| [m/s^2]
         self._fs = np.array([np.inf, np.inf, 0.0, 0.0, 0.0])
         self._run = np.zeros(9)
         self._aw = np.zeros((_AW_MAX, 7))
@@ -286,24 +256,6 @@ class StepSegmenter:
         if self._pend[0] > 0.0:
             t = min(t, float(self._pend[1]))
         return t
-
-    @property
-    def _bt(self) -> np.ndarray:
-        """Time [s] of the buffered filtered samples (a view of the storage)."""
-        return self._gt.view()
-
-    @_bt.setter
-    def _bt(self, v: np.ndarray) -> None:
-        self._gt.set(v)
-
-    @property
-    def _bm(self) -> np.ndarray:
-        """|a| [m/s^2] of the buffered filtered samples (a view of the storage)."""
-        return self._gm.view()
-
-    @_bm.setter
-    def _bm(self, v: np.ndarray) -> None:
-        self._gm.set(v)
 
     # -- streaming -----------------------------------------------------------------------------------------
     def feed(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray | None = None) -> list[StepEvent]:
@@ -363,8 +315,8 @@ class StepSegmenter:
         n = t_out.size
         w = self._w
         mag = np.sqrt(np.einsum("ij,ij->i", af, af))
-        self._gt.append(t_out)
-        self._gm.append(mag)
+        self._bt = np.concatenate([self._bt, t_out])
+        self._bm = np.concatenate([self._bm, mag])
         win = np.concatenate([self._win, af])
         ev = np.empty((n // 2 + 8, 11))
         n_ev = _k_process(win, t_out, self._bt, self._bm, self._fs, self._run, self._aw, self._pend, self._last,
@@ -389,8 +341,7 @@ class StepSegmenter:
                 # the next stance's swing test spans every sample since the last stance's end (a stand with a
                 # shuffle in it outlasts the buffer): keep the largest |a| of those the cut drops
                 last[6] = max(last[6], float(self._bm[max(lo, 0):cut].max()))
-            self._gt.drop(cut)
-            self._gm.drop(cut)
+            self._bt, self._bm = self._bt[cut:], self._bm[cut:]
             self._ist[1] = b0 + cut
         self._collapse_quiet()
         return self._events(ev, n_ev) if n_ev else []
