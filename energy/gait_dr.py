@@ -152,6 +152,44 @@ def _row_mean(a, b0, b1):
     return out / (b1 - b0)
 
 
+@njit(cache=True)
+def _field_append(tb, vb, ab, lo, hi, lt, lx, keep_s):
+    """Append the low-rate rows of ``lx`` (``[acc(3), mag(3), mag flag]``) whose flag is > 0.999 to the field
+    buffers ``tb`` (time [s]), ``vb`` (field [uT]) and ``ab`` (specific force [m/s^2]) after row ``hi``, then drop
+    the rows before ``lt[-1] - keep_s`` (the buffer's times increase: the first row kept is the ``"left"``
+    search position). Returns the new ``(lo, hi)``; the caller guarantees room for ``len(lt)`` rows. The same
+    values as the concatenate-and-slice form it replaced (:meth:`GaitPipeline._append_low`), in one call."""
+    for i in range(lt.shape[0]):
+        if lx[i, 6] > 0.999:
+            tb[hi] = lt[i]
+            for k in range(3):
+                vb[hi, k] = lx[i, 3 + k]
+                ab[hi, k] = lx[i, k]
+            hi += 1
+    lo += np.searchsorted(tb[lo:hi], lt[-1] - keep_s, side="left")
+    return lo, hi
+
+
+@njit(cache=True)
+def _fast_run(t_s, prev_t, fast_s):
+    """Whether every interval before a sample of ``t_s`` [s] (the first one from ``prev_t``) is shorter than
+    ``fast_s`` [s] (:meth:`_LowRate.process`'s fast run), and then the median of those intervals [s] (the mean
+    of the two middle ones for an even count, as ``np.median``; NaN when not all are fast)."""
+    n = t_s.size
+    step = np.empty(n)
+    prev = prev_t
+    for i in range(n):
+        step[i] = t_s[i] - prev
+        if not step[i] < fast_s:
+            return False, np.nan
+        prev = t_s[i]
+    step.sort()
+    k = n // 2
+    if n % 2:
+        return True, step[k]
+    return True, (step[k - 1] + step[k]) / 2.0
+
+
 def warm_kernels() -> None:
     """Compile (or load) the step-event kernels with the argument types the pipeline passes: the server's
     warm-up signal (:func:`server.warmup.warm_signal`) yields no step event, so they would otherwise compile
@@ -186,6 +224,14 @@ class _LowRate:
         """
         if len(t_s) == 0:
             return t_s, x
+        if self.dec is not None:
+            # the steady state of a full-rate stream (every sample fast, the same factor): one compiled scan
+            # instead of the array steps below (the same comparisons and the same median)
+            all_fast, dt = _fast_run(t_s, self.prev_t, 1.0 / (1.6 * self.rate_hz))
+            if all_fast and max(1, int(round(1.0 / (dt * self.rate_hz)))) == self.dec.factor:
+                ot, ox = self.dec.process(np.round(t_s * 1e9).astype(np.int64), x)
+                self.prev_t = float(t_s[-1])
+                return self._newer(ot / 1e9, ox)
         prev = np.empty(len(t_s))  # = np.concatenate([[self.prev_t], t_s[:-1]]), without its generic machinery
         prev[0] = self.prev_t
         prev[1:] = t_s[:-1]
@@ -280,9 +326,9 @@ class GaitPipeline:
         self._fields: list[list[float]] = []  # [vertical, horizontal] field [uT] of this session's stances
         self.dr: GaitDeadReckoner | None = None
         self.queue: list[StepEvent] = []
-        self._mag_t = np.zeros(0)
-        self._mag_v = np.zeros((0, 3))
-        self._mag_a = np.zeros((0, 3))  # low-rate specific force at the same samples as _mag_v [m/s^2]
+        # low-rate field [uT] and specific force [m/s^2] of the last _MAG_KEEP_S, with their times [s]: rows
+        # [_fb_lo, _fb_hi) of preallocated buffers (read through _mag_t, _mag_v, _mag_a)
+        self._set_field(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
         self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
@@ -324,6 +370,32 @@ class GaitPipeline:
                              c.soft_iron_std, c.hard_iron_std_ut, c.vertical_hard_iron_std_ut, c.max_heading_rms_rad,
                              c.min_swing, c.alignment_std_rad)
 
+    # ------------------------------------------------------------------ field buffer
+    @property
+    def _mag_t(self) -> np.ndarray:
+        """Times of the kept low-rate field samples [s] (increasing; a view of the buffer)."""
+        return self._fb_t[self._fb_lo:self._fb_hi]
+
+    @property
+    def _mag_v(self) -> np.ndarray:
+        """Field at :attr:`_mag_t` [uT], shape (n, 3) (a view of the buffer)."""
+        return self._fb_v[self._fb_lo:self._fb_hi]
+
+    @property
+    def _mag_a(self) -> np.ndarray:
+        """Low-rate specific force at :attr:`_mag_t` [m/s^2], shape (n, 3) (a view of the buffer)."""
+        return self._fb_a[self._fb_lo:self._fb_hi]
+
+    def _set_field(self, t: np.ndarray, v: np.ndarray, a: np.ndarray, room: int = 0) -> None:
+        """Field buffers holding ``t``, ``v``, ``a`` with room for ``room`` more rows (capacity doubled)."""
+        n = len(t)
+        cap = max(64, 2 * (n + room))
+        self._fb_t = np.empty(cap)
+        self._fb_v = np.empty((cap, 3))
+        self._fb_a = np.empty((cap, 3))
+        self._fb_t[:n], self._fb_v[:n], self._fb_a[:n] = t, v, a
+        self._fb_lo, self._fb_hi = 0, n
+
     # ------------------------------------------------------------------ streams
     def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
         """Consume full- or low-rate samples; new step events join :attr:`queue`."""
@@ -342,17 +414,16 @@ class GaitPipeline:
 
     def _append_low(self, lt: np.ndarray, lx: np.ndarray) -> None:
         """Low-rate samples ``[acc(3), mag(3), mag flag]`` to the field buffer and the step segmentation."""
-        valid = lx[:, 6] > 0.999
-        if valid.any():
-            self._mag_t = np.concatenate([self._mag_t, lt[valid]])
-            self._mag_v = np.concatenate([self._mag_v, lx[valid, 3:6]])
-            self._mag_a = np.concatenate([self._mag_a, lx[valid, :3]])
+        if self._fb_hi + len(lt) > len(self._fb_t):  # no room: move the kept rows to a new buffer
+            self._set_field(self._mag_t, self._mag_v, self._mag_a, len(lt))
+        # the rows with a field sample join the buffer in one compiled call, which also finds the first row of
+        # the last _MAG_KEEP_S; the new step events still see the rows before it (as before): the trim is
+        # applied after them
+        lo, hi = _field_append(self._fb_t, self._fb_v, self._fb_a, self._fb_lo, self._fb_hi, lt, lx, _MAG_KEEP_S)
+        self._fb_hi = int(hi)
         for e in self._seg.feed(lt, lx[:, :3]):
             self._queue_event(e)
-        # the field of the last _MAG_KEEP_S (_mag_t increases: one slice, the rows of t >= the start)
-        cut = int(self._mag_t.searchsorted(lt[-1] - _MAG_KEEP_S, "left"))
-        if cut:
-            self._mag_t, self._mag_v, self._mag_a = self._mag_t[cut:], self._mag_v[cut:], self._mag_a[cut:]
+        self._fb_lo = int(lo)  # the field of the last _MAG_KEEP_S
         if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_peak:
             live = {e.index for e in self.queue}
             # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
@@ -821,7 +892,7 @@ class GaitPipeline:
             "fields": [list(r) for r in self._fields],
             "dr": None if self.dr is None else self.dr.get_state(),
             "queue": [e.to_row() for e in self.queue],
-            "mag_t": self._mag_t, "mag_v": self._mag_v, "mag_a": self._mag_a,
+            "mag_t": self._mag_t.copy(), "mag_v": self._mag_v.copy(), "mag_a": self._mag_a.copy(),
             "stance_mag": [[k, None if v is None else np.asarray(v)] for k, v in self.stance_mag.items()],
             "stance_acc": [[k, np.asarray(v)] for k, v in self.stance_acc.items()],
             "stance_swing": [[k, np.asarray(v)] for k, v in self.stance_swing.items()],
@@ -852,9 +923,8 @@ class GaitPipeline:
         obj._fields = [[float(x) for x in r] for r in d["fields"]]
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
         obj.queue = [StepEvent.from_row(q) for q in d["queue"]]
-        obj._mag_t = np.asarray(d["mag_t"], dtype=float)
-        obj._mag_v = np.asarray(d["mag_v"], dtype=float).reshape(-1, 3)
-        obj._mag_a = np.asarray(d["mag_a"], dtype=float).reshape(-1, 3)
+        obj._set_field(np.asarray(d["mag_t"], dtype=float), np.asarray(d["mag_v"], dtype=float).reshape(-1, 3),
+                       np.asarray(d["mag_a"], dtype=float).reshape(-1, 3))
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d["stance_acc"]}
         obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d["stance_swing"]}

@@ -193,6 +193,14 @@ class Decimator:
         t_ns = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         x = np.asarray(x, dtype=np.float64).reshape(-1, self.channels)
         delay = int(self._fir.delay_samples)
+        hist = self._fir._hist
+        if self._count > 0 and t_ns.size and hist is not None and self._t_hist.size == delay \
+                and x.shape[0] == t_ns.size:
+            # the steady state (a history of both streams): the same steps in one compiled call
+            t_out, y, self._fir._hist, self._t_hist = _decimate(t_ns, x, hist, self._t_hist, self._count,
+                                                                self.factor, self._fir.taps)
+            self._count += t_ns.size
+            return t_out, y
         if self._count == 0 and t_ns.size:
             self._t_hist = np.repeat(t_ns[:1], delay)  # matches the FIR's replicated start
         t_all = np.concatenate([self._t_hist, t_ns])
@@ -273,3 +281,30 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
                 a += taps[k] * ext[r - k, c]
             y[j, c] = a
     return y
+
+
+@njit(cache=True)
+def _decimate(t_ns, x, hist, t_hist, count, factor, taps):
+    """One chunk of :meth:`Decimator.process` once both histories are there (``count > 0``; ``hist`` the FIR's
+    last ``L - 1`` inputs, ``t_hist`` the times [ns] of the last ``delay`` inputs): the FIR's input span and
+    time span, the kept rows, their outputs by :func:`_fir_rows` and the advanced histories, with the same
+    values as the array form (concatenations, ``np.arange``, fancy indexing) in one call.
+
+    Returns ``(t_out_ns, y, hist, t_hist)``."""
+    n = t_ns.size
+    nh = hist.shape[0]
+    delay = t_hist.size
+    ext = np.empty((nh + n, x.shape[1]))
+    ext[:nh] = hist
+    ext[nh:] = x
+    t_all = np.empty(delay + n, dtype=np.int64)
+    t_all[:delay] = t_hist
+    t_all[delay:] = t_ns
+    j0 = max(delay - count, 0)
+    d = delay - count - j0
+    rows = np.arange(j0 + ((d % factor) + factor) % factor, n, factor)  # (Python's modulo of a negative d)
+    y = _fir_rows(ext, taps, rows)
+    t_out = np.empty(rows.size, dtype=np.int64)
+    for j in range(rows.size):
+        t_out[j] = t_all[rows[j]]
+    return t_out, y, ext[n:].copy(), t_all[n:].copy()
