@@ -189,11 +189,9 @@ def run_demo(workdir: Path, plot_path: Path, scenario: str = "demo", seed: int =
         if not quiet:
             print(f"server: {srv.url} (OpenAPI at {srv.url}/docs), database {workdir / 'pednav.db'}")
         with PednavClient(srv.url, token, float_dtype="<f4") as api:
-            # the bar starts with the first answer: the server's engine process starts (and loads the kernels)
-            # on the first batch, a one-off wait that would make the estimate of the rest wrong
+            # the bar starts with the first answer (the first batch's round trip would skew the estimate of the rest)
             if not quiet:
-                print("streaming the walk through the API (the server's engine process starts on the first batch) ...",
-                      file=sys.stderr, flush=True)
+                print("streaming the walk through the API ...", file=sys.stderr, flush=True)
             bars: list[Any] = []
 
             def progress(frac: float, new: list[dict[str, Any]]) -> None:
