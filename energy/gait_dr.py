@@ -25,6 +25,7 @@ from models.fir import Decimator
 from models.gait_pdr import GaitDeadReckoner, PdrStep
 from models.heading import CompassNoise, HeadingEstimator
 from models.heading_deviation import HeadingDeviationKF, gamma_from_increment, wrap_angle
+from models.rows import RowBuffer
 from models.stats import median
 from models.step_length import FORM, StepFeatures, StepLengthCalibrator
 from models.steps import StepEvent, StepSegmenter
@@ -326,9 +327,9 @@ class GaitPipeline:
         self._fields: list[list[float]] = []  # [vertical, horizontal] field [uT] of this session's stances
         self.dr: GaitDeadReckoner | None = None
         self.queue: list[StepEvent] = []
-        # low-rate field [uT] and specific force [m/s^2] of the last _MAG_KEEP_S, with their times [s]: rows
-        # [_fb_lo, _fb_hi) of preallocated buffers (read through _mag_t, _mag_v, _mag_a)
-        self._set_field(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+        # low-rate field [uT] and specific force [m/s^2] of the last _MAG_KEEP_S, with their times [s], in place
+        # (read through _mag_t, _mag_v, _mag_a)
+        self._field = RowBuffer(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
         self.stance_mag: dict[int, np.ndarray | None] = {}
         self.stance_acc: dict[int, np.ndarray] = {}  # specific force over the same window as stance_mag
         self.stance_swing: dict[int, np.ndarray] = {}  # field samples of the swing before each stance [uT]
@@ -374,27 +375,20 @@ class GaitPipeline:
     @property
     def _mag_t(self) -> np.ndarray:
         """Times of the kept low-rate field samples [s] (increasing; a view of the buffer)."""
-        return self._fb_t[self._fb_lo:self._fb_hi]
+        f = self._field
+        return f.storage[0][f.lo:f.hi]
 
     @property
     def _mag_v(self) -> np.ndarray:
         """Field at :attr:`_mag_t` [uT], shape (n, 3) (a view of the buffer)."""
-        return self._fb_v[self._fb_lo:self._fb_hi]
+        f = self._field
+        return f.storage[1][f.lo:f.hi]
 
     @property
     def _mag_a(self) -> np.ndarray:
         """Low-rate specific force at :attr:`_mag_t` [m/s^2], shape (n, 3) (a view of the buffer)."""
-        return self._fb_a[self._fb_lo:self._fb_hi]
-
-    def _set_field(self, t: np.ndarray, v: np.ndarray, a: np.ndarray, room: int = 0) -> None:
-        """Field buffers holding ``t``, ``v``, ``a`` with room for ``room`` more rows (capacity doubled)."""
-        n = len(t)
-        cap = max(64, 2 * (n + room))
-        self._fb_t = np.empty(cap)
-        self._fb_v = np.empty((cap, 3))
-        self._fb_a = np.empty((cap, 3))
-        self._fb_t[:n], self._fb_v[:n], self._fb_a[:n] = t, v, a
-        self._fb_lo, self._fb_hi = 0, n
+        f = self._field
+        return f.storage[2][f.lo:f.hi]
 
     # ------------------------------------------------------------------ streams
     def feed(self, t_s: np.ndarray, acc: np.ndarray, mag: np.ndarray) -> None:
@@ -414,27 +408,23 @@ class GaitPipeline:
 
     def _append_low(self, lt: np.ndarray, lx: np.ndarray) -> None:
         """Low-rate samples ``[acc(3), mag(3), mag flag]`` to the field buffer and the step segmentation."""
-        if self._fb_hi + len(lt) > len(self._fb_t):  # no room: move the kept rows to a new buffer
-            self._set_field(self._mag_t, self._mag_v, self._mag_a, len(lt))
+        f = self._field
+        f.reserve(len(lt))
         # the rows with a field sample join the buffer in one compiled call, which also finds the first row of
         # the last _MAG_KEEP_S; the new step events still see the rows before it (as before): the trim is
         # applied after them
-        lo, hi = _field_append(self._fb_t, self._fb_v, self._fb_a, self._fb_lo, self._fb_hi, lt, lx, _MAG_KEEP_S)
-        self._fb_hi = int(hi)
+        lo, hi = _field_append(*f.storage, f.lo, f.hi, lt, lx, _MAG_KEEP_S)
+        f.hi = int(hi)
         for e in self._seg.feed(lt, lx[:, :3]):
             self._queue_event(e)
-        self._fb_lo = int(lo)  # the field of the last _MAG_KEEP_S
+        f.drop(int(lo) - f.lo)  # the field of the last _MAG_KEEP_S
         if self.stance_mag or self.stance_acc or self.stance_swing or self.stride_peak:
             live = {e.index for e in self.queue}
             # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
-            if self.stance_mag.keys() - live:
-                self.stance_mag = {k: v for k, v in self.stance_mag.items() if k in live}
-            if self.stance_acc.keys() - live:
-                self.stance_acc = {k: v for k, v in self.stance_acc.items() if k in live}
-            if self.stance_swing.keys() - live:
-                self.stance_swing = {k: v for k, v in self.stance_swing.items() if k in live}
-            if self.stride_peak.keys() - live:
-                self.stride_peak = {k: v for k, v in self.stride_peak.items() if k in live}
+            for name in ("stance_mag", "stance_acc", "stance_swing", "stride_peak"):
+                table = getattr(self, name)
+                if table.keys() - live:
+                    setattr(self, name, {k: v for k, v in table.items() if k in live})
 
     def _queue_event(self, e: StepEvent) -> None:
         """A new step event joins the queue with the stance field and specific force of its stillest window,
@@ -923,8 +913,8 @@ class GaitPipeline:
         obj._fields = [[float(x) for x in r] for r in d["fields"]]
         obj.dr = None if d["dr"] is None else GaitDeadReckoner.from_state(d["dr"])
         obj.queue = [StepEvent.from_row(q) for q in d["queue"]]
-        obj._set_field(np.asarray(d["mag_t"], dtype=float), np.asarray(d["mag_v"], dtype=float).reshape(-1, 3),
-                       np.asarray(d["mag_a"], dtype=float).reshape(-1, 3))
+        obj._field = RowBuffer(np.asarray(d["mag_t"], dtype=float), np.asarray(d["mag_v"], dtype=float).reshape(-1, 3),
+                               np.asarray(d["mag_a"], dtype=float).reshape(-1, 3))
         obj.stance_mag = {int(k): (None if v is None else np.asarray(v, dtype=float)) for k, v in d["stance_mag"]}
         obj.stance_acc = {int(k): np.asarray(v, dtype=float) for k, v in d["stance_acc"]}
         obj.stance_swing = {int(k): np.asarray(v, dtype=float).reshape(-1, 3) for k, v in d["stance_swing"]}

@@ -44,6 +44,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from models.rows import RowBuffer
+
 __all__ = ["SaturationConfig", "ClipRepair", "SAT_ACC", "SAT_GYR"]
 
 #: bits of the per-sample flags: accelerometer x, y, z at the range, then gyroscope x, y, z
@@ -251,11 +253,9 @@ class ClipRepair:
         self._par = config.to_array()
         self._peaks = np.zeros(12)
         # one row per sample: t, acc+gyr as recorded, as repaired, mag, 1-sigma errors, flags (columns _T .. _F)
-        # the held rows: the view _buf of rows _lo .. of the storage _store (grown by doubling, the held rows moved
-        # to its front when its end is reached, so a batch does not re-allocate them)
-        self._store = np.zeros((0, _NCOL))
-        self._lo = 0
-        self._buf = self._store[:0]
+        # the held rows (in place, :class:`RowBuffer`), seen through the view _buf
+        self._rows = RowBuffer(np.zeros((0, _NCOL)))
+        self._buf = self._rows.views()[0]
         self._n_tail = 0  # leading rows already released (context for the next runs)
         self._scanned = 0  # rows flagged so far
 
@@ -267,24 +267,14 @@ class ClipRepair:
         flagged value (0 elsewhere). ``final``: the recording ends here, release everything."""
         k = len(t)
         if k:
-            n = self._buf.shape[0]
-            st, lo = self._store, self._lo
-            if lo + n + k > st.shape[0]:
-                if 2 * (n + k) > st.shape[0]:
-                    st = np.empty((max(2 * (n + k), 256), _NCOL))
-                    st[:n] = self._buf
-                    self._store = st
-                else:
-                    st[:n] = self._buf.copy()  # (overlapping ranges: through a copy)
-                lo = self._lo = 0
-            new = st[lo + n:lo + n + k]
+            (new,) = self._rows.grow(k)
             new[:, _T] = t
             new[:, _V:_V + 3] = acc
             new[:, _V + 3:_R] = gyr
             new[:, _R:_M] = new[:, _V:_R]
             new[:, _M:_S] = mag
             new[:, _S:] = 0.0
-            self._buf = st[lo:lo + n + k]
+            self._buf = self._rows.views()[0]
         buf = self._buf
         self._scanned = _scan(buf, self._scanned, final, self._peaks, self._par)
         lo = self._n_tail
@@ -294,7 +284,7 @@ class ClipRepair:
             self.reset()
         else:
             keep_from = max(release - 2 * int(self.config.fit_n), 0)  # the context the next runs may fit to
-            self._lo += keep_from
+            self._rows.drop(keep_from)
             self._buf = buf[keep_from:]
             self._n_tail = release - keep_from
             self._scanned -= keep_from
@@ -304,8 +294,8 @@ class ClipRepair:
     def reset(self) -> None:
         """Forget the held rows (the recording ended, or a new segment of data starts after a gap: no row is context
         for what follows); the peaks stay (they are the sensor's range)."""
-        self._lo = 0
-        self._buf = self._store[:0]
+        self._rows.clear()
+        self._buf = self._rows.views()[0]
         self._n_tail = 0
         self._scanned = 0
 
@@ -323,8 +313,8 @@ class ClipRepair:
         """Restore from :meth:`get_state` output."""
         obj = cls(config)
         obj._peaks = np.asarray(d["peaks"], dtype=np.float64).reshape(12)
-        obj._store = np.asarray(d["buf"], dtype=np.float64).reshape(-1, _NCOL).copy()
-        obj._buf = obj._store
+        obj._rows = RowBuffer(np.asarray(d["buf"], dtype=np.float64).reshape(-1, _NCOL).copy())
+        obj._buf = obj._rows.views()[0]
         obj._n_tail = int(d["n_tail"])
         obj._scanned = int(d["scanned"])
         return obj

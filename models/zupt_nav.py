@@ -16,6 +16,7 @@ import numpy as np
 from models import _zupt_kernel as _k
 from models.attitude import align_at_rest
 from models.rotations import dcm_to_quat
+from models.rows import RowBuffer
 from models.saturation import SAT_ACC, SAT_GYR, ClipRepair, SaturationConfig
 
 __all__ = ["ZuptConfig", "NavOutput", "Stance", "ZuptNavigator", "SAT_ACC", "SAT_GYR"]
@@ -543,7 +544,7 @@ class ZuptNavigator:
             self._fs[_k.FS["ref0"] : _k.FS["ref2"] + 1] = ref
             self._fs[_k.FS["ref_valid"]] = 1.0
         # the kernel's buffer: t, acc, gyr, mag, clipped axes per sample and the 1-sigma errors of their
-        # (repaired) values; rows _lo .. _hi - 1 of the storage _st, seen through the views _bt .. _bsig
+        # (repaired) values, seen through the views _bt .. _bsig
         self._set_buffer(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)),
                          np.zeros(0, dtype=np.uint8), np.zeros((0, 6)))
         self._next = 0  # index in the buffer of the first unprocessed sample
@@ -655,43 +656,18 @@ class ZuptNavigator:
     def _set_buffer(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
                     sig: np.ndarray) -> None:
         """The buffer becomes these rows (the arrays are its storage from now on)."""
-        self._st = (t, acc, gyr, mag, sat, sig)
-        self._lo, self._hi = 0, t.shape[0]
-        self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = self._st
+        self._rows = RowBuffer(t, acc, gyr, mag, sat, sig)
+        self._views()
 
     def _append(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
                 sig: np.ndarray) -> None:
-        """Samples the clipping repair has decided join the kernel's buffer.
-
-        The rows are written into preallocated storage (grown by doubling, the kept rows moved to its front
-        when the end is reached), so a batch costs no re-allocation of the whole buffer; the views ``_bt`` ..
-        ``_bsig`` hold the same values as a concatenation would."""
-        k = t.shape[0]
-        if k == 0:
-            return
-        st, lo, hi = self._st, self._lo, self._hi
-        if hi + k > st[0].shape[0]:
-            n = hi - lo
-            if 2 * (n + k) > st[0].shape[0]:
-                cap = max(2 * (n + k), 256)
-                new = tuple(np.empty((cap,) + a.shape[1:], dtype=a.dtype) for a in st)
-                for a, b in zip(new, st):
-                    a[:n] = b[lo:hi]
-                self._st = st = new
-            else:
-                for a in st:
-                    a[:n] = a[lo:hi].copy()  # (overlapping ranges: through a copy)
-            lo, hi = 0, n
-        for a, v in zip(st, (t, acc, gyr, mag, sat, sig)):
-            a[hi:hi + k] = v
-        self._lo, self._hi = lo, hi + k
-        self._views()
+        """Samples the clipping repair has decided join the kernel's buffer (written in place, :class:`RowBuffer`)."""
+        if t.shape[0]:
+            self._rows.extend(t, acc, gyr, mag, sat, sig)
+            self._views()
 
     def _views(self) -> None:
-        lo, hi = self._lo, self._hi
-        st = self._st
-        self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = (
-            st[0][lo:hi], st[1][lo:hi], st[2][lo:hi], st[3][lo:hi], st[4][lo:hi], st[5][lo:hi])
+        self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = self._rows.views()
 
     def flush(self) -> NavOutput:
         """End of recording: process the samples held back for the detector's look-ahead (and the clipping
@@ -747,7 +723,7 @@ class ZuptNavigator:
         keep = int(np.searchsorted(t, tn - self.config.half_window_s - self.config.erosion_s, side="left"))
         keep = max(min(keep, self._next) - 2, 0)
         if keep:
-            self._lo += keep  # (the storage's rows before _lo are reused by _append)
+            self._rows.drop(keep)
             self._views()
             self._next -= keep
 
