@@ -70,6 +70,15 @@ class FirFilter:
         self._hist: np.ndarray | None = None  # last L-1 inputs, oldest first, shape (L-1, C)
 
     @property
+    def history(self) -> np.ndarray | None:
+        """The last ``L - 1`` inputs, oldest first, shape (L-1, C); None before the first chunk."""
+        return self._hist
+
+    @history.setter
+    def history(self, h: np.ndarray) -> None:
+        self._hist = h
+
+    @property
     def delay_samples(self) -> float:
         """Group delay [samples] of linear-phase taps."""
         return (self.taps.size - 1) / 2.0
@@ -193,11 +202,11 @@ class Decimator:
         t_ns = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         x = np.asarray(x, dtype=np.float64).reshape(-1, self.channels)
         delay = int(self._fir.delay_samples)
-        hist = self._fir._hist
+        hist = self._fir.history
         if self._count > 0 and t_ns.size and hist is not None and self._t_hist.size == delay \
                 and x.shape[0] == t_ns.size:
             # the steady state (a history of both streams): the same steps in one compiled call
-            t_out, y, self._fir._hist, self._t_hist = _decimate(t_ns, x, hist, self._t_hist, self._count,
+            t_out, y, self._fir.history, self._t_hist = _decimate(t_ns, x, hist, self._t_hist, self._count,
                                                                 self.factor, self._fir.taps)
             self._count += t_ns.size
             return t_out, y
@@ -228,7 +237,7 @@ class Decimator:
             Their filtered values.
         """
         delay = int(self._fir.delay_samples)
-        hist = self._fir._hist
+        hist = self._fir.history
         if delay == 0 or self._count == 0 or hist is None:
             return np.zeros(0, dtype=np.int64), np.zeros((0, self.channels))
         t_c = self._t_hist  # times of the last `delay` inputs: the outputs are centred on them
