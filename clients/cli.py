@@ -34,7 +34,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "clients.commands.sessions",
 )
 
-PLACEMENTS_NAVIGATED = "a foot-mounted sensor (on the shoe)"
+PLACEMENTS_NAVIGATED = "a foot-mounted sensor (on the shoe); a phone in the hand or a pocket (step-and-heading)"
 """What the engine navigates today; the README and ``--help`` say the same."""
 
 
