@@ -297,8 +297,10 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
     - ``replay_entered_median_abs_s``: stand-entry latency (median of the absolute values over the labelled stops)
       of the quiet timer replayed on the quiet stretches, with the bound ``MAX_STANCE_S`` or
       ``min(MAX_STANCE_S, recent stance + held-out margin)``, decided on the ``HOP_S`` grid or at the crossing;
-    - ``stillness``: the std of |a| [m/s^2] over ``still_s`` after the quiet starts, stops against the quiet
-      stretches inside gait longer than ``still_s[1]`` (the ones a faster stop signal must tell from a stop).
+    - ``stillness_std_ms2``: the std of |a| [m/s^2] over ``still_s`` after the quiet starts, stops against the quiet
+      stretches inside gait longer than ``still_s[1]`` (the ones a faster stop signal must tell from a stop);
+    - ``last_swing_std_ms2``: the std of |a| [m/s^2] over the ``still_s[1]`` before the quiet starts (the last swing: a
+      closing half-step before a stop?), the same two sets.
     """
     from models.behaviour import HOP_S, MAX_STANCE_S
 
@@ -327,10 +329,15 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
                 m = (t > t0[i] + still_s[0]) & (t < t0[i] + still_s[1])
                 return float(a[m].std()) if np.count_nonzero(m) >= 5 else float("nan")
 
+            def std_before(i: int) -> float:
+                m = (t >= t0[i] - still_s[1]) & (t <= t0[i])
+                return float(a[m].std()) if np.count_nonzero(m) >= 5 else float("nan")
+
             long_ = np.flatnonzero(in_gait & (t1 - t0 > still_s[1]))
             per[k] = {"excess": (t1 - t0 - rec)[in_gait & np.isfinite(rec)], "stops": stops, "labelled": labelled,
                       "t0": t0, "recent": rec, "still_stop": [std_after(i) for i in stops],
-                      "still_gait": [std_after(i) for i in long_]}
+                      "still_gait": [std_after(i) for i in long_], "swing_stop": [std_before(i) for i in stops],
+                      "swing_gait": [std_before(i) for i in long_]}
         exc = {group_of(*k): [] for k in per}
         for k, v in per.items():
             exc[group_of(*k)].append(v["excess"])
@@ -355,6 +362,8 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
         recent = np.array([v["recent"][i] for v in per.values() for i in v["stops"]])
         still_stop = np.array([x for v in per.values() for x in v["still_stop"]])
         still_gait = np.array([x for v in per.values() for x in v["still_gait"]])
+        swing_stop = np.array([x for v in per.values() for x in v["swing_stop"]])
+        swing_gait = np.array([x for v in per.values() for x in v["swing_gait"]])
         out[rk] = {
             "excess": {"max_s": round(float(np.max(per[worst]["excess"])), 3), "recording": "/".join(worst),
                        "held_out_margin_s": sorted(margins)},
@@ -365,8 +374,10 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
             "stillness_std_ms2": {
                 "stops_p50_p90_max": [round(float(q), 3) for q in np.nanpercentile(still_stop, [50, 90, 100])],
                 "gait_quiet_min_p10_p50": [round(float(q), 3) for q in np.nanpercentile(still_gait, [0, 10, 50])],
-                "gait_quiet_stretches": int(np.isfinite(still_gait).sum()),
-                },
+                "gait_quiet_stretches": int(np.isfinite(still_gait).sum())},
+            "last_swing_std_ms2": {
+                "stops_p10_p50_p90": [round(float(q), 2) for q in np.nanpercentile(swing_stop, [10, 50, 90])],
+                "gait_quiet_p10_p50_p90": [round(float(q), 2) for q in np.nanpercentile(swing_gait, [10, 50, 90])]},
         }
     return out
 
