@@ -41,7 +41,7 @@ __all__ = [
     "labelled_features",
     "acc_p99_g",
     "quiet_stretches",
-    "stance_excess",
+    "recent_stance",
     "stop_signal_evidence",
     "main",
 ]
@@ -257,7 +257,7 @@ def quiet_stretches(t_s: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.nd
     return ends[:-1], ends[1:]
 
 
-def stance_excess(t0: np.ndarray, t1: np.ndarray, history_s: float = 3.0, min_stance_s: float = 0.15,
+def recent_stance(t0: np.ndarray, t1: np.ndarray, history_s: float = 3.0, min_stance_s: float = 0.15,
                   min_n: int = 2) -> np.ndarray:
     """Per quiet stretch: the longest of the completed earlier stretches that look like stances (``min_stance_s``
     to ``MAX_STANCE_S`` long, ended within ``history_s`` before it starts; the recogniser's window), ``nan``
@@ -290,7 +290,7 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
     rejected), per rate:
 
     - ``excess``: how far a quiet stretch inside labelled walk/run/other outlasts the longest recent stance
-      (:func:`stance_excess`): its largest value and recording, and the margin fitted without each group (the next
+      (:func:`recent_stance`): its largest value and recording, and the margin fitted without each group (the next
       ``margin_step_s`` above the other groups' largest, as :func:`fit_stand_enter`);
     - ``stop_recent_stance_s``: the longest recent stance before each labelled stop's quiet (percentiles, and how
       many stops have fewer than two);
@@ -315,15 +315,14 @@ def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 2
             t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
             a = np.linalg.norm(b.acc, axis=1)
             t0, t1 = quiet_stretches(t, b.acc)
-            rec = stance_excess(t0, t1)
+            rec = recent_stance(t0, t1)
             in_gait = np.zeros(t0.size, dtype=bool)
             for r in groups[k]:
                 if r.label in _GAIT:
                     in_gait |= (t0 >= r.t0_s) & (t1 < r.t1_s)
-            stops = [i for r in groups[k] if r.label == "stand" and r.t0_s > 0.5
-                     for i in [_stop_quiet(t0, t1, r)] if i is not None]
-            labelled = [r.t0_s for r in groups[k] if r.label == "stand" and r.t0_s > 0.5
-                        and _stop_quiet(t0, t1, r) is not None]
+            found = [(_stop_quiet(t0, t1, r), r.t0_s) for r in groups[k] if r.label == "stand" and r.t0_s > 0.5]
+            stops = [i for i, _ in found if i is not None]  # the stop's quiet stretch ...
+            labelled = [s for i, s in found if i is not None]  # ... and its labelled time [s]
 
             def std_after(i: int) -> float:
                 m = (t > t0[i] + still_s[0]) & (t < t0[i] + still_s[1])
