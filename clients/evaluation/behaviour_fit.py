@@ -39,6 +39,10 @@ __all__ = [
     "oracle_decisions",
     "oracle_shares",
     "labelled_features",
+    "acc_p99_g",
+    "quiet_stretches",
+    "recent_stance",
+    "stop_signal_evidence",
     "main",
 ]
 
@@ -216,6 +220,167 @@ def labelled_features(root: Path, dataset: str, recording: str, labels: Sequence
     return np.array(rows, dtype=float).reshape(-1, 4)
 
 
+def acc_p99_g(root: Path, ranges: Sequence[bh.LabelRange] | None = None) -> dict[str, float]:
+    """``"dataset/recording label"`` -> 99th percentile of |a| [g] over the recording's time labelled ``walk`` or
+    ``run`` (at least 1 s of it), at the recorded rate: the statistic by which 37 of the 42 VICON motion labels
+    were guessed (run = at least 4 g, ``datasets/vicon/ABOUT.md``), applied to every labelled gait."""
+    from models.behaviour import G
+
+    groups = bh.labelled_recordings(bh.read_labels() if ranges is None else ranges)
+    out = {}
+    for (ds, name), rr in groups.items():
+        try:
+            b = bh._recording(root, ds, name).batch
+        except (FileNotFoundError, KeyError):
+            continue
+        t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+        a = np.linalg.norm(b.acc, axis=1) / G
+        for lab in ("walk", "run"):
+            m = np.zeros(t.size, dtype=bool)
+            for r in rr:
+                if r.label == lab:
+                    m |= (t >= r.t0_s) & (t < r.t1_s)
+            if np.count_nonzero(m) >= b.rate_hz("acc"):
+                out[f"{ds}/{name} {lab}"] = round(float(np.percentile(a[m], 99)), 2)
+    return out
+
+
+def quiet_stretches(t_s: np.ndarray, acc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end [s] of every quiet stretch (``| |a| - g | < QUIET_TOL``), measured as :func:`quiet_in_gait`
+    does, from the non-quiet sample before it to the one after it (what the recogniser's quiet timer reads at its
+    largest); the stretch after the last non-quiet sample ends at ``inf`` (the recording ends quiet)."""
+    from models.behaviour import G, QUIET_TOL
+
+    t = np.asarray(t_s, dtype=float)
+    loud = t[np.abs(np.linalg.norm(acc, axis=1) - G) >= QUIET_TOL]
+    ends = np.append(loud, np.inf)
+    return ends[:-1], ends[1:]
+
+
+def recent_stance(t0: np.ndarray, t1: np.ndarray, history_s: float = 3.0, min_stance_s: float = 0.15,
+                  min_n: int = 2) -> np.ndarray:
+    """Per quiet stretch: the longest of the completed earlier stretches that look like stances (``min_stance_s``
+    to ``MAX_STANCE_S`` long, ended within ``history_s`` before it starts; the recogniser's window), ``nan``
+    with fewer than ``min_n`` of them. A stance-adaptive stop bound would be that plus a margin [s]."""
+    from models.behaviour import MAX_STANCE_S
+
+    d = t1 - t0
+    out = np.full(t0.size, np.nan)
+    ok = (d >= min_stance_s) & (d <= MAX_STANCE_S)
+    for i in range(t0.size):
+        m = ok & (t1 <= t0[i]) & (t1 > t0[i] - history_s)
+        if np.count_nonzero(m) >= min_n:
+            out[i] = float(d[m].max())
+    return out
+
+
+def _stop_quiet(t0: np.ndarray, t1: np.ndarray, stand: bh.LabelRange) -> int | None:
+    """Index of the first quiet stretch longer than ``MAX_STANCE_S`` that starts from 1 s before to 1.5 s after
+    a labelled stop (``None`` when there is none)."""
+    from models.behaviour import MAX_STANCE_S
+
+    i = np.flatnonzero((t1 - t0 > MAX_STANCE_S) & (t0 > stand.t0_s - 1.0) & (t0 < stand.t0_s + 1.5))
+    return int(i[0]) if i.size else None
+
+
+def stop_signal_evidence(root: Path, rates_hz: Sequence[float | None] = (None, 25.0),
+                         ranges: Sequence[bh.LabelRange] | None = None, still_s: tuple[float, float] = (0.05, 0.65),
+                         margin_step_s: float = 0.1) -> dict[str, Any]:
+    """Whether the foot's |a| can signal a stop faster than the 1.0-s quiet timer (docs/behaviour.md, tried and
+    rejected), per rate:
+
+    - ``excess``: how far a quiet stretch inside labelled walk/run/other outlasts the longest recent stance
+      (:func:`recent_stance`): its largest value and recording, and the margin fitted without each group (the next
+      ``margin_step_s`` above the other groups' largest, as :func:`fit_stand_enter`);
+    - ``stop_recent_stance_s``: the longest recent stance before each labelled stop's quiet (percentiles, and how
+      many stops have fewer than two);
+    - ``replay_entered_median_abs_s``: stand-entry latency (median of the absolute values over the labelled stops)
+      of the quiet timer replayed on the quiet stretches, with the bound ``MAX_STANCE_S`` or
+      ``min(MAX_STANCE_S, recent stance + held-out margin)``, decided on the ``HOP_S`` grid or at the crossing;
+    - ``stillness_std_ms2``: the std of |a| [m/s^2] over ``still_s`` after the quiet starts, stops against the quiet
+      stretches inside gait longer than ``still_s[1]`` (the ones a faster stop signal must tell from a stop);
+    - ``last_swing_std_ms2``: the std of |a| [m/s^2] over the ``still_s[1]`` before the quiet starts (the last swing: a
+      closing half-step before a stop?), the same two sets.
+    """
+    from models.behaviour import HOP_S, MAX_STANCE_S
+
+    groups = bh.labelled_recordings(bh.read_labels() if ranges is None else ranges)
+    batches = _batches(root, groups, rates_hz)
+    out: dict[str, Any] = {}
+    for rate in rates_hz:
+        rk = "recorded" if rate is None else f"{rate:g}"
+        per: dict[tuple[str, str], dict[str, Any]] = {}
+        for k in (k for k in groups if (*k, rk) in batches):
+            b = batches[(*k, rk)]
+            t = (b.acc_t_ns - b.acc_t_ns[0]) / 1e9
+            a = np.linalg.norm(b.acc, axis=1)
+            t0, t1 = quiet_stretches(t, b.acc)
+            rec = recent_stance(t0, t1)
+            in_gait = np.zeros(t0.size, dtype=bool)
+            for r in groups[k]:
+                if r.label in _GAIT:
+                    in_gait |= (t0 >= r.t0_s) & (t1 < r.t1_s)
+            found = [(_stop_quiet(t0, t1, r), r.t0_s) for r in groups[k] if r.label == "stand" and r.t0_s > 0.5]
+            stops = [i for i, _ in found if i is not None]  # the stop's quiet stretch ...
+            labelled = [s for i, s in found if i is not None]  # ... and its labelled time [s]
+
+            def std_after(i: int) -> float:
+                m = (t > t0[i] + still_s[0]) & (t < t0[i] + still_s[1])
+                return float(a[m].std()) if np.count_nonzero(m) >= 5 else float("nan")
+
+            def std_before(i: int) -> float:
+                m = (t >= t0[i] - still_s[1]) & (t <= t0[i])
+                return float(a[m].std()) if np.count_nonzero(m) >= 5 else float("nan")
+
+            long_ = np.flatnonzero(in_gait & (t1 - t0 > still_s[1]))
+            per[k] = {"excess": (t1 - t0 - rec)[in_gait & np.isfinite(rec)], "stops": stops, "labelled": labelled,
+                      "t0": t0, "recent": rec, "still_stop": [std_after(i) for i in stops],
+                      "still_gait": [std_after(i) for i in long_], "swing_stop": [std_before(i) for i in stops],
+                      "swing_gait": [std_before(i) for i in long_]}
+        exc = {group_of(*k): [] for k in per}
+        for k, v in per.items():
+            exc[group_of(*k)].append(v["excess"])
+        worst = max(per, key=lambda k: float(np.max(per[k]["excess"], initial=-np.inf)))
+
+        def fit(without: str) -> float:
+            m = max((float(e.max()) for g, es in exc.items() if g != without for e in es if e.size), default=0.0)
+            return round(math.floor(m / margin_step_s + 1e-9) * margin_step_s + margin_step_s, 3)
+
+        lat: dict[str, list[float]] = {"timer 1.0 s, HOP_S grid": [], "timer 1.0 s, at the crossing": [],
+                                       "stance-adaptive, HOP_S grid": [], "stance-adaptive, at the crossing": []}
+        margins = set()
+        for k, v in per.items():
+            margin = fit(group_of(*k))
+            margins.add(margin)
+            for i, lab in zip(v["stops"], v["labelled"]):
+                adaptive = MAX_STANCE_S if np.isnan(v["recent"][i]) else min(MAX_STANCE_S, v["recent"][i] + margin)
+                for name, bound in (("timer 1.0 s", MAX_STANCE_S), ("stance-adaptive", adaptive)):
+                    cross = v["t0"][i] + bound
+                    lat[f"{name}, HOP_S grid"].append(math.ceil(cross / HOP_S - 1e-9) * HOP_S - lab)
+                    lat[f"{name}, at the crossing"].append(cross - lab)
+        recent = np.array([v["recent"][i] for v in per.values() for i in v["stops"]])
+        still_stop = np.array([x for v in per.values() for x in v["still_stop"]])
+        still_gait = np.array([x for v in per.values() for x in v["still_gait"]])
+        swing_stop = np.array([x for v in per.values() for x in v["swing_stop"]])
+        swing_gait = np.array([x for v in per.values() for x in v["swing_gait"]])
+        out[rk] = {
+            "excess": {"max_s": round(float(np.max(per[worst]["excess"])), 3), "recording": "/".join(worst),
+                       "held_out_margin_s": sorted(margins)},
+            "stop_recent_stance_s": {"stops": int(recent.size), "fewer_than_two": int(np.isnan(recent).sum()),
+                                     "p10_p50_p90": [round(float(q), 2) for q in
+                                                     np.nanpercentile(recent, [10, 50, 90])]},
+            "replay_entered_median_abs_s": {n: round(float(np.median(np.abs(v))), 3) for n, v in lat.items()},
+            "stillness_std_ms2": {
+                "stops_p50_p90_max": [round(float(q), 3) for q in np.nanpercentile(still_stop, [50, 90, 100])],
+                "gait_quiet_min_p10_p50": [round(float(q), 3) for q in np.nanpercentile(still_gait, [0, 10, 50])],
+                "gait_quiet_stretches": int(np.isfinite(still_gait).sum())},
+            "last_swing_std_ms2": {
+                "stops_p10_p50_p90": [round(float(q), 2) for q in np.nanpercentile(swing_stop, [10, 50, 90])],
+                "gait_quiet_p10_p50_p90": [round(float(q), 2) for q in np.nanpercentile(swing_gait, [10, 50, 90])]},
+        }
+    return out
+
+
 def _spread(x: np.ndarray) -> list[list[float]]:
     """Per column: median, 10th and 90th percentile (rounded)."""
     return [[round(float(np.nanpercentile(x[:, c], q)), 2) for q in (50, 10, 90)] for c in range(x.shape[1])]
@@ -223,12 +388,17 @@ def _spread(x: np.ndarray) -> list[list[float]]:
 
 def main() -> None:
     """``python -m clients.evaluation.behaviour_fit [ROOT]``: one JSON document with the leave-one-group-out
-    summaries (recorded rate and 25 Hz), the oracle's shares and the label-conflict features (docs/behaviour.md)."""
+    summaries (recorded rate and 25 Hz), the oracle's shares and the label-conflict features (docs/behaviour.md);
+    ``python -m clients.evaluation.behaviour_fit --stop-signal [ROOT]``: :func:`stop_signal_evidence` instead."""
     import json
     import os
     import sys
 
-    root = Path(sys.argv[1] if len(sys.argv) > 1 else os.environ.get("PEDNAV_DATA", "../shared/datasets"))
+    args = [a for a in sys.argv[1:] if a != "--stop-signal"]
+    root = Path(args[0] if args else os.environ.get("PEDNAV_DATA", "../shared/datasets"))
+    if "--stop-signal" in sys.argv[1:]:
+        print(json.dumps(stop_signal_evidence(root), indent=1))
+        return
     logo = leave_one_group_out(root, (None, 25.0))
     conflict = {
         "gdin/exp34 walk": labelled_features(root, "gdin", "exp34", ("walk",)),
@@ -241,6 +411,7 @@ def main() -> None:
                       "longest_quiet_in_gait_s": max(v["longest_quiet_in_gait_s"].values())}
                   for k, v in logo["rates"].items()},
         "oracle_walk_run_share": oracle_shares(root),
+        "acc_p99_g": acc_p99_g(root),
         "features_median_p10_p90": {k: dict(zip(("stance_fraction", "gait_std", "still_std", "stride_period_s"),
                                                 _spread(v))) for k, v in conflict.items()},
     }

@@ -16,6 +16,8 @@ from clients.evaluation.behaviour_fit import (
     oracle_decisions,
     oracle_shares,
     quiet_in_gait,
+    quiet_stretches,
+    recent_stance,
 )
 
 
@@ -44,6 +46,26 @@ def test_quiet_stretches_count_only_inside_gait_time() -> None:
     # are not gait
     assert q.max() == pytest.approx(0.64, abs=0.015)
     assert np.sort(q)[-2] < 0.1
+
+
+def test_recent_stance_is_the_longest_stance_ended_in_the_window_before() -> None:
+    # a walk whose foot is quiet for 0.4 s every 1.0-s stride, one 0.7-s stance at 5 s, then a stop at 8 s
+    t = np.arange(0.0, 12.0, 0.01)
+    acc = np.zeros((t.size, 3))
+    acc[:, 2] = 9.80665 + 5.0
+    quiet = ((t % 1.0) < 0.4) | ((t >= 5.0) & (t < 5.7)) | (t >= 8.0)
+    acc[quiet, 2] = 9.80665
+    t0, t1 = quiet_stretches(t, acc)
+    d = t1 - t0
+    assert np.isinf(t1[-1]) and t0[-1] == pytest.approx(7.99)  # the stop runs to the end of the recording
+    rec = recent_stance(t0, t1)
+    i = int(np.argmin(np.abs(t0 - 4.99)))
+    assert d[i] == pytest.approx(0.71, abs=0.011)
+    assert rec[i] == pytest.approx(0.41, abs=0.011)  # the 0.4-s stances of the 3 s before, not itself
+    assert np.isnan(rec[0])  # no stances before the first one
+    j = int(np.argmin(np.abs(t0 - 6.99)))
+    assert rec[j] == pytest.approx(0.71, abs=0.011)  # the long stance is still in the 3-s history
+    assert np.isnan(recent_stance(t0, t1, min_n=50)).all()
 
 
 def test_the_oracle_loses_the_first_stride_of_every_pace_and_nothing_else() -> None:
