@@ -157,10 +157,12 @@ class PhoneEngineConfig:
         carry those places' compass errors (the orientation erred by 10-17 deg on some trials) and pulled every
         straight step onto them with 4 deg. 0: the walk's own only.
     swing_wake : bool
-        ``auto``: when the gyroscope goes off while walking, the device is asked to wake it by itself when its
-        compass azimuth swings (``SensorConfig.wake_mode == "compass_swing"``): the host learns of a turn only from
-        its next upload, the device within a magnetometer period. False: the gyroscope stays off until the host
-        asks for it.
+        ``auto``: when the gyroscope goes off while walking, ask the device to wake it by itself when its compass
+        azimuth swings (``SensorConfig.wake_mode == "compass_swing"``): the host learns of a turn only from its next
+        upload, the device within a magnetometer period. Off by default: measured on the IPIN dev trials it made
+        ``auto`` worse (8 batch phases: 2.84 -> 3.10 m at energy 0.591 -> 0.611; docs/phone.md, "The device wakes
+        its gyroscope on a compass swing"): the swing shows only once the device has turned by 25-45 deg, and the
+        turn's start, taken from the compass, is what the compass gets wrong there.
     swing_rad, swing_window_s : float
         The swing: an azimuth change of more than ``swing_rad`` within ``swing_window_s`` (the IPIN trials' sensor
         statistics, :mod:`energy.compass_swing`).
@@ -193,7 +195,7 @@ class PhoneEngineConfig:
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
     orientation_rho: float = 0.91
-    swing_wake: bool = True
+    swing_wake: bool = False
     swing_rad: float = SWING_RAD
     swing_window_s: float = SWING_WINDOW_S
     swing_sleep_s: float = 1.5
@@ -602,13 +604,7 @@ class PhoneEngine:
         else:
             # without the gyroscope; after a stand at one place the field's change is nil, so the compass's
             # change is the turn made standing
-            frac = float(r[_F["gyro_frac"]])
-            if 0.0 < frac and r[_F["bias_settled"]] > 0.5 and math.isfinite(dyaw) and not self._prev_gyro:
-                # the gyroscope came during the step (the device woke it on a compass swing): its turn over the
-                # part it saw, the models' over the rest
-                hd.predict_free(dyaw, 1.0 - frac, field_change=dc)
-            else:
-                hd.predict_free(field_change=0.0 if stood else dc)
+            hd.predict_free(field_change=0.0 if stood else dc)
             if has_c:
                 hd.update_compass(compass, r_c, anomaly)
                 self._turned = hd.turn_prob > 0.5

@@ -15,8 +15,10 @@ Windows with ``G`` below 10 deg are straight (the compass's own swing there is i
 changing: a wake there is a false one), with ``G`` above 45 deg a turn (about half a right-angle turn). The
 threshold is the 99th percentile of ``D`` on straight windows (a false wake in about one window of a hundred); its
 worth is the share of turn windows it catches and how long after the gyroscope's turn passed 20 deg the detector
-fires (``delay``: per turn, the first swing from 0.5 s before the gyroscope's crossing on). Computed for a grid of
-windows and low-pass time constants, on all trials and leaving out each route in turn.
+fires (``delay``: per turn, the first swing from 0.5 s before the gyroscope's crossing on), and how far the device
+had turned in the second before it fired (``turned_at_wake``, also as a share of the turn's largest ``G``): the part
+of the turn a woken gyroscope does not see. Computed for a grid of windows and low-pass time constants, on all
+trials and leaving out each route in turn.
 """
 
 from __future__ import annotations
@@ -97,9 +99,11 @@ def swing_table(rec: Recording, window_s: float, tau_s: float) -> SwingTable:
     return SwingTable(rec.name, (t[keep] - t[keep][0]) * 1e-9, np.degrees(D[keep]), np.degrees(G[keep]))
 
 
-def _delays(s: SwingTable, thr_deg: float) -> list[float]:
-    """Per turn (``G`` rising through ``CROSS_DEG`` into a window that reaches ``TURN_DEG``), the time [s] from the
-    crossing to the detector's first swing from 0.5 s before it (up to 2 s after; NaN: missed)."""
+def _turns(s: SwingTable, thr_deg: float) -> list[tuple[float, float, float]]:
+    """Per turn (``G`` rising through ``CROSS_DEG`` into a stretch that reaches ``TURN_DEG``): the time [s] from the
+    crossing to the detector's first swing from 0.5 s before it (up to 2 s after; NaN: missed), the gyroscope's
+    turn within the second before that swing (how far the device had turned when it woke the gyroscope) and the
+    stretch's largest ``G`` [deg]."""
     out = []
     above = s.gyro >= CROSS_DEG
     starts = np.flatnonzero(above[1:] & ~above[:-1]) + 1
@@ -107,11 +111,12 @@ def _delays(s: SwingTable, thr_deg: float) -> list[float]:
         end = k
         while end < len(s.gyro) and s.gyro[end] >= CROSS_DEG:
             end += 1
-        if s.gyro[k:end].max() < TURN_DEG:
+        top = float(s.gyro[k:end].max())
+        if top < TURN_DEG:
             continue
         tk = s.t_s[k]
-        m = (s.t_s >= tk - 0.5) & (s.t_s <= tk + 2.0) & (s.detector > thr_deg)
-        out.append(float(s.t_s[m][0] - tk) if m.any() else math.nan)
+        m = np.flatnonzero((s.t_s >= tk - 0.5) & (s.t_s <= tk + 2.0) & (s.detector > thr_deg))
+        out.append((float(s.t_s[m[0]] - tk), float(s.gyro[m[0]]), top) if len(m) else (math.nan, math.nan, top))
     return out
 
 
@@ -121,8 +126,11 @@ def swing_statistics(tables: Sequence[SwingTable]) -> dict[str, float]:
     G = np.concatenate([s.gyro for s in tables])
     straight, turn = D[G < STRAIGHT_DEG], D[G > TURN_DEG]
     thr = float(np.percentile(straight, 99))
-    delays = np.array([d for s in tables for d in _delays(s, thr)])
+    turns = np.array([x for s in tables for x in _turns(s, thr)]).reshape(-1, 3)
+    delays = turns[:, 0]
     found = delays[np.isfinite(delays)]
+    before = turns[np.isfinite(delays), 1]
+    share = before / turns[np.isfinite(delays), 2]
     return {
         "straight_windows": float(len(straight)),
         "turn_windows": float(len(turn)),
@@ -134,6 +142,9 @@ def swing_statistics(tables: Sequence[SwingTable]) -> dict[str, float]:
         "turns_missed": float(np.sum(~np.isfinite(delays))),
         "delay_median_s": float(np.median(found)) if len(found) else math.nan,
         "delay_p90_s": float(np.percentile(found, 90)) if len(found) else math.nan,
+        "turned_at_wake_median_deg": float(np.median(before)) if len(found) else math.nan,
+        "turned_at_wake_p90_deg": float(np.percentile(before, 90)) if len(found) else math.nan,
+        "turned_at_wake_share_median": float(np.median(share)) if len(found) else math.nan,
     }
 
 

@@ -115,7 +115,7 @@ def test_compass_swing_configs_are_validated_and_served() -> None:
 
 def test_the_phone_engine_asks_for_the_swing_wake_and_uses_the_samples_it_did_not_ask_for() -> None:
     rec = synthesize_phone("phone-walk", seed=1)
-    res = replay(PhoneEngine("auto", placement="phone-hand"), rec.batch, 1.0)
+    res = replay(PhoneEngine("auto", placement="phone-hand", config=PhoneEngineConfig(swing_wake=True)), rec.batch, 1.0)
     t0 = int(rec.batch.t_start_ns)
     asked = {t: c for t, c in res.configs}
     swing = [c for c in asked.values() if c.wake_mode == "compass_swing"]
@@ -131,7 +131,7 @@ def test_the_phone_engine_asks_for_the_swing_wake_and_uses_the_samples_it_did_no
     step_t = np.asarray(rec.truth.t_ns, dtype=np.int64)
     turning = step_t[np.flatnonzero(np.abs(np.diff(heading)) > math.radians(10.0)) + 1]
     assert len(turning) and all(np.min(np.abs(turning - p.t_ns)) < 3e9 for p in unasked)
-    off = replay(PhoneEngine("auto", placement="phone-hand", config=PhoneEngineConfig(swing_wake=False)), rec.batch, 1.0)
+    off = replay(PhoneEngine("auto", placement="phone-hand"), rec.batch, 1.0)  # the default: no swing wake
     assert not any(c.gyro_wake_on_motion for _, c in off.configs)
     assert not any(p.gyro_on and not c.gyro_on for p in off.positions
                    for c in [max(((t, c) for t, c in off.configs if t <= p.t_ns), key=lambda x: x[0])[1]])
