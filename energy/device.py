@@ -162,7 +162,10 @@ class DeviceEmulator:
     With ``"weak_field"`` an event is a still stance whose calibrated field is horizontally weaker than
     ``wake_field_ut`` (:meth:`_weak_field_stances`, the device's controller on its accelerometer and magnetometer
     outputs); the gyroscope sleeps ``sleep_after_s`` after the last one, and one the host left on when this
-    configuration arrives (an examination's) goes down at once.
+    configuration arrives (an examination's) goes down at once. With ``"compass_swing"`` (a phone) an event is a
+    magnetometer output at which the device's tilt-compensated compass azimuth has changed by more than
+    ``wake_swing_rad`` within ``wake_window_s`` (:meth:`_compass_swings`, :class:`energy.compass_swing.CompassSwing` on
+    the detectors' accelerometer and magnetometer outputs); the rest is as with ``"weak_field"``.
 
     The decision is made by the device on the samples it actually produces, between uploads; the engine just
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps

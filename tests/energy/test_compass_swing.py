@@ -135,3 +135,18 @@ def test_the_phone_engine_asks_for_the_swing_wake_and_uses_the_samples_it_did_no
     assert not any(c.gyro_wake_on_motion for _, c in off.configs)
     assert not any(p.gyro_on and not c.gyro_on for p in off.positions
                    for c in [max(((t, c) for t, c in off.configs if t <= p.t_ns), key=lambda x: x[0])[1]])
+
+
+def test_the_swing_constants_are_the_dev_trials_statistics(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """The threshold lies within the leave-one-route-out range of the straight stretches' 99th percentile, and at
+    the constants the detector misses none of the trials' turns, firing within 0.3 s of the gyroscope's 20 deg."""
+    from clients.evaluation.phone_swing import loro_statistics, swing_table
+    from clients.importers import load
+    from energy.compass_swing import SWING_TAU_S
+
+    files = sorted(ipin_dir.glob("*.txt"))
+    st = loro_statistics([swing_table(load(f), SWING_WINDOW_S, SWING_TAU_S) for f in files])
+    lo, hi = st["range"]["straight_p99_deg"]
+    assert lo <= math.degrees(SWING_RAD) <= hi, (math.degrees(SWING_RAD), lo, hi)
+    assert st["all"]["turns"] > 50 and st["all"]["turns_missed"] == 0
+    assert st["all"]["delay_p90_s"] <= 0.3
