@@ -161,8 +161,8 @@ class PhoneEngineConfig:
         azimuth swings (``SensorConfig.wake_mode == "compass_swing"``): the host learns of a turn only from its next
         upload, the device within a magnetometer period. Off by default: measured on the IPIN dev trials it made
         ``auto`` worse (8 batch phases: 2.84 -> 3.10 m at energy 0.591 -> 0.611; docs/phone.md, "The device wakes
-        its gyroscope on a compass swing"): the swing shows only once the device has turned by 25-45 deg, and the
-        turn's start, taken from the compass, is what the compass gets wrong there.
+        its gyroscope on a compass swing"): the swing shows only once the device has turned by 34 deg (median), and
+        the turn's start, taken from the compass, is what the compass gets wrong there.
     swing_rad, swing_window_s : float
         The swing: an azimuth change of more than ``swing_rad`` within ``swing_window_s`` (the IPIN trials' sensor
         statistics, :mod:`energy.compass_swing`).
