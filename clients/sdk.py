@@ -615,7 +615,8 @@ class BatchStream:
         device turns it on by itself (``sleep_after_s``; ``wake_mode`` says on what: ``"motion"``, a departure from
         the still reference, and ``"high_g"``, the absolute acceleration, beyond ``wake_threshold_ms2``;
         ``"weak_field"``, a still stance whose field calibrated by ``mag_offset_ut`` and ``mag_matrix`` has a
-        horizontal part below ``wake_field_ut``), see :class:`energy.device.DeviceEmulator`.
+        horizontal part below ``wake_field_ut``; ``"compass_swing"``, a phone's compass azimuth changing by more than
+        ``wake_swing_rad`` within ``wake_window_s``), see :class:`energy.device.DeviceEmulator`.
         """
         return None if self.last_response is None else self.last_response["sensor_config"]
 

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from energy.compass_swing import SWING_TAU_S, CompassSwing
 from energy.types import Position, SensorConfig, Update
 from models.batch import STREAMS, SensorBatch
 from models.fir import Decimator
@@ -43,6 +44,8 @@ GYRO_TURN_ON_S = 0.080
 # accelerometer outputs (25 Hz in Gait-DR: 3 outputs = 120 ms, under a walking stance's flat foot of 0.3-0.6 s)
 STILL_SAMPLES = 3
 STILL_MS2 = 0.5  # [m/s^2] from 1 g in magnitude, and between consecutive outputs on every axis
+
+_EVENT_MODES = ("weak_field", "compass_swing")  # wake modes whose events are not accelerometer departures
 
 Span = tuple[int, int, float, float, float]  # (t0_ns, t1_ns, acc, gyr, mag rate [Hz]) of constant sensor state
 
@@ -159,7 +162,10 @@ class DeviceEmulator:
     With ``"weak_field"`` an event is a still stance whose calibrated field is horizontally weaker than
     ``wake_field_ut`` (:meth:`_weak_field_stances`, the device's controller on its accelerometer and magnetometer
     outputs); the gyroscope sleeps ``sleep_after_s`` after the last one, and one the host left on when this
-    configuration arrives (an examination's) goes down at once.
+    configuration arrives (an examination's) goes down at once. With ``"compass_swing"`` (a phone) an event is a
+    magnetometer output at which the device's tilt-compensated compass azimuth has changed by more than
+    ``wake_swing_rad`` within ``wake_window_s`` (:meth:`_compass_swings`, :class:`energy.compass_swing.CompassSwing` on
+    the detectors' accelerometer and magnetometer outputs); the rest is as with ``"weak_field"``.
 
     The decision is made by the device on the samples it actually produces, between uploads; the engine just
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
@@ -191,7 +197,8 @@ class DeviceEmulator:
         self._still: list[np.ndarray] = []  # weak-field wake: the still accelerometer samples of the current run
         self._still_prev: np.ndarray | None = None  # ... and the sample before
         self._mag_last: np.ndarray | None = None  # ... the latest magnetometer output [uT]
-        self._weak_mode = False  # the last batch's configuration was a weak-field wake
+        self._event_mode: str | None = None  # the last batch's event-driven wake mode (weak field, compass swing)
+        self._swing: CompassSwing | None = None  # compass-swing wake: the device's detector, while the mode is on
         self._last_acc_ns = np.iinfo(np.int64).min
         self.last_spans: list[Span] = []
 
@@ -226,13 +233,21 @@ class DeviceEmulator:
             fast_t, fast_v = self._acc_fast.process(*piece.stream("acc"))
         blk_t, blk_v = self._odr_samples("acc", *piece.stream("acc"), config.acc_rate_hz)
         mblk_t, mblk_v = self._odr_samples("mag", *piece.stream("mag"), config.mag_rate_hz)
-        weak = wake and config.wake_mode == "weak_field"
-        events = self._weak_field_stances(blk_t, blk_v, mblk_t, mblk_v, config) if weak else None
-        if not weak:
+        event_mode = config.wake_mode if wake and config.wake_mode in _EVENT_MODES else None
+        events = None
+        if event_mode == "weak_field":
+            events = self._weak_field_stances(blk_t, blk_v, mblk_t, mblk_v, config)
+        else:
             self._still, self._still_prev, self._mag_last = [], None, None
-        elif not self._weak_mode:  # the host's gyroscope (an examination's) goes down at once; a weak stance wakes it
+        if event_mode == "compass_swing":
+            events = self._compass_swings(blk_t, blk_v, mblk_t, mblk_v, config)
+        else:
+            self._swing = None
+        if event_mode is not None and event_mode != self._event_mode:
+            # the host's gyroscope (an examination's, or the phone's on its own schedule) goes down at once: the host
+            # said so; the device's own event wakes it
             self._awake, self._armed_ns = False, t0_ns
-        self._weak_mode = weak
+        self._event_mode = event_mode
         if not wake:
             self._awake = bool(config.gyro_on)
             self._armed_ns = t1_ns
@@ -308,6 +323,19 @@ class DeviceEmulator:
             if math.sqrt(max(float(m @ m) - down * down, 0.0)) < config.wake_field_ut:
                 out.append(int(acc_t[i]))
         return np.asarray(out, dtype=np.int64)
+
+    def _compass_swings(self, acc_t: np.ndarray, acc_v: np.ndarray, mag_t: np.ndarray, mag_v: np.ndarray,
+                        config: SensorConfig) -> np.ndarray:
+        """Times [ns] of the magnetometer outputs at which the device's tilt-compensated compass azimuth has changed
+        by more than ``config.wake_swing_rad`` within ``config.wake_window_s`` (``wake_mode == "compass_swing"``,
+        :class:`energy.compass_swing.CompassSwing`), from the detectors' samples at the rates the accelerometer and
+        magnetometer run. The detector starts when the mode does (its window empty, its vertical from the first
+        accelerometer output)."""
+        sw = self._swing
+        if sw is None or sw.swing_rad != config.wake_swing_rad or sw.window_ns != int(round(config.wake_window_s * 1e9)):
+            sw = self._swing = CompassSwing(config.wake_swing_rad, config.wake_window_s, SWING_TAU_S)
+        t, _, swing = sw.process(acc_t, acc_v, mag_t, mag_v)
+        return t[swing]
 
     def _wake_on_motion(
         self, t0: int, t1: int, low_t: np.ndarray, low_v: np.ndarray, fast_t: np.ndarray, fast_v: np.ndarray,

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from energy import codec
+from energy.compass_swing import SWING_RAD, SWING_WINDOW_S
 from energy.types import Event, Position, SensorConfig, Update
 from models.batch import STREAMS, BatchError, SensorBatch
 from models.dominant_directions import DominantDirections, DominantDirectionsConfig
@@ -155,6 +156,19 @@ class PhoneEngineConfig:
         directions weighs that error with the walk's own (``directions.sigma_rad``): votes from a few places
         carry those places' compass errors (the orientation erred by 10-17 deg on some trials) and pulled every
         straight step onto them with 4 deg. 0: the walk's own only.
+    swing_wake : bool
+        ``auto``: when the gyroscope goes off while walking, ask the device to wake it by itself when its compass
+        azimuth swings (``SensorConfig.wake_mode == "compass_swing"``): the host learns of a turn only from its next
+        upload, the device within a magnetometer period. Off by default: measured on the IPIN dev trials it made
+        ``auto`` worse (8 batch phases: 2.84 -> 3.10 m at energy 0.591 -> 0.611; docs/phone.md, "The device wakes
+        its gyroscope on a compass swing"): the swing shows only once the device has turned by 34 deg (median), and
+        the turn's start, taken from the compass, is what the compass gets wrong there.
+    swing_rad, swing_window_s : float
+        The swing: an azimuth change of more than ``swing_rad`` within ``swing_window_s`` (the IPIN trials' sensor
+        statistics, :mod:`energy.compass_swing`).
+    swing_sleep_s : float
+        The device powers the gyroscope it woke down this long after the last swing: the host's reaction time
+        (``batch_s`` plus ``stream_wait_s``), after which the host has seen the turn and decides itself.
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -181,13 +195,18 @@ class PhoneEngineConfig:
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
     orientation_rho: float = 0.91
+    swing_wake: bool = False
+    swing_rad: float = SWING_RAD
+    swing_window_s: float = SWING_WINDOW_S
+    swing_sleep_s: float = 1.5
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
         for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "auto_gyr_rate_hz", "stand_acc_rate_hz",
-                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "batch_s", "stream_wait_s", "run_step_hz"):
+                     "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "swing_rad",
+                     "swing_window_s", "swing_sleep_s", "batch_s", "stream_wait_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
@@ -650,6 +669,10 @@ class PhoneEngine:
             return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
         if self._gyro_want:
             return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
+        if c.swing_wake:  # the device wakes the gyroscope itself on a turn (compass swing)
+            return SensorConfig(False, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
+                                gyro_wake_on_motion=True, sleep_after_s=c.swing_sleep_s, wake_mode="compass_swing",
+                                wake_swing_rad=c.swing_rad, wake_window_s=c.swing_window_s)
         return SensorConfig(False, c.acc_rate_hz, 0.0, c.walk_mag_rate_hz, c.batch_s)
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:

@@ -10,7 +10,7 @@ __all__ = ["Behaviour", "Mode", "SensorConfig", "Position", "Event", "Update"]
 
 Behaviour = Literal["stand", "walk", "run", "other"]
 Mode = Literal["zupt", "pdr", "idle"]
-WAKE_MODES: tuple[str, ...] = ("motion", "high_g", "weak_field")  # SensorConfig.wake_mode
+WAKE_MODES: tuple[str, ...] = ("motion", "high_g", "weak_field", "compass_swing")  # SensorConfig.wake_mode
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class SensorConfig:
         Activity threshold [m/s^2] per axis (used with ``gyro_wake_on_motion``).
     sleep_after_s : float
         Inactivity duration before the device powers the gyroscope down again [s] (with ``gyro_wake_on_motion``).
-    wake_mode : {"motion", "high_g"}
+    wake_mode : {"motion", "high_g", "weak_field", "compass_swing"}
         With ``gyro_wake_on_motion``, what the threshold applies to. ``"motion"``: the departure of a sample
         from the still reference (the activity function above: a foot that starts to move). ``"high_g"``: the
         absolute specific force on an axis (an IMU's high-g interrupt, e.g. LSM9DS1 ``INT_GEN_CFG_XL``
@@ -47,8 +47,11 @@ class SensorConfig:
         host has a model for. ``"weak_field"``: a still stance whose magnetic field, calibrated by
         ``mag_offset_ut`` and ``mag_matrix``, has a horizontal part (the accelerometer gives the vertical) below
         ``wake_field_ut``: a field too weak for the compass to tell the foot's turns, which the gyroscope must see
-        from the first stride (the host would ask for it only after its next upload). In all, the gyroscope powers
-        down after ``sleep_after_s`` without an event.
+        from the first stride (the host would ask for it only after its next upload). ``"compass_swing"``: a
+        phone's tilt-compensated compass azimuth (its accelerometer and magnetometer, at the rates they run)
+        changes by more than ``wake_swing_rad`` within ``wake_window_s`` (:mod:`energy.compass_swing`): a turn the
+        host would hear of only after its next upload. In all, the gyroscope powers down after ``sleep_after_s``
+        without an event.
     mag_follows_gyro : bool
         With ``gyro_wake_on_motion``: the magnetometer is powered down while the gyroscope sleeps and samples at
         ``mag_rate_hz`` while it is awake (the device's controller switches it on the same activity interrupt);
@@ -59,13 +62,19 @@ class SensorConfig:
         With ``wake_mode == "weak_field"``: hard-iron offset b [uT] (sensor frame), removed first.
     mag_matrix : tuple of 9 float
         With ``wake_mode == "weak_field"``: soft-iron correction W, row-major: calibrated field = W (m - b) [uT].
+    wake_swing_rad : float
+        With ``wake_mode == "compass_swing"``: the azimuth change [rad] within ``wake_window_s`` that wakes the
+        gyroscope.
+    wake_window_s : float
+        With ``wake_mode == "compass_swing"``: the window [s] of that change.
 
     Raises
     ------
     ValueError
         ``gyro_wake_on_motion`` together with ``gyro_on`` (contradictory), or without a positive
         ``gyr_rate_hz``, ``sleep_after_s`` and threshold (``wake_threshold_ms2``; ``"weak_field"``:
-        ``wake_field_ut``, 3 offsets and 9 matrix entries, all finite).
+        ``wake_field_ut``, 3 offsets and 9 matrix entries, all finite; ``"compass_swing"``: ``wake_swing_rad`` and
+        ``wake_window_s``).
     """
 
     gyro_on: bool
@@ -81,6 +90,8 @@ class SensorConfig:
     wake_field_ut: float = 0.0
     mag_offset_ut: tuple[float, ...] = (0.0, 0.0, 0.0)
     mag_matrix: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    wake_swing_rad: float = 0.0
+    wake_window_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.wake_mode not in WAKE_MODES:
@@ -92,7 +103,9 @@ class SensorConfig:
             if self.gyro_on:
                 raise ValueError("SensorConfig: gyro_wake_on_motion means the gyroscope is off now; gyro_on must be False")
             by_field = self.wake_mode == "weak_field"
-            for name in ("gyr_rate_hz", "wake_field_ut" if by_field else "wake_threshold_ms2", "sleep_after_s"):
+            names = {"weak_field": ("wake_field_ut",), "compass_swing": ("wake_swing_rad", "wake_window_s")}.get(
+                self.wake_mode, ("wake_threshold_ms2",))
+            for name in ("gyr_rate_hz", *names, "sleep_after_s"):
                 v = float(getattr(self, name))
                 if not v > 0 or v == float("inf"):
                     raise ValueError(f"SensorConfig: gyro_wake_on_motion needs a positive finite {name}, got {v!r}")

@@ -230,11 +230,15 @@ class SensorConfigOut(BaseModel):
     # with gyro_wake_on_motion: "motion" (departure from the still reference), "high_g" (absolute specific force
     # on an axis beyond the threshold: a run while Gait-DR has only a walking model; rows stored before: "motion")
     # or "weak_field" (a still stance whose calibrated field, W (m - mag_offset_ut) with W = mag_matrix row-major,
-    # has a horizontal part below wake_field_ut [uT]: the compass cannot tell turns there)
-    wake_mode: Literal["motion", "high_g", "weak_field"] = "motion"
+    # has a horizontal part below wake_field_ut [uT]: the compass cannot tell turns there) or "compass_swing" (a
+    # phone's tilt-compensated compass azimuth changes by more than wake_swing_rad [rad] within wake_window_s [s]:
+    # a turn made with the gyroscope off; rows stored before these fields existed: 0, 0)
+    wake_mode: Literal["motion", "high_g", "weak_field", "compass_swing"] = "motion"
     wake_field_ut: float = 0.0
     mag_offset_ut: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_matrix: tuple[float, float, float, float, float, float, float, float, float] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    wake_swing_rad: float = 0.0
+    wake_window_s: float = 0.0
 
 
 class SessionOut(_Out):
