@@ -4,9 +4,8 @@ One upload costs, in the server worker: one read (token and session in ONE state
 process, which also encodes the answer, the canonical raw batch, its digest and the compressed state), and
 one durable write:
 
-- SQLite: the upload that finds no commit under way commits its write and those of all uploads waiting at that
-  moment in ONE transaction (group commit without a writer thread; each upload in its own savepoint, so a failed
-  version check drops only that upload). The
+- SQLite: a single writer thread commits the writes of all uploads waiting at that moment in ONE transaction
+  (group commit; each upload in its own savepoint, so a failed version check drops only that upload). The
   database runs ``synchronous=FULL`` in WAL mode: a commit is on disk (fsync of the WAL) before any of its
   uploads is answered, and under load one fsync covers many uploads.
 - PostgreSQL: one atomic statement in autocommit mode (versioned session update, raw batch, positions and
@@ -21,6 +20,7 @@ applied it first makes this upload answer as a retry.
 from __future__ import annotations
 
 import json
+import queue
 import threading
 import time
 from typing import Any, NamedTuple
@@ -109,22 +109,13 @@ def _sqlite_write(cur: Any, job: tuple[int, int, int, Fed, dict[str, int | None]
     return True
 
 
-_LEAD = object()  # a waiting upload's result slot: "commit the waiting group yourself" (SqliteGroupWriter)
-
-
 class SqliteGroupWriter:
-    """Group commit of the uploads' writes without a writer thread: the upload that finds no commit under way
-    commits itself and every upload that queued meanwhile, all in one transaction; an upload that arrives while
-    a commit is under way waits, and the next group is committed by the first of the waiting uploads (handed the
-    lead when the commit ends). A lone upload thus commits in its own thread (no hand-off to a writer thread and
-    back: two thread wake-ups, ~0.1 ms of CPU per upload on the development machine, ``docs/deployment.md``),
-    and under load one transaction (one fsync) still covers every upload that waited for it.
+    """One thread that commits the uploads' writes, all waiting ones in one transaction (group commit).
 
     Parameters
     ----------
     db_engine : sqlalchemy.Engine
-        The SQLite engine (its connections carry the WAL/synchronous pragmas; ``check_same_thread`` off, since
-        successive leaders are different threads).
+        The SQLite engine (its connections carry the WAL/synchronous pragmas).
     write_lock : lock
         Held during each transaction (the process's other writers queue on it instead of SQLite's busy wait).
     """
@@ -132,89 +123,91 @@ class SqliteGroupWriter:
     def __init__(self, db_engine: Any, write_lock: Any) -> None:
         self.db_engine = db_engine
         self.write_lock = write_lock
-        self._mu = threading.Lock()  # guards _pending, _leading and _conn's hand-over
-        self._pending: list[list[Any]] = []  # boxes [job, done event, result] not yet in a transaction
-        self._leading = False  # an upload is committing a group now
-        self._conn: Any = None  # the leaders' connection (one leader at a time)
+        self._q: queue.SimpleQueue[list[Any] | None] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._start = threading.Lock()
 
     def write(self, job: tuple[int, int, int, Fed, dict[str, int | None]]) -> bool:
         """Commit ``job`` (session id, read version, seq, fed, new stream watermarks) durably; False when its version check failed."""
+        if self._thread is None:
+            with self._start:
+                if self._thread is None:
+                    self._thread = threading.Thread(target=self._run, daemon=True, name="sqlite-writer")
+                    self._thread.start()
         box: list[Any] = [job, threading.Event(), None]
-        with self._mu:
-            self._pending.append(box)
-            lead = not self._leading
-            self._leading = True
-        if not lead:
-            box[1].wait()  # committed by the leader, or handed the lead (box[2] is _LEAD, the box still pending)
-        if lead or box[2] is _LEAD:
-            with self._mu:
-                boxes, self._pending = self._pending, []
-            self._commit(boxes)  # holds this box: it was pending and only the leader takes pending boxes
-            with self._mu:
-                nxt = self._pending[0] if self._pending else None
-                if nxt is None:
-                    self._leading = False
-                else:
-                    nxt[2] = _LEAD
-            if nxt is not None:
-                nxt[1].set()
+        self._q.put(box)
+        box[1].wait()
         if isinstance(box[2], BaseException):
             raise box[2]
         return bool(box[2])
 
     def stop(self) -> None:
-        """Close the leaders' connection (left to the pool's disposal when a commit is under way)."""
-        with self._mu:
-            conn = None if self._leading else self._conn
-            if conn is not None:
-                self._conn = None
-        if conn is not None:
-            conn.close()
+        if self._thread is not None:
+            self._q.put(None)
+            self._thread.join(timeout=30)
+            self._thread = None
 
-    def _commit(self, boxes: list[list[Any]]) -> None:
-        """One transaction for ``boxes`` (each upload in its own savepoint); every box gets its result (True, False:
-        its version check failed, or the exception that failed the transaction) and the waiting ones are woken."""
+    def _run(self) -> None:
         import sqlite3
 
-        conn = self._conn
-        try:
-            if conn is None:
-                conn = self._conn = self.db_engine.raw_connection()
-            with self.write_lock:
-                cur = conn.cursor()
-                cur.execute("BEGIN IMMEDIATE")
-                # each upload in its own savepoint, but a group of one needs none: its failure rolls back the
-                # whole transaction, which holds nothing else (two statements less per upload when idle)
-                single = len(boxes) == 1
-                for b in boxes:
-                    if not single:
-                        cur.execute("SAVEPOINT upload")
-                    try:
-                        b[2] = _sqlite_write(cur, b[0])
-                    except sqlite3.IntegrityError:
-                        b[2] = False  # (session, seq) already stored: answered as a retry
-                    if not single:
-                        if not b[2]:
-                            cur.execute("ROLLBACK TO upload")
-                        cur.execute("RELEASE upload")
-                if single and not boxes[0][2]:
-                    conn.rollback()
-                else:
-                    conn.commit()
-                cur.close()
-        except Exception as exc:  # noqa: BLE001 - every upload of the group gets the error (nothing committed)
-            for b in boxes:
-                b[2] = exc
-            try:
-                conn.rollback()  # type: ignore[union-attr]
-            except Exception:  # noqa: BLE001 - a broken connection is replaced
+        conn = None
+        while True:
+            first = self._q.get()
+            if first is None:
+                break
+            boxes = [first]
+            stop = False
+            while True:
                 try:
-                    conn.invalidate()  # type: ignore[union-attr]
-                except Exception:  # noqa: BLE001
-                    pass
-                self._conn = None
-        for b in boxes:
-            b[1].set()
+                    nxt = self._q.get_nowait()
+                except queue.Empty:
+                    break
+                if nxt is None:
+                    stop = True
+                    break
+                boxes.append(nxt)
+            try:
+                if conn is None:
+                    conn = self.db_engine.raw_connection()
+                with self.write_lock:
+                    cur = conn.cursor()
+                    cur.execute("BEGIN IMMEDIATE")
+                    # each upload in its own savepoint, but a group of one needs none: its failure rolls back the
+                    # whole transaction, which holds nothing else (two statements less per upload when idle)
+                    single = len(boxes) == 1
+                    for b in boxes:
+                        if not single:
+                            cur.execute("SAVEPOINT upload")
+                        try:
+                            b[2] = _sqlite_write(cur, b[0])
+                        except sqlite3.IntegrityError:
+                            b[2] = False  # (session, seq) already stored: answered as a retry
+                        if not single:
+                            if not b[2]:
+                                cur.execute("ROLLBACK TO upload")
+                            cur.execute("RELEASE upload")
+                    if single and not boxes[0][2]:
+                        conn.rollback()
+                    else:
+                        conn.commit()
+                    cur.close()
+            except Exception as exc:  # noqa: BLE001 - every upload of the group gets the error (nothing committed)
+                for b in boxes:
+                    b[2] = exc
+                try:
+                    conn.rollback()  # type: ignore[union-attr]
+                except Exception:  # noqa: BLE001 - a broken connection is replaced
+                    try:
+                        conn.invalidate()  # type: ignore[union-attr]
+                    except Exception:  # noqa: BLE001
+                        pass
+                    conn = None
+            for b in boxes:
+                b[1].set()
+            if stop:
+                break
+        if conn is not None:
+            conn.close()
 
 
 # PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement (see module docstring)
