@@ -68,10 +68,25 @@ def _proc_stats() -> dict[int, tuple[int, str, float]]:
     return out
 
 
+def _thread_cpu(pid: int) -> float:
+    """CPU seconds used so far by the main thread of process ``pid`` (a uvicorn worker's event loop: HTTP parsing,
+    middleware, hand-off to and from the ingest threads); 0 when it cannot be read."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/stat") as f:
+            raw = f.read()
+    except OSError:
+        return 0.0
+    fields = raw[raw.rindex(")") + 2:].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _cpu_probe(server_pid: int, workers: int = 1) -> dict[str, float]:
     """CPU seconds used so far by this load generator, the server's worker processes (the uvicorn process itself
     with one worker; its children, plus the supervising parent, with several), their descendants (the engine
-    helpers) and all postgres processes (on a shared machine the latter include other clients of the database)."""
+    helpers) and all postgres processes (on a shared machine the latter include other clients of the database).
+    ``server_worker_event_loop``: the part of ``server_worker`` spent in the workers' main threads (the event
+    loop); the rest is their ingest threads (authentication, decoding, the engine helper round trip, the database
+    round trips) and, on SQLite, the group-commit writer thread."""
     if not os.path.isdir("/proc"):
         return {}
     st = _proc_stats()
@@ -88,6 +103,7 @@ def _cpu_probe(server_pid: int, workers: int = 1) -> dict[str, float]:
     return {
         "load_generator": me.user + me.system,  # this process (all its threads)
         "server_worker": sum(st.get(p, (0, "", 0.0))[2] for p in top),
+        "server_worker_event_loop": sum(_thread_cpu(p) for p in top),
         "engine_helpers": sum(st[p][2] for p in desc if p in st),
         "postgres_all": sum(c for _, n, c in st.values() if n.startswith("postgres")),
     }

@@ -51,3 +51,20 @@ def test_load_bench_bounded_run_loses_and_duplicates_nothing(tmp_path) -> None: 
     r = run(args)
     assert r["requests_sent"] == 15 and r["acked"] == 15 and r["stored"] == 15
     assert r["lost_batches"] == 0 and r["duplicated_batches"] == 0 and r["other_statuses"] == {}
+
+
+def test_thread_cpu_reads_this_process_main_thread() -> None:
+    """The event-loop share of the worker's CPU (``server_worker_event_loop``) is its main thread's own counter:
+    it grows while the main thread computes and stays below the whole process's CPU time."""
+    import os
+    import time
+
+    from clients.benchmarks.load import _thread_cpu
+
+    t0 = _thread_cpu(os.getpid())
+    end = time.process_time() + 0.3
+    while time.process_time() < end:  # ~0.3 s of this (main) thread's CPU
+        pass
+    t1 = _thread_cpu(os.getpid())
+    assert 0.15 <= t1 - t0 <= 1.0
+    assert t1 <= time.process_time() + 0.05
