@@ -19,6 +19,11 @@ statistics of the sensors, not of the errors.
   ``q = s^2 (1 - rho^2)`` per step (less the median field-change term the estimator adds itself) held at
   ``s^2`` by the pseudo-observation ``d = 0`` of variance ``s^2 (s^2 + q) / q`` (the Kalman steady state).
   Its white part (``compass_floor``) is at most ``lag1 / sqrt(2)``.
+- The compass's heading-dependent error: over 3-step windows with the gyroscope throughout, the robust standard
+  deviation of that difference's change where the MARG filter turned by more than 60 deg
+  (``compass_change_turning_sd``) and by less than 10 deg (``compass_change_straight_sd``); the excess variance
+  over the turning windows' mean square turn is the deflection's change per radian of turn
+  (``deflection_per_turn``, docs/phone.md "Tried in the estimator and dropped").
 - The MARG filter's heading standard deviation on these steps (its settled range).
 
 Everything is computed on all trials and leaving out each route in turn (both repetitions of a route are one
@@ -73,6 +78,9 @@ class StepTable:
     index: np.ndarray
 
 
+_WIN = 3  # steps of the windows over which the compass's change is compared with the turn
+
+
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
@@ -118,6 +126,7 @@ def _robust_sd(x: np.ndarray) -> float:
 def heading_statistics(tables: Sequence[StepTable]) -> dict[str, float]:
     """The statistics of the module docstring over the given trials (angles in degrees)."""
     incs, turns_seq, e_all, lag1, lag5, changes, yaw = [], [], [], [], [], [], []
+    win_de, win_turn = [], []  # 3-step windows: the compass-minus-MARG change and the MARG turn [deg]
     for s in tables:
         both = s.gyro[1:] & s.gyro[:-1] & (np.diff(s.index) == 1)
         inc = np.degrees(_wrap(np.diff(s.direction)))[both]
@@ -133,6 +142,11 @@ def heading_statistics(tables: Sequence[StepTable]) -> dict[str, float]:
             m = ok[j] & ok[jl]
             out.append(np.degrees(_wrap(np.radians(e[jl][m] - e[j][m]))))
         changes.append(np.degrees(s.field_change[ok]))
+        pairs3 = [(k, at[int(i) + _WIN]) for k, i in enumerate(s.index) if int(i) + _WIN in at]
+        for j, jl in pairs3:
+            if jl - j == _WIN and ok[j] and ok[jl] and bool(np.all(s.gyro[j:jl + 1])):
+                win_de.append(math.degrees(float(_wrap(np.radians(e[jl] - e[j])))))
+                win_turn.append(math.degrees(float(_wrap(s.direction[jl] - s.direction[j]))))
         yaw.append(np.degrees(s.yaw_std[s.gyro & s.walking]))
     inc = np.concatenate(incs)
     small = inc[np.abs(inc) < 10.0]
@@ -143,6 +157,9 @@ def heading_statistics(tables: Sequence[StepTable]) -> dict[str, float]:
     l1, l5 = _robust_sd(np.concatenate(lag1)), _robust_sd(np.concatenate(lag5))
     rho = max(1.0 - l5 * l5 / (2.0 * sd * sd), 1e-6) ** 0.2
     q = sd * sd * (1.0 - rho * rho)
+    de, tw = np.asarray(win_de), np.abs(np.asarray(win_turn))
+    sd_turn, sd_straight = _robust_sd(de[tw > 60.0]), _robust_sd(de[tw < 10.0])
+    k_turn = math.sqrt(max(sd_turn**2 - sd_straight**2, 0.0) / float(np.mean(tw[tw > 60.0] ** 2)))
     ch = np.concatenate(changes)
     ch2 = float(np.median(ch[np.isfinite(ch)] ** 2))
     return {
@@ -158,6 +175,9 @@ def heading_statistics(tables: Sequence[StepTable]) -> dict[str, float]:
         "deflection_walk_deg": math.sqrt(max(q - ch2, 0.0)),
         "deflection_floor_deg": math.sqrt(sd * sd * (sd * sd + q) / q),
         "compass_white_max_deg": l1 / math.sqrt(2.0),
+        "compass_change_turning_sd_deg": sd_turn,
+        "compass_change_straight_sd_deg": sd_straight,
+        "deflection_per_turn": k_turn,
         "marg_yaw_std_p95_deg": float(np.percentile(np.concatenate(yaw), 95)),
     }
 
