@@ -39,7 +39,8 @@ import numpy as np
 from clients.recording import Recording
 
 __all__ = ["LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
-           "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "TRIAL_FIELDS"]
+           "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "leave_one_route_out",
+           "TRIAL_FIELDS"]
 
 TRIAL_FIELDS = ("name", "mean_err_m", "p75_err_m", "final_err_m", "path_ratio", "steps", "energy_ratio")
 POWER_PROFILE = "phone-bmi270"
@@ -126,6 +127,16 @@ def route_of(name: str) -> str:
     """The route a trial walks: its name without the repetition (``IPIN2023_T3_TrainingTrial03_repetition01`` ->
     ``IPIN2023_T3_TrainingTrial03``)."""
     return name.rsplit("_repetition", 1)[0]
+
+
+def leave_one_route_out(tables: Sequence[Any], statistics: Callable[[Sequence[Any]], dict[str, float]]) -> dict[str, Any]:
+    """``statistics`` of per-trial tables (each with a ``name``) on all trials, per fold leaving out one route
+    (:func:`route_of`), and each statistic's range over the folds: ``{"all", "folds", "range"}``."""
+    routes = sorted({route_of(t.name) for t in tables})
+    folds = {r: statistics([t for t in tables if route_of(t.name) != r]) for r in routes}
+    every = statistics(tables)
+    return {"all": every, "folds": folds,
+            "range": {k: [min(f[k] for f in folds.values()), max(f[k] for f in folds.values())] for k in every}}
 
 
 def _anchor_and_date(rec: Recording) -> tuple[tuple[float, float, float], _dt.date | None]:

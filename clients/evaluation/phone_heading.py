@@ -184,13 +184,9 @@ def heading_statistics(tables: Sequence[StepTable]) -> dict[str, float]:
 
 def loro_statistics(tables: Sequence[StepTable]) -> dict[str, Any]:
     """:func:`heading_statistics` on all trials, and the range over the folds that leave out one route each."""
-    from clients.evaluation.ipin import route_of
+    from clients.evaluation.ipin import leave_one_route_out
 
-    routes = sorted({route_of(t.name) for t in tables})
-    folds = {r: heading_statistics([t for t in tables if route_of(t.name) != r]) for r in routes}
-    keys = list(heading_statistics(tables).keys())
-    return {"all": heading_statistics(tables), "folds": folds,
-            "range": {k: [min(f[k] for f in folds.values()), max(f[k] for f in folds.values())] for k in keys}}
+    return leave_one_route_out(tables, heading_statistics)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -150,13 +150,9 @@ def swing_statistics(tables: Sequence[SwingTable]) -> dict[str, float]:
 
 def loro_statistics(tables: Sequence[SwingTable]) -> dict[str, Any]:
     """:func:`swing_statistics` on all trials, and the range over the folds that leave out one route each."""
-    from clients.evaluation.ipin import route_of
+    from clients.evaluation.ipin import leave_one_route_out
 
-    routes = sorted({route_of(t.name) for t in tables})
-    folds = {r: swing_statistics([t for t in tables if route_of(t.name) != r]) for r in routes}
-    keys = list(swing_statistics(tables).keys())
-    return {"all": swing_statistics(tables), "folds": folds,
-            "range": {k: [min(f[k] for f in folds.values()), max(f[k] for f in folds.values())] for k in keys}}
+    return leave_one_route_out(tables, swing_statistics)
 
 
 GRID = ((0.5, 0.25), (0.5, 0.5), (0.5, 1.0), (1.0, 0.5), (1.5, 0.5))  # (window_s, tau_s)
