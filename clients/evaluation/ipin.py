@@ -40,7 +40,7 @@ from clients.recording import Recording
 
 __all__ = ["LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
            "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "leave_one_route_out",
-           "TRIAL_FIELDS"]
+           "print_loro", "landmarks", "TRIAL_FIELDS"]
 
 TRIAL_FIELDS = ("name", "mean_err_m", "p75_err_m", "final_err_m", "path_ratio", "steps", "energy_ratio")
 POWER_PROFILE = "phone-bmi270"
@@ -137,6 +137,13 @@ def leave_one_route_out(tables: Sequence[Any], statistics: Callable[[Sequence[An
     every = statistics(tables)
     return {"all": every, "folds": folds,
             "range": {k: [min(f[k] for f in folds.values()), max(f[k] for f in folds.values())] for k in every}}
+
+
+def print_loro(stats: dict[str, Any], indent: str = "", width: int = 26) -> None:
+    """Print :func:`leave_one_route_out`'s result, a statistic a line: its value on all trials and its range."""
+    for k, v in stats["all"].items():
+        lo, hi = stats["range"][k]
+        print(f"{indent}{k:{width}s} {v:9.3f}   leave-one-route-out {lo:9.3f} .. {hi:9.3f}")
 
 
 def _anchor_and_date(rec: Recording) -> tuple[tuple[float, float, float], _dt.date | None]:
@@ -257,20 +264,21 @@ def _loo_k(name: str, totals: dict[str, tuple[float, float]]) -> float:
     return num / den
 
 
-def _truth(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+def landmarks(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """The trial's surveyed landmarks (POSI lines): times [ns] and positions (N, 2) [m, local frame]."""
     if rec.truth is None or rec.truth.positions is None or rec.truth.t_ns is None:
         raise ValueError(f"{rec.name}: no landmarks (POSI lines)")
     return rec.truth.t_ns, rec.truth.positions[:, :2]
 
 
 def _window_sum(rec: Recording, t_ns: np.ndarray, values: np.ndarray) -> float:
-    T, _ = _truth(rec)
+    T, _ = landmarks(rec)
     inside = (t_ns > T[0]) & (t_ns <= T[-1])
     return float(np.sum(values[inside]))
 
 
 def _surveyed(rec: Recording) -> float:
-    _, L = _truth(rec)
+    _, L = landmarks(rec)
     return float(np.sum(np.linalg.norm(np.diff(L, axis=0), axis=1)))
 
 
@@ -307,7 +315,7 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
     for rec in recs:
         if progress:
             progress(rec.name)
-        T, L = _truth(rec)
+        T, L = landmarks(rec)
         k = _loo_k(rec.name, totals)
         on = run_phone(rec, "always-on", k, placement, batch_seconds)
         run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad)
@@ -348,7 +356,7 @@ def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, 
         for rec in recs:
             if progress:
                 progress(f"{rec.name} phase {k}")
-            T, L = _truth(rec)
+            T, L = landmarks(rec)
             on = run_phone(rec, "always-on", ks[rec.name], placement, batch_seconds, start_offset_s=off)
             run = on if mode == "always-on" else run_phone(rec, mode, ks[rec.name], placement, batch_seconds,
                                                            max_heading_std_rad, start_offset_s=off)

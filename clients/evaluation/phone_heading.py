@@ -87,7 +87,7 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 def step_table(rec: Recording) -> StepTable:
     """The front end's steps of one recording (see the module docstring)."""
-    from clients.evaluation.ipin import _anchor_and_date, _truth
+    from clients.evaluation.ipin import _anchor_and_date, landmarks
     from energy.phone_engine import PhoneEngineConfig, steady_step
     from models.geo import Anchor, magnetic_elements
     from models.heading import CompassNoise
@@ -103,7 +103,7 @@ def step_table(rec: Recording) -> StepTable:
     t0 = int(b.t_start_ns)
     t, kind, v = merge_streams((b.acc_t_ns, b.acc), (b.gyr_t_ns, b.gyr), (b.mag_t_ns, b.mag))
     r = run_pdr(state, cfg.marg.as_array(), cfg.steps.as_array(), (t - t0).astype(np.float64) * 1e-9, kind, v)
-    T, _ = _truth(rec)
+    T, _ = landmarks(rec)
     t_ns = t0 + np.round(r[:, f["t_s"]] * 1e9)
     steady = np.array([steady_step(p, w) for p, w in zip(r[:, f["period_s"]], r[:, f["rate_rad_s"]])], dtype=bool)
     walking = steady & np.concatenate([[False], steady[:-1]])  # the engine's cadence of two steady steps
@@ -190,7 +190,7 @@ def loro_statistics(tables: Sequence[StepTable]) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli
+    from clients.evaluation.ipin import logfile_cli, print_loro
     from clients.importers import load
 
     parsed = logfile_cli("python -m clients.evaluation.phone_heading", __doc__.split("\n")[0], argv)
@@ -201,9 +201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.json:
         print(json.dumps(out, indent=1))
     else:
-        for k, v in out["all"].items():
-            lo, hi = out["range"][k]
-            print(f"{k:26s} {v:9.3f}   leave-one-route-out {lo:9.3f} .. {hi:9.3f}")
+        print_loro(out)
     return 0
 
 

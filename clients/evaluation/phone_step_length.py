@@ -43,9 +43,9 @@ def trial_statistics(rec: Recording) -> dict[str, Any]:
     """The statistics of the module docstring for one trial."""
     from scipy.signal import butter, filtfilt
 
-    from clients.evaluation.ipin import _surveyed, _truth, run_phone
+    from clients.evaluation.ipin import _surveyed, landmarks, run_phone
 
-    T, _ = _truth(rec)
+    T, _ = landmarks(rec)
     run = run_phone(rec, "always-on", 1.0)
     inside = (run.t_ns > T[0]) & (run.t_ns <= T[-1])
     t_s = run.t_ns[inside] * 1e-9

@@ -71,7 +71,7 @@ def _window_max(t: np.ndarray, x: np.ndarray, window_ns: int) -> np.ndarray:
 
 def swing_table(rec: Recording, window_s: float, tau_s: float) -> SwingTable:
     """The detector's and the gyroscope's azimuth changes over ``window_s`` at each magnetometer output."""
-    from clients.evaluation.ipin import _truth
+    from clients.evaluation.ipin import landmarks
     from energy.compass_swing import CompassSwing
 
     b = rec.batch
@@ -94,7 +94,7 @@ def swing_table(rec: Recording, window_s: float, tau_s: float) -> SwingTable:
     gyro_psi = -np.interp(t, b.gyr_t_ns, yaw)  # the field turns the other way in the device's frame
     w = int(round(window_s * 1e9))
     D, G = _window_max(t, psi, w), _window_max(t, gyro_psi, int(REF_WINDOW_S * 1e9))
-    T, _ = _truth(rec)
+    T, _ = landmarks(rec)
     keep = (t > T[0]) & (t <= T[-1]) & np.isfinite(psi)
     return SwingTable(rec.name, (t[keep] - t[keep][0]) * 1e-9, np.degrees(D[keep]), np.degrees(G[keep]))
 
@@ -159,7 +159,7 @@ GRID = ((0.5, 0.25), (0.5, 0.5), (0.5, 1.0), (1.0, 0.5), (1.5, 0.5))  # (window_
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli
+    from clients.evaluation.ipin import logfile_cli, print_loro
     from clients.importers import load
 
     parsed = logfile_cli("python -m clients.evaluation.phone_swing", __doc__.split("\n")[0], argv)
@@ -173,9 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         for name, st in out.items():
             print(name)
-            for k, v in st["all"].items():
-                lo, hi = st["range"][k]
-                print(f"  {k:20s} {v:9.3f}   leave-one-route-out {lo:9.3f} .. {hi:9.3f}")
+            print_loro(st, indent="  ", width=20)
     return 0
 
 
