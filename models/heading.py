@@ -87,7 +87,8 @@ def _moments_kernel(w, x, p, ref, mean, cov):  # pragma: no cover - compiled
 def _mix_kernel(mu, pi, x, p, x0, p0, cbar):  # pragma: no cover - compiled
     """IMM interaction (Bar-Shalom, Li & Kirubarajan 2001, Sec. 11.6.6): predicted model probabilities
     ``cbar = mu pi``, mixing weights ``w[i, j] = pi[i, j] mu[i] / max(cbar[j], 1e-300)`` and each model's mixed
-    start ``(x0[j], p0[j])`` (:func:`_moments_kernel` about ``x[j]``), in the numpy form's arithmetic."""
+    start ``(x0[j], p0[j])`` (:func:`_moments_kernel` about ``x[j]``), in the numpy form's arithmetic, ``cbar``
+    summed in index order (numpy's ``mu @ pi`` goes through BLAS, which fuses the multiply-add on some hosts)."""
     n = mu.shape[0]
     for j in range(n):
         s = 0.0
