@@ -1,7 +1,7 @@
 """The accelerometer's turn: the centripetal acceleration of a turning walker, against the gyroscope and the compass.
 
 ``python -m clients.evaluation.phone_centripetal [DIR] [--json]`` over the IPIN 2023 T3 dev trials (GetSensorData
-logfiles; default ``PEDNAV_DATA/ipin2023-t3-phone``), docs/phone.md "The accelerometer's turn (tried)".
+logfiles; default ``PEDNAV_DATA/ipin2023-t3-phone``), docs/phone.md "The accelerometer's turn (measured; not used)".
 
 Walking at speed ``v`` while turning at the rate ``w`` the body accelerates by ``v w`` towards the turn's centre;
 a phone held in front yaws with the walker and keeps its tilt, so the horizontal specific force along the device's
@@ -57,10 +57,11 @@ from typing import Any
 
 import numpy as np
 
+from clients.evaluation.phone_heading import _robust_sd, _wrap, front_end
 from clients.recording import Recording
 
-__all__ = ["CentripetalTable", "centripetal_table", "detector_table", "detector_statistics", "fit_scale", "centripetal_statistics", "out_of_route",
-           "loro_statistics", "main"]
+__all__ = ["CentripetalTable", "centripetal_table", "detector_table", "detector_statistics", "fit_scale",
+           "centripetal_statistics", "out_of_route", "loro_statistics", "main"]
 
 ACC_HZ = 50.0  # the phone engine's walking accelerometer rate (PhoneEngineConfig.acc_rate_hz)
 STRAIGHT_DEG = 10.0  # a step turning less is straight (clients.evaluation.phone_heading's straight_sigma)
@@ -72,7 +73,8 @@ DETECT_HZ = 10.0  # [Hz] the continuous detector's output rate (the swing detect
 
 @dataclass(frozen=True)
 class CentripetalTable:
-    """Per step of one trial between the first and the last landmark, steady gait (shape (n,) each).
+    """Per step of one trial between the first and the last landmark at a walking cadence, with the gyroscope
+    (shape (n,) each).
 
     Attributes
     ----------
@@ -105,10 +107,6 @@ class CentripetalTable:
     speed: np.ndarray
 
 
-def _wrap(a: Any) -> Any:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def _lowpass(t_ns: np.ndarray, v: np.ndarray, tau_s: float) -> np.ndarray:
     """First-order low-pass of ``v`` (n, 3) with time constant ``tau_s``, started at the first sample."""
     out = np.empty_like(v)
@@ -121,7 +119,8 @@ def _lowpass(t_ns: np.ndarray, v: np.ndarray, tau_s: float) -> np.ndarray:
 
 def centripetal_table(rec: Recording, tau_s: float = 2.0, front: np.ndarray | None = None) -> CentripetalTable:
     """The accelerometer's turn feature, the gyroscope's and the compass per step of one recording (module
-    docstring). ``front`` is :func:`front_end`'s step records (computed when not given)."""
+    docstring). ``front`` is :func:`clients.evaluation.phone_heading.front_end`'s step records of ``rec``
+    (computed when not given)."""
     from clients.evaluation.ipin import landmarks
     from clients.evaluation.phone_swing import _odr
     from energy.phone_engine import steady_step
@@ -166,25 +165,6 @@ def centripetal_table(rec: Recording, tau_s: float = 2.0, front: np.ndarray | No
     keep = (t_ns > T[0]) & (t_ns <= T[-1]) & walking & np.isfinite(x) & (r[:, f["gyro_frac"]] >= 0.9)
     return CentripetalTable(rec.name, x[keep], r[keep, f["gyro_dyaw"]], direction[keep], compass[keep],
                             np.flatnonzero(keep), alat[keep], rate[keep], speed[keep])
-
-
-def front_end(rec: Recording) -> np.ndarray:
-    """The always-on front end's step records (:data:`models.pdr.STEP_RECORD`) of one recording, as
-    :func:`clients.evaluation.phone_heading.step_table` runs it."""
-    from clients.evaluation.ipin import _anchor_and_date
-    from energy.phone_engine import PhoneEngineConfig
-    from models.geo import Anchor, magnetic_elements
-    from models.marg import MargState, merge_streams
-    from models.pdr import PdrState, run_pdr
-
-    cfg = PhoneEngineConfig()
-    (lat, lon, alt), day = _anchor_and_date(rec)
-    el = magnetic_elements(Anchor(lat, lon, alt, **({"date": day} if day else {})))
-    state = PdrState.new(MargState.new(cfg.marg, np.asarray(el.field_magnetic_ned_ut, dtype=float), 0.0))
-    b = rec.batch
-    t, kind, v = merge_streams((b.acc_t_ns, b.acc), (b.gyr_t_ns, b.gyr), (b.mag_t_ns, b.mag))
-    return run_pdr(state, cfg.marg.as_array(), cfg.steps.as_array(),
-                   (t - int(b.t_start_ns)).astype(np.float64) * 1e-9, kind, v)
 
 
 def detector_table(rec: Recording, tau_s: float) -> Any:
@@ -233,12 +213,6 @@ def fit_scale(tables: Sequence[CentripetalTable]) -> float:
     x = np.concatenate([s.feature for s in tables])
     g = np.concatenate([s.gyro for s in tables])
     return float(np.dot(g, g) / np.dot(x, g))
-
-
-def _robust_sd(x: np.ndarray) -> float:
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else math.nan
 
 
 def _rms(x: np.ndarray) -> float:
