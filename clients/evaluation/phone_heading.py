@@ -42,7 +42,7 @@ import numpy as np
 
 from clients.recording import Recording
 
-__all__ = ["StepTable", "step_table", "heading_statistics", "loro_statistics", "main"]
+__all__ = ["StepTable", "front_end", "step_table", "heading_statistics", "loro_statistics", "main"]
 
 
 @dataclass(frozen=True)
@@ -85,24 +85,35 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
-def step_table(rec: Recording) -> StepTable:
-    """The front end's steps of one recording (see the module docstring)."""
-    from clients.evaluation.ipin import _anchor_and_date, landmarks
-    from energy.phone_engine import PhoneEngineConfig, steady_step
+def front_end(rec: Recording) -> np.ndarray:
+    """The step-and-heading front end's step records (:data:`models.pdr.STEP_RECORD`) of one recording: every
+    sensor on, the WMM field at the first landmark (see the module docstring); times [s] from the batch's start."""
+    from clients.evaluation.ipin import _anchor_and_date
+    from energy.phone_engine import PhoneEngineConfig
     from models.geo import Anchor, magnetic_elements
-    from models.heading import CompassNoise
     from models.marg import MargState, merge_streams
-    from models.pdr import STEP_RECORD, PdrState, run_pdr
+    from models.pdr import PdrState, run_pdr
 
-    f = {k: i for i, k in enumerate(STEP_RECORD)}
     cfg = PhoneEngineConfig()
     (lat, lon, alt), day = _anchor_and_date(rec)
     el = magnetic_elements(Anchor(lat, lon, alt, **({"date": day} if day else {})))
     state = PdrState.new(MargState.new(cfg.marg, np.asarray(el.field_magnetic_ned_ut, dtype=float), 0.0))
     b = rec.batch
-    t0 = int(b.t_start_ns)
     t, kind, v = merge_streams((b.acc_t_ns, b.acc), (b.gyr_t_ns, b.gyr), (b.mag_t_ns, b.mag))
-    r = run_pdr(state, cfg.marg.as_array(), cfg.steps.as_array(), (t - t0).astype(np.float64) * 1e-9, kind, v)
+    return run_pdr(state, cfg.marg.as_array(), cfg.steps.as_array(),
+                   (t - int(b.t_start_ns)).astype(np.float64) * 1e-9, kind, v)
+
+
+def step_table(rec: Recording) -> StepTable:
+    """The front end's steps of one recording (see the module docstring)."""
+    from clients.evaluation.ipin import landmarks
+    from energy.phone_engine import steady_step
+    from models.heading import CompassNoise
+    from models.pdr import STEP_RECORD
+
+    f = {k: i for i, k in enumerate(STEP_RECORD)}
+    r = front_end(rec)
+    t0 = int(rec.batch.t_start_ns)
     T, _ = landmarks(rec)
     t_ns = t0 + np.round(r[:, f["t_s"]] * 1e9)
     steady = np.array([steady_step(p, w) for p, w in zip(r[:, f["period_s"]], r[:, f["rate_rad_s"]])], dtype=bool)
