@@ -59,10 +59,16 @@ __all__ = ["register"]
 log = logging.getLogger(__name__)
 
 
-def _default_dir(name: str) -> Path | None:
+def _data_folder(args: argparse.Namespace, command: str, dataset: str) -> Path | None:
+    """The folder ``pednav eval COMMAND`` reads: ``--dir``, else ``PEDNAV_DATA/<dataset>``; None after saying in
+    one line that it is missing."""
     from clients.datasets import dataset_dir
 
-    return dataset_dir(name)
+    directory = Path(args.dir) if args.dir else dataset_dir(dataset)
+    if directory is None or not directory.is_dir():
+        print(f"pednav eval {command}: data folder not found ({args.dir or 'PEDNAV_DATA/' + dataset})", file=sys.stderr)
+        return None
+    return directory
 
 
 def _log_failure(what: Any, exc: Exception) -> None:
@@ -227,9 +233,8 @@ def _print(doc: dict[str, Any], rows: list[dict[str, Any]], as_json: bool, width
 def _run_vicon(args: argparse.Namespace) -> int:
     from clients.evaluation import harness
 
-    directory = Path(args.dir) if args.dir else _default_dir("vicon")
-    if directory is None or not directory.is_dir():
-        print(f"pednav eval vicon: data folder not found ({args.dir or 'PEDNAV_DATA/vicon'})", file=sys.stderr)
+    directory = _data_folder(args, "vicon", "vicon")
+    if directory is None:
         return 2
     try:
         accounting = _accounting(args, "vicon")
@@ -283,9 +288,8 @@ def _run_gdin(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(exc, file=sys.stderr)
         return 2
-    directory = Path(args.dir) if args.dir else _default_dir("gdin")
-    if directory is None or not directory.is_dir():
-        print(f"pednav eval gdin: data folder not found ({args.dir or 'PEDNAV_DATA/gdin'})", file=sys.stderr)
+    directory = _data_folder(args, "gdin", "gdin")
+    if directory is None:
         return 2
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
     if not entries:
@@ -449,9 +453,8 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
     from clients.evaluation import harness
     from clients.importers.gaitmap import load_gaitmap
 
-    directory = Path(args.dir) if args.dir else _default_dir("gaitmap-mocap")
-    if directory is None or not directory.is_dir():
-        print(f"pednav eval gaitmap: data folder not found ({args.dir or 'PEDNAV_DATA/gaitmap-mocap'})", file=sys.stderr)
+    directory = _data_folder(args, "gaitmap", "gaitmap-mocap")
+    if directory is None:
         return 2
     try:
         accounting = _accounting(args, "gaitmap")
@@ -614,9 +617,8 @@ def _run_ipin(args: argparse.Namespace) -> int:
     from clients.evaluation.ipin import evaluate_ipin
     from clients.importers import list_recordings, load
 
-    directory = Path(args.dir) if args.dir else _default_dir("ipin2023-t3-phone")
-    if directory is None or not directory.is_dir():
-        print(f"pednav eval ipin: data folder not found ({args.dir or 'PEDNAV_DATA/ipin2023-t3-phone'})", file=sys.stderr)
+    directory = _data_folder(args, "ipin", "ipin2023-t3-phone")
+    if directory is None:
         return 2
     files = select(list_recordings(directory), lambda f: f.stem, args.match, args.limit)
     recs, rows_failed = [], []

@@ -305,3 +305,17 @@ def test_cli_eval_gaitmap_strides_against_motion_capture_and_stairs(gaitmap_dir:
         up, down = rows[f"imu_sample_healthy_stair_up-{foot}"], rows[f"imu_sample_healthy_stair_down-{foot}"]
         assert not up["truth"] and up["climb_m"] > 3.5 and down["climb_m"] < -3.5, (up, down)
         assert (tmp_path / f"imu_sample-{foot}.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize(("command", "dataset"), [("vicon", "vicon"), ("gdin", "gdin"), ("gaitmap", "gaitmap-mocap"),
+                                                  ("ipin", "ipin2023-t3-phone")])
+def test_a_missing_data_folder_is_one_line_and_exit_2(command: str, dataset: str, tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """Without the data (no PEDNAV_DATA, or --dir not a folder) each dataset command says so in one line."""
+    monkeypatch.setenv("PEDNAV_DATA", str(tmp_path / "absent"))
+    assert main(["eval", command]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"pednav eval {command}: data folder not found (PEDNAV_DATA/{dataset})"]
+    assert main(["eval", command, str(tmp_path / "nope")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"pednav eval {command}: data folder not found ({tmp_path / 'nope'})"]
