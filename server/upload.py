@@ -1,8 +1,9 @@
 """The batch-upload hot path on plain driver connections (sqlite3 / psycopg), without ORM or Core compilation.
 
-One upload costs, in the server worker: one read (token and session in ONE statement), the engine (in a helper
-process, which also encodes the answer, the canonical raw batch, its digest and the compressed state), and
-one durable write:
+One upload costs, in the server worker: one read (token and session in ONE statement; skipped when this worker
+committed the session's previous batch with the same token: the write then checks the token, see
+:class:`Uploader`), the engine (in a helper process, which also encodes the answer, the canonical raw batch, its
+digest and the state checkpoint when one is due), and one durable write:
 
 - SQLite: a single writer thread commits the writes of all uploads waiting at that moment in ONE transaction
   (group commit; each upload in its own savepoint, so a failed version check drops only that upload). The
@@ -10,7 +11,7 @@ one durable write:
   uploads is answered, and under load one fsync covers many uploads.
 - PostgreSQL: one atomic statement in autocommit mode (versioned session update, raw batch, positions and
   events in a data-modifying CTE whose inserts take the session id from the update's RETURNING, so a failed
-  version check writes nothing): two round trips per upload.
+  version check writes nothing): two round trips per upload, one when the read is skipped.
 
 Semantics are those of :func:`server.ingest.apply_batch` (same refusals, same stored rows, same answers): a
 retried sequence number is answered from the stored batch and never applied twice; a concurrent writer that
