@@ -15,8 +15,9 @@ T0 = 1_700_000_000_000_000_000
 
 
 def _put(client: Any, tok: str, sid: int, seq: int) -> Any:
-    return client.put(f"/v1/sessions/{sid}/batches/{seq}", content=encode_msgpack(still_batch(T0 + seq * 10**9, seed=seq)),
-                      headers={**auth(tok), "content-type": MSGPACK_TYPE})
+    body = encode_msgpack(still_batch(T0 + seq * 10**9, seed=seq))
+    headers = {**auth(tok), "content-type": MSGPACK_TYPE}
+    return client.put(f"/v1/sessions/{sid}/batches/{seq}", content=body, headers=headers)
 
 
 @pytest.fixture
@@ -53,7 +54,8 @@ def reads(app, monkeypatch) -> list[int]:  # type: ignore[no-untyped-def]
     return seen
 
 
-def test_the_next_batch_skips_the_read_and_answers_the_same(client, make_user, reads) -> None:  # type: ignore[no-untyped-def]
+def test_the_next_batch_skips_the_read_and_answers_the_same(  # type: ignore[no-untyped-def]
+        client, make_user, reads) -> None:
     _, tok = make_user()
     sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
     answers = [_put(client, tok, sid, k) for k in range(4)]
@@ -67,7 +69,8 @@ def test_the_next_batch_skips_the_read_and_answers_the_same(client, make_user, r
     assert client.get(f"/v1/sessions/{sid}", headers=auth(tok)).json()["next_seq"] == 5
 
 
-def test_a_revoked_token_is_refused_after_its_own_commit(client, make_user, reads) -> None:  # type: ignore[no-untyped-def]
+def test_a_revoked_token_is_refused_after_its_own_commit(  # type: ignore[no-untyped-def]
+        client, make_user, reads) -> None:
     _, tok = make_user()
     dev = client.post("/v1/tokens", headers=auth(tok)).json()["token"]
     sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(dev)).json()["id"]
