@@ -1,8 +1,9 @@
 """The batch-upload hot path on plain driver connections (sqlite3 / psycopg), without ORM or Core compilation.
 
-One upload costs, in the server worker: one read (token and session in ONE statement), the engine (in a helper
-process, which also encodes the answer, the canonical raw batch, its digest and the compressed state), and
-one durable write:
+One upload costs, in the server worker: one read (token and session in ONE statement; skipped when this worker
+committed the session's previous batch with the same token: the write then checks the token, see
+:class:`Uploader`), the engine (in a helper process, which also encodes the answer, the canonical raw batch, its
+digest and the state checkpoint when one is due), and one durable write:
 
 - SQLite: a single writer thread commits the writes of all uploads waiting at that moment in ONE transaction
   (group commit; each upload in its own savepoint, so a failed version check drops only that upload). The
@@ -10,7 +11,7 @@ one durable write:
   uploads is answered, and under load one fsync covers many uploads.
 - PostgreSQL: one atomic statement in autocommit mode (versioned session update, raw batch, positions and
   events in a data-modifying CTE whose inserts take the session id from the update's RETURNING, so a failed
-  version check writes nothing): two round trips per upload.
+  version check writes nothing): two round trips per upload, one when the read is skipped.
 
 Semantics are those of :func:`server.ingest.apply_batch` (same refusals, same stored rows, same answers): a
 retried sequence number is answered from the stored batch and never applied twice; a concurrent writer that
@@ -23,6 +24,8 @@ import json
 import queue
 import threading
 import time
+from collections import OrderedDict
+from datetime import datetime, timezone
 from typing import Any, NamedTuple
 
 from fastapi import HTTPException, status
@@ -47,6 +50,11 @@ class _Raced(Exception):
     """Another writer changed the session between the read and the write; start over."""
 
 
+class _Unverified(Exception):
+    """An upload without a read found its token or the session changed (the write's checks failed, nothing
+    written): it is decided afresh after the read."""
+
+
 class _Session(NamedTuple):
     version: int
     next_seq: int
@@ -58,10 +66,28 @@ class _Session(NamedTuple):
         return {"gyr": self.gyr_newest_ns, "mag": self.mag_newest_ns}
 
 
+class _Known(NamedTuple):
+    """A session as this worker's last commit left it, with the token that uploaded it (see :class:`Uploader`)."""
+
+    token_hash: str
+    user_id: int
+    expires_at: datetime | None  # the token's expiry (aware) or None
+    sess: _Session
+
+
 def _utc_text() -> str:
     from server.models import utcnow
 
     return utcnow().strftime(_DT_FORMAT)
+
+
+def _aware(expires_at: Any) -> datetime | None:
+    """A token's ``expires_at`` as read by the driver (SQLite: SQLAlchemy's UTC text form) as an aware datetime."""
+    if expires_at is None:
+        return None
+    if isinstance(expires_at, str):
+        expires_at = datetime.fromisoformat(expires_at)
+    return expires_at if expires_at.tzinfo else expires_at.replace(tzinfo=timezone.utc)
 
 
 def _write_params(session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> dict[str, Any]:
@@ -83,6 +109,12 @@ _SQLITE_UPDATE = (
     "mode = :mode, sensor_config = :sensor_config, n_positions = n_positions + :n_new, gyr_newest_ns = :gyr_newest, "
     "mag_newest_ns = :mag_newest WHERE id = :sid AND version = :v0"
 )
+# the same, for an upload whose token and session were not read: the session's owner must still hold this token
+# (not revoked, not expired) when the update runs (see Uploader: uploads after this worker's own commit)
+_SQLITE_UPDATE_TOKEN = _SQLITE_UPDATE + (
+    " AND EXISTS (SELECT 1 FROM tokens t WHERE t.token_hash = :tok AND t.user_id = sessions.user_id "
+    "AND NOT t.revoked AND (t.expires_at IS NULL OR t.expires_at > :now))"
+)
 _SQLITE_BATCH = (
     "INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at) "
     "VALUES (:sid, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, :response, :received_at)"
@@ -93,11 +125,18 @@ _SQLITE_POS = (
 _SQLITE_EVENT = "INSERT INTO events (session_id, seq, t_ns, kind, detail) VALUES (?, ?, ?, ?, ?)"
 
 
-def _sqlite_write(cur: Any, job: tuple[int, int, int, Fed, dict[str, int | None]]) -> bool:
-    """One upload's rows inside the open transaction; False when the version check failed (nothing written)."""
-    session_id, version, seq, fed, newest = job
+_Job = tuple[int, int, int, Fed, dict[str, int | None], str | None]  # session, version, seq, fed, watermarks, token
+
+
+def _sqlite_write(cur: Any, job: _Job) -> bool:
+    """One upload's rows inside the open transaction; False when the version check (and with a token hash, the
+    token check) failed: nothing written."""
+    session_id, version, seq, fed, newest, tok = job
     p = _write_params(session_id, version, seq, fed, newest)
-    cur.execute(_SQLITE_UPDATE, p)
+    if tok is None:
+        cur.execute(_SQLITE_UPDATE, p)
+    else:
+        cur.execute(_SQLITE_UPDATE_TOKEN, {**p, "tok": tok, "now": _utc_text()})
     if cur.rowcount != 1:
         return False
     cur.execute(_SQLITE_BATCH, {**p, "received_at": _utc_text()})
@@ -127,8 +166,9 @@ class SqliteGroupWriter:
         self._thread: threading.Thread | None = None
         self._start = threading.Lock()
 
-    def write(self, job: tuple[int, int, int, Fed, dict[str, int | None]]) -> bool:
-        """Commit ``job`` (session id, read version, seq, fed, new stream watermarks) durably; False when its version check failed."""
+    def write(self, job: _Job) -> bool:
+        """Commit ``job`` (session id, read version, seq, fed, new stream watermarks, token hash or None) durably;
+        False when its version check (or token check) failed."""
         if self._thread is None:
             with self._start:
                 if self._thread is None:
@@ -217,7 +257,7 @@ WITH u AS (
         engine_state = COALESCE(CAST(%(state)s AS bytea), engine_state), behaviour = %(behaviour)s,
         mode = %(mode)s, sensor_config = CAST(%(sensor_config)s AS json), n_positions = n_positions + %(n_new)s,
         gyr_newest_ns = %(gyr_newest)s, mag_newest_ns = %(mag_newest)s
-    WHERE id = %(sid)s AND version = %(v0)s
+    WHERE id = %(sid)s AND version = %(v0)s{token}
     RETURNING id
 ), b AS (
     INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at)
@@ -233,17 +273,24 @@ WITH u AS (
 )
 SELECT count(*) FROM u
 """
+_PG_WRITE_READ = _PG_WRITE.format(token="")  # after this upload's read (token and session read just before)
+# an upload after this worker's own commit (no read): the token is checked in the same statement as the version
+_PG_WRITE_TOKEN = _PG_WRITE.format(token=(
+    "\n        AND EXISTS (SELECT 1 FROM tokens t WHERE t.token_hash = %(tok)s AND t.user_id = sessions.user_id"
+    "\n            AND NOT t.revoked AND (t.expires_at IS NULL OR t.expires_at > now()))"))
 
 
-def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> bool:
+def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None],
+              tok: str | None = None) -> bool:
     p = _write_params(session_id, version, seq, fed, newest)
+    p["tok"] = tok
     ps, es = fed.resp["positions"], fed.resp["events"]
     for key, col in zip(("p_t", "p_n", "p_e", "p_d", "p_h", "p_b", "p_m", "p_l", "p_g"), _POS_COLS):
         p[key] = [x[col] for x in ps]
     p["e_t"] = [e["t_ns"] for e in es]
     p["e_k"] = [e["kind"] for e in es]
     p["e_d"] = [json.dumps(e["detail"]) for e in es]
-    cur.execute(_PG_WRITE, p)
+    cur.execute(_PG_WRITE_READ if tok is None else _PG_WRITE_TOKEN, p)
     return bool(cur.fetchone()[0] == 1)
 
 
@@ -258,9 +305,21 @@ class Uploader:
         Engines (helper processes or in-process) and the per-session locks.
     limiter : RateLimiter
         Per-user rate limit.
+    known_max : int
+        Sessions whose state after this worker's last commit is kept (see below).
+
+    Notes
+    -----
+    An upload normally reads the token and the session first (one statement). When this worker committed the
+    session's previous batch itself, with the same token, and the upload carries the next sequence number, the read
+    is skipped: the session as that commit left it (version, next sequence number, stream watermarks) is known, and
+    the write statement checks the token (same owner, not revoked, not expired) together with the version. A
+    failed check writes nothing; the engine's cached copy is dropped and the upload is decided afresh after the
+    read, so the answers (401 before 404/409/422, a retry answered from the stored batch) and their order are those
+    of the read path. PostgreSQL: one round trip per upload instead of two.
     """
 
-    def __init__(self, db_engine: Any, host: EngineHost, limiter: RateLimiter | None) -> None:
+    def __init__(self, db_engine: Any, host: EngineHost, limiter: RateLimiter | None, known_max: int = 8192) -> None:
         self.db_engine = db_engine
         self.host = host
         self.limiter = limiter
@@ -278,6 +337,11 @@ class Uploader:
         self._replay_sql = f"SELECT body_sha256, response FROM batches WHERE session_id = {ph} AND seq = {ph}"
         self._raws_sql = (f"SELECT raw FROM batches WHERE session_id = {ph} AND seq >= {ph} AND seq < {ph} "
                           "ORDER BY seq")
+        # session id -> _Known: the sessions this worker committed last, so that the next upload of the same
+        # session with the same token skips the read (see upload); bounded (least recently written dropped)
+        self._known: OrderedDict[int, _Known] = OrderedDict()
+        self._known_lock = threading.Lock()
+        self.known_max = max(1, int(known_max))
 
     def close(self) -> None:
         if self.writer is not None:
@@ -312,10 +376,27 @@ class Uploader:
             conn = self._connect()
             try:
                 cur = conn.cursor()
+                limited = False  # the rate limit took this request already (the known path)
+                with self._known_lock:
+                    known = self._known.pop(session_id, None)
+                if known is not None and known.token_hash == h_tok and seq == known.sess.next_seq and (
+                        known.sess.status == "open") and (
+                        known.expires_at is None or known.expires_at > datetime.now(timezone.utc)):
+                    if self.limiter is None or self.limiter.hit(known.user_id) == 0.0:
+                        limited = self.limiter is not None
+                        try:
+                            return self._upload_known(cur, known, session_id, seq, body, content_type, max_samples)
+                        except (self.db_engine.dialect.dbapi.OperationalError,
+                                self.db_engine.dialect.dbapi.InterfaceError) as exc:
+                            if not is_contention(exc):
+                                raise  # possibly broken: as on the read path (below)
+                        except Exception:  # noqa: BLE001 - decided afresh after the read (same answers, same order)
+                            pass
+                        self.host.forget(session_id)  # the engine may have taken the batch: not committed
                 with phase("read"):
                     cur.execute(self._read_sql, (session_id, h_tok))
                     row = cur.fetchone()
-                admit(h_tok, row, self.limiter)  # 401 / 429
+                user_id = admit(h_tok, row, None if limited else self.limiter)  # 401 / 429
                 if seq < 0:
                     raise BatchError("seq", "must be >= 0")
                 with phase("decode"):
@@ -327,7 +408,10 @@ class Uploader:
                 contended = True  # every failed attempt failed through contention (nothing committed)
                 for attempt in range(5):
                     try:
-                        return self._apply(cur, session_id, seq, batch, sess, raw)
+                        answer, replayed, after = self._apply(cur, session_id, seq, batch, sess, raw)
+                        if after is not None:
+                            self._keep(session_id, _Known(h_tok, user_id, _aware(row[2]), after))
+                        return answer, replayed
                     except (_Raced, busy) as exc:  # nothing was committed: read again and start over
                         self.host.forget(session_id)
                         contended = contended and (isinstance(exc, _Raced) or is_contention(exc))
@@ -349,12 +433,34 @@ class Uploader:
             finally:
                 self._release(conn)
 
+    def _upload_known(self, cur: Any, known: _Known, session_id: int, seq: int, body: bytes,
+                      content_type: str | None, max_samples: int) -> tuple[str, bool]:
+        """The upload after this worker's own commit of the session (class notes): no read; raises on anything
+        but a stored batch (the caller then decides it after the read)."""
+        with phase("decode"):
+            batch, raw = decode_upload(body, content_type, max_samples)
+        answer, replayed, after = self._apply(cur, session_id, seq, batch, known.sess, raw, token_hash=known.token_hash)
+        if after is None:
+            raise _Unverified()
+        self._keep(session_id, known._replace(sess=after))
+        return answer, replayed
+
+    def _keep(self, session_id: int, known: _Known) -> None:
+        with self._known_lock:
+            self._known[session_id] = known
+            self._known.move_to_end(session_id)
+            while len(self._known) > self.known_max:
+                self._known.popitem(last=False)
+
     def _apply(self, cur: Any, session_id: int, seq: int, batch: SensorBatch, sess: _Session,
-               raw: bytes | None = None) -> tuple[str, bool]:
+               raw: bytes | None = None, token_hash: str | None = None) -> tuple[str, bool, _Session | None]:
+        """Apply ``batch`` to the session read as ``sess``; returns (answer JSON, replayed, the session as this
+        commit left it or None when nothing was committed). With ``token_hash`` (the known path, no read) the
+        write also checks the token, and a failed check raises :class:`_Unverified` (nothing written)."""
         # raw: the batch's canonical bytes when the decoder had them (server.formats.decode_upload)
         if seq < sess.next_seq:
             return self._replay(cur, session_id, seq, digest(canonical_bytes(batch) if raw is None else raw),
-                                sess.next_seq), True
+                                sess.next_seq), True, None
         if sess.status != "open":
             raise IngestConflict(f"session {session_id} is closed; no more batches accepted", sess.next_seq)
         if seq > sess.next_seq:
@@ -404,16 +510,18 @@ class Uploader:
             fed = fed._replace(state=pack_checkpoint(fed.state, seq + 1))
         with phase("write"):
             if self.writer is not None:
-                ok = self.writer.write((session_id, sess.version, seq, fed, newest))
+                ok = self.writer.write((session_id, sess.version, seq, fed, newest, token_hash))
             else:
                 try:
-                    ok = _pg_write(cur, session_id, sess.version, seq, fed, newest)
+                    ok = _pg_write(cur, session_id, sess.version, seq, fed, newest, token_hash)
                 except Exception as exc:
                     import psycopg
 
                     if not isinstance(exc, psycopg.IntegrityError):
                         raise
                     ok = False
+        if not ok and token_hash is not None:
+            raise _Unverified()  # the token or the session changed: decided afresh after the read
         if not ok:  # the version check failed: another writer changed the session since it was read
             cur.execute(self._session_sql, (session_id,))
             next_seq = cur.fetchone()[1]
@@ -421,9 +529,9 @@ class Uploader:
                 # not by applying this sequence number (a close, a re-processing): read the session again and
                 # decide afresh (a closed session is refused as closed, not as a sequence in the past)
                 raise _Raced()
-            return self._replay(cur, session_id, seq, fed.digest, next_seq), True  # applied by the other: a retry
+            return self._replay(cur, session_id, seq, fed.digest, next_seq), True, None  # applied by the other: a retry
         host.remember(session_id, sess.version + 1, engine)  # engine None: the helper's (vouched for now)
-        return fed.resp_json, False
+        return fed.resp_json, False, _Session(sess.version + 1, seq + 1, "open", newest["gyr"], newest["mag"])
 
     def _replay(self, cur: Any, session_id: int, seq: int, h: str, expected: int) -> str:
         cur.execute(self._replay_sql, (session_id, seq))
