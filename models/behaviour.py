@@ -452,6 +452,16 @@ def _rules_code(still: float, var: float, stance: float, gait_s: float, gait_std
 
 
 @njit(cache=True)
+def _row_norms(a: np.ndarray) -> np.ndarray:
+    """|a| of each row of ``a`` (N, 3): ``np.sqrt(np.add.reduce(a * a, axis=1))`` (the same sum, in the same
+    order, x^2 + y^2 + z^2) without its two temporaries."""
+    out = np.empty(a.shape[0])
+    for i in range(a.shape[0]):
+        out[i] = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2])
+    return out
+
+
+@njit(cache=True)
 def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                                       np.ndarray]:
     """Every decision instant ``t0 + j * HOP_S`` (``j >= k``) whose window is complete (a sample at or after
@@ -612,7 +622,7 @@ class BehaviourRecognizer:
         if t.size == 0:
             return []
         a = np.asarray(acc, dtype=np.float64).reshape(-1, 3)
-        n = np.sqrt(np.add.reduce(a * a, axis=1))  # = np.linalg.norm(a, axis=1), bit for bit, without its checks
+        n = _row_norms(a)  # = np.linalg.norm(a, axis=1), bit for bit, in one compiled pass
         if self._t0 is None:
             self._t0 = float(t[0])
         self._t = np.concatenate([self._t, t])
