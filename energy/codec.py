@@ -18,12 +18,12 @@ _FORMAT = b"PNS1"  # pednav state, version 1
 
 _new_ext = tuple.__new__
 
-_HEADS: dict[tuple[str, tuple[int, ...]], bytes] = {}  # packed [dtype, shape] headers (states repeat them)
+_HEADS: dict[tuple[np.dtype, tuple[int, ...]], bytes] = {}  # packed [dtype, shape] headers (states repeat them)
 
 
 def _default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
-        key = (obj.dtype.str, obj.shape)
+        key = (obj.dtype, obj.shape)  # (equal dtypes have the same .str, which is built anew at each access)
         head = _HEADS.get(key)
         if head is None:
             if obj.dtype.kind not in "biuf":
