@@ -606,7 +606,8 @@ class BehaviourRecognizer:
         self._k = 1  # index of the next decision instant
         self.label = "stand"
         self._recent: list[str] = []  # the last HYSTERESIS_OF raw decisions since the label last changed
-        self.features: WindowFeatures | None = None
+        # (label, cheap features, stride period, periodicity) of the last decided window: :attr:`features`
+        self._feat: tuple[str, list[float], float, float] | None = None
 
     def process(self, t_s: np.ndarray, acc: np.ndarray) -> list[tuple[float, str]]:
         """Consume samples; return the decisions that became possible.
@@ -656,12 +657,21 @@ class BehaviourRecognizer:
             out.append((d, current))
         self.label, self._recent = current, recent
         if last >= 0:
-            self.features = _features_of(label, *feats[last].tolist()[:6], per, perio)
+            self._feat = (label, feats[last].tolist()[:6], per, perio)
         self._k += len(td)
         # the samples of the windows still to come (t increases: one slice, the rows of t >= the start)
         cut = int(self._t.searchsorted(self._t0 + self._k * HOP_S - WINDOW_S, "left"))
         self._t, self._n = self._t[cut:], self._n[cut:]
         return out
+
+    @property
+    def features(self) -> WindowFeatures | None:
+        """The :class:`WindowFeatures` of the last decided window (``nan`` where its decision did not need them);
+        None before the first (made when asked: nothing on the engine's path reads them)."""
+        if self._feat is None:
+            return None
+        label, cheap, per, perio = self._feat
+        return _features_of(label, *cheap, per, perio)
 
     def _vote(self, new: str, fast: bool = False) -> None:
         """Hysteresis: ``new`` replaces the label once it won ``HYSTERESIS`` of the last ``HYSTERESIS_OF``
