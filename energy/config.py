@@ -284,6 +284,8 @@ class EngineConfig:
     def changes(self) -> dict[str, Any]:
         """``{"section.field": value}`` of the settings that differ from the defaults (what an engine state
         stores: the whole tree is 3 kB, the usual difference none); ``EngineConfig().override`` restores it."""
+        if self is _default():  # the usual case, without hashing the whole frozen tree for the cache below
+            return {}
         return dict(_changes(self))
 
     def _changes(self) -> dict[str, Any]:

@@ -152,6 +152,42 @@ def _zoh_pair(ts: np.ndarray, vs: np.ndarray, t_acc: np.ndarray, max_age_ns: int
     return out, max(j, 0)
 
 
+@njit(cache=True)
+def _gyro_rows(t_s: np.ndarray, g0: np.ndarray, m0: np.ndarray, missing: bool, last_s: float, gap_s: float,
+               off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gyroscope rows of a paired chunk and where ZUPT-KF segments break (:meth:`Engine._ingest`'s array
+    steps in one compiled pass, the same comparisons).
+
+    ``t_s`` [s] the rows' times, ``g0``/``m0`` the first gyroscope/magnetometer axis (NaN: no sample), ``missing``
+    the previous chunk ended without a gyroscope sample, ``last_s`` [s] the last gyroscope row's time. Returns
+    ``idx`` (the rows with a gyroscope sample), ``gaps`` (positions in ``idx`` that start a new segment: the
+    interval before the row exceeds ``gap_s`` [s], or ``off_s`` [s] after accelerometer rows without a
+    gyroscope sample) and ``mag_n`` (``mag_n[k]``: how many of ``idx[:k]`` have a magnetometer sample)."""
+    n = t_s.shape[0]
+    idx = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if not np.isnan(g0[i]):
+            idx[m] = i
+            m += 1
+    gaps = np.empty(m, dtype=np.int64)
+    mag_n = np.zeros(m + 1, dtype=np.int64)
+    ng = 0
+    for k in range(m):
+        i = idx[k]
+        if k == 0:
+            off = missing or i > 0
+            dt = t_s[i] - last_s
+        else:
+            off = i - idx[k - 1] > 1
+            dt = t_s[i] - t_s[idx[k - 1]]
+        if dt > gap_s or (off and dt > off_s):
+            gaps[ng] = k
+            ng += 1
+        mag_n[k + 1] = mag_n[k] + (0 if np.isnan(m0[i]) else 1)
+    return idx[:m], gaps[:ng], mag_n
+
+
 class _StreamPairing:
     """Pairs gyroscope/magnetometer samples with accelerometer samples by causal zero-order hold.
 
@@ -442,23 +478,16 @@ class Engine:
 
     def _ingest(self, t_s: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, final: bool) -> None:
         """Cut the gyroscope samples into ZUPT-KF segments and queue them."""
-        has = ~np.isnan(gyr[:, 0])
-        if has.any():
-            idx = np.flatnonzero(has)
+        sc = self.config.segments
+        # the rows with a gyroscope sample and the segment breaks: accelerometer rows without a gyroscope sample
+        # before a gyroscope row mean the gyroscope was off (a wake-on-motion device powers it down and up within
+        # a fraction of a second); a data dropout loses the accelerometer too and splits only beyond gyro_gap_s
+        idx, cuts, mag_n = _gyro_rows(t_s, gyr[:, 0], mag[:, 0], bool(self._gyro_missing), float(self._last_gyr_s),
+                                      sc.gyro_gap_s, sc.gyro_off_s)
+        if len(idx):
             every = len(idx) == len(t_s)
             ts = t_s if every else t_s[idx]
-            # accelerometer rows without a gyroscope sample before a gyroscope row: the gyroscope was off (a
-            # wake-on-motion device powers it down and up within a fraction of a second); a data dropout
-            # loses the accelerometer too and splits only beyond gyro_gap_s. (np.diff with prepend, written
-            # out: the same differences without its generic machinery)
-            off = np.empty(len(idx), dtype=bool)
-            off[0] = self._gyro_missing or idx[0] > 0
-            np.greater(idx[1:] - idx[:-1], 1, out=off[1:])
-            dt = np.empty(len(ts))
-            dt[0] = ts[0] - self._last_gyr_s
-            np.subtract(ts[1:], ts[:-1], out=dt[1:])
-            sc = self.config.segments
-            gaps = np.flatnonzero((dt > sc.gyro_gap_s) | (off & (dt > sc.gyro_off_s))).tolist()
+            gaps = cuts.tolist()
             for lo, hi in zip([0, *gaps], [*gaps, len(ts)]):
                 if hi <= lo:
                     continue
@@ -469,7 +498,7 @@ class Engine:
                     self._seg_open = True
                 sel = slice(lo, hi) if every else idx[lo:hi]  # (a gyroscope sample on every row: views)
                 m = mag[sel]
-                self._ops.append(("samples", ts[lo:hi], acc[sel], gyr[sel], m if np.any(~np.isnan(m[:, 0])) else None))
+                self._ops.append(("samples", ts[lo:hi], acc[sel], gyr[sel], m if mag_n[hi] > mag_n[lo] else None))
             self._last_gyr_s = float(ts[-1])
             self._gyro_missing = bool(idx[-1] < len(t_s) - 1)
         elif len(t_s):
@@ -477,7 +506,8 @@ class Engine:
         if self._seg_open and (final or (len(t_s) and t_s[-1] - self._last_gyr_s > self.config.segments.gyro_gap_s)):
             self._ops.append(("end",))
             self._seg_open = False
-        if self.trace is not None and np.any(~has):
+        if self.trace is not None and len(idx) < len(t_s):
+            has = ~np.isnan(gyr[:, 0])
             tt = t_s[~has]
             lab = self._labels.at_many(tt)
             self.trace.append(self._ns_many(tt), np.full((len(tt), 3), np.nan), lab,

@@ -172,6 +172,24 @@ def _field_append(tb, vb, ab, lo, hi, lt, lx, keep_s):
 
 
 @njit(cache=True)
+def _low_input(acc, mag):
+    """The rows ``[acc (3), mag (3), 1]`` where the magnetometer's first axis has a sample, ``[acc (3), 0, 0, 0,
+    0]`` where it is NaN (:meth:`GaitPipeline.feed`'s input to the low-rate stream; ``acc`` [m/s^2], ``mag``
+    [uT], (N, 3) each), and whether any row has a field sample."""
+    n = acc.shape[0]
+    x = np.empty((n, 7))
+    any_mag = False
+    for i in range(n):
+        has = not np.isnan(mag[i, 0])
+        any_mag = any_mag or has
+        for k in range(3):
+            x[i, k] = acc[i, k]
+            x[i, 3 + k] = mag[i, k] if has else 0.0
+        x[i, 6] = 1.0 if has else 0.0
+    return x, any_mag
+
+
+@njit(cache=True)
 def _fast_run(t_s, prev_t, fast_s):
     """Whether every interval before a sample of ``t_s`` [s] (the first one from ``prev_t``) is shorter than
     ``fast_s`` [s] (:meth:`_LowRate.process`'s fast run), and then the median of those intervals [s] (the mean
@@ -395,13 +413,9 @@ class GaitPipeline:
         """Consume full- or low-rate samples; new step events join :attr:`queue`."""
         if len(t_s):
             self.t_in = float(t_s[-1])
-        has_mag = ~np.isnan(mag[:, 0])
-        self.has_mag = self.has_mag or bool(has_mag.any())
-        # [acc(3), mag(3) (0 where none), mag flag], as np.c_ builds it (without its generic machinery)
-        x = np.empty((len(t_s), 7))
-        x[:, 0:3] = acc
-        x[:, 3:6] = np.where(has_mag[:, None], mag, 0.0)
-        x[:, 6] = has_mag
+        # [acc(3), mag(3) (0 where none), mag flag], as np.c_ builds it (in one compiled pass)
+        x, any_mag = _low_input(acc, mag)
+        self.has_mag = self.has_mag or any_mag
         lt, lx = self._low.process(t_s, x)
         if len(lt):
             self._append_low(lt, lx)
@@ -432,7 +446,7 @@ class GaitPipeline:
         self.queue.append(e)
         fa = self._stance_field(e.t_s)
         self.stance_mag[e.index] = None if fa is None else fa[1]
-        if fa is not None and np.all(np.isfinite(fa[0])):  # (restored states carry no specific force: NaN)
+        if fa is not None and np.isfinite(fa[0]).all():  # (restored states carry no specific force: NaN)
             self.stance_acc[e.index] = fa[0]
             sw = self._swing_field(e.t_s)
             if sw is not None:

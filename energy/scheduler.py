@@ -21,6 +21,7 @@ actually changes, with that reason.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -31,6 +32,14 @@ from energy.types import Event, SensorConfig
 __all__ = ["Scheduler"]
 
 _MOVING = ("walk", "run")
+
+
+@functools.lru_cache(maxsize=64, typed=True)
+def _sensor_config(*args: Any, **kwargs: Any) -> SensorConfig:
+    """``SensorConfig(*args, **kwargs)``, built and validated once per distinct configuration (frozen: one
+    instance serves every engine; the scheduler asks for it twice per batch, and a scheduler holds only a
+    handful of configurations). ``typed``: an int rate is not served the float one's instance."""
+    return SensorConfig(*args, **kwargs)
 
 
 class Scheduler:
@@ -339,18 +348,18 @@ class Scheduler:
         gyro = self.gyro_wanted()
         standing = self.mode == "auto" and self.behaviour == "stand"
         if standing and not gyro:
-            return SensorConfig(False, r.stand_rate_hz, 0.0, 0.0, batch_s=self.batch_s(False)), True
+            return _sensor_config(False, r.stand_rate_hz, 0.0, 0.0, batch_s=self.batch_s(False)), True
         if standing and self.zupt_aligned:  # wake-on-motion: the device wakes the gyroscope (and the full rate)
-            return SensorConfig(False, r.stand_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(False),
-                                gyro_wake_on_motion=True, wake_threshold_ms2=c.wake_threshold_ms2,
-                                sleep_after_s=c.sleep_after_s, mag_follows_gyro=True), False
+            return _sensor_config(False, r.stand_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(False),
+                                  gyro_wake_on_motion=True, wake_threshold_ms2=c.wake_threshold_ms2,
+                                  sleep_after_s=c.sleep_after_s, mag_follows_gyro=True), False
         if gyro:
-            return SensorConfig(True, r.full_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(True)), False
+            return _sensor_config(True, r.full_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(True)), False
         if self.run_wake():  # de-sampled Gait-DR; the device wakes the gyroscope on a run
-            return SensorConfig(False, r.pdr_rate_hz, r.full_rate_hz, r.pdr_rate_hz, batch_s=self.batch_s(False),
-                                gyro_wake_on_motion=True, wake_threshold_ms2=float(self.run_wake_ms2 or 0.0),
-                                sleep_after_s=c.sleep_after_s, wake_mode="high_g"), False
-        return SensorConfig(False, r.pdr_rate_hz, 0.0, r.pdr_rate_hz, batch_s=self.batch_s(False)), False  # 004 Sec. 4.3
+            return _sensor_config(False, r.pdr_rate_hz, r.full_rate_hz, r.pdr_rate_hz, batch_s=self.batch_s(False),
+                                  gyro_wake_on_motion=True, wake_threshold_ms2=float(self.run_wake_ms2 or 0.0),
+                                  sleep_after_s=c.sleep_after_s, wake_mode="high_g"), False
+        return _sensor_config(False, r.pdr_rate_hz, 0.0, r.pdr_rate_hz, batch_s=self.batch_s(False)), False  # 004 Sec. 4.3
 
     # ------------------------------------------------------------------ internals
     def _announce(self, reason: str, t_ns: int) -> list[Event]:

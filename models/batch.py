@@ -385,7 +385,13 @@ class SensorBatch:
         blocks = _steady(self.acc_t_ns, self.acc)
         if not len(blocks):
             return
-        level = float(np.median(blocks[:, 2]))
+        # np.median of the few block levels, without its generic machinery (the middle one, or the mean of the
+        # two middle ones: the same value)
+        lv = sorted(blocks[:, 2].tolist())
+        k = len(lv) // 2
+        level = lv[k] if len(lv) % 2 else (lv[k - 1] + lv[k]) / 2.0
+        if not (_STEADY_G_LIKE[0] <= level <= _STEADY_G_LIKE[1] or level > _STEADY_MAX):
+            return
         i0, i1 = int(blocks[0, 0]), int(blocks[0, 1]) - 1
         where = (f"{len(blocks)} steady stretch(es) of {_STEADY_S:g} s, the first samples {i0}-{i1} (all within "
                  f"{_STEADY_TOL:.0%} of their mean), hold |a| = {level:.3g}")

@@ -452,6 +452,16 @@ def _rules_code(still: float, var: float, stance: float, gait_s: float, gait_std
 
 
 @njit(cache=True)
+def _row_norms(a: np.ndarray) -> np.ndarray:
+    """|a| of each row of ``a`` (N, 3): ``np.sqrt(np.add.reduce(a * a, axis=1))`` (the same sum, in the same
+    order, x^2 + y^2 + z^2) without its two temporaries."""
+    out = np.empty(a.shape[0])
+    for i in range(a.shape[0]):
+        out[i] = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2])
+    return out
+
+
+@njit(cache=True)
 def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                                       np.ndarray]:
     """Every decision instant ``t0 + j * HOP_S`` (``j >= k``) whose window is complete (a sample at or after
@@ -596,7 +606,8 @@ class BehaviourRecognizer:
         self._k = 1  # index of the next decision instant
         self.label = "stand"
         self._recent: list[str] = []  # the last HYSTERESIS_OF raw decisions since the label last changed
-        self.features: WindowFeatures | None = None
+        # (label, cheap features, stride period, periodicity) of the last decided window: :attr:`features`
+        self._feat: tuple[str, list[float], float, float] | None = None
 
     def process(self, t_s: np.ndarray, acc: np.ndarray) -> list[tuple[float, str]]:
         """Consume samples; return the decisions that became possible.
@@ -612,7 +623,7 @@ class BehaviourRecognizer:
         if t.size == 0:
             return []
         a = np.asarray(acc, dtype=np.float64).reshape(-1, 3)
-        n = np.sqrt(np.add.reduce(a * a, axis=1))  # = np.linalg.norm(a, axis=1), bit for bit, without its checks
+        n = _row_norms(a)  # = np.linalg.norm(a, axis=1), bit for bit, in one compiled pass
         if self._t0 is None:
             self._t0 = float(t[0])
         self._t = np.concatenate([self._t, t])
@@ -646,12 +657,21 @@ class BehaviourRecognizer:
             out.append((d, current))
         self.label, self._recent = current, recent
         if last >= 0:
-            self.features = _features_of(label, *feats[last].tolist()[:6], per, perio)
+            self._feat = (label, feats[last].tolist()[:6], per, perio)
         self._k += len(td)
         # the samples of the windows still to come (t increases: one slice, the rows of t >= the start)
         cut = int(self._t.searchsorted(self._t0 + self._k * HOP_S - WINDOW_S, "left"))
         self._t, self._n = self._t[cut:], self._n[cut:]
         return out
+
+    @property
+    def features(self) -> WindowFeatures | None:
+        """The :class:`WindowFeatures` of the last decided window (``nan`` where its decision did not need them);
+        None before the first (made when asked: nothing on the engine's path reads them)."""
+        if self._feat is None:
+            return None
+        label, cheap, per, perio = self._feat
+        return _features_of(label, *cheap, per, perio)
 
     def _vote(self, new: str, fast: bool = False) -> None:
         """Hysteresis: ``new`` replaces the label once it won ``HYSTERESIS`` of the last ``HYSTERESIS_OF``

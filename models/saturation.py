@@ -114,6 +114,22 @@ _T, _V, _R, _M, _S, _F, _NCOL = 0, 1, 7, 13, 16, 22, 23
 
 
 @njit(cache=True)
+def _fill(new, t, acc, gyr, mag):
+    """New rows of the buffer: time, recorded acc and gyr (twice: as recorded and to be repaired), mag, no
+    sigma and no flags (the column assignments of :meth:`ClipRepair.push` in one compiled call)."""
+    for i in range(new.shape[0]):
+        new[i, _T] = t[i]
+        for c in range(3):
+            new[i, _V + c] = acc[i, c]
+            new[i, _V + 3 + c] = gyr[i, c]
+            new[i, _R + c] = acc[i, c]
+            new[i, _R + 3 + c] = gyr[i, c]
+            new[i, _M + c] = mag[i, c]
+        for c in range(_S, _NCOL):
+            new[i, c] = 0.0
+
+
+@njit(cache=True)
 def _scan(buf, start, final, peaks, par):
     """Flag rows ``start ..`` of the buffer (column ``_F``) whose next row exists (or ``final``) from their recorded
     values (columns ``_V .. _V + 5``: acc, gyr); returns the first row not scanned. Row ``start - 1`` must be the
@@ -268,12 +284,7 @@ class ClipRepair:
         k = len(t)
         if k:
             (new,) = self._rows.grow(k)
-            new[:, _T] = t
-            new[:, _V:_V + 3] = acc
-            new[:, _V + 3:_R] = gyr
-            new[:, _R:_M] = new[:, _V:_R]
-            new[:, _M:_S] = mag
-            new[:, _S:] = 0.0
+            _fill(new, t, acc, gyr, mag)
             self._buf = self._rows.views()[0]
         buf = self._buf
         self._scanned = _scan(buf, self._scanned, final, self._peaks, self._par)

@@ -516,6 +516,9 @@ def _check_array(name: str, a: np.ndarray, n: int, allow_nan: bool) -> np.ndarra
     return np.ascontiguousarray(a)
 
 
+_CONFIG_FIELDS = tuple(f.name for f in fields(ZuptConfig))  # (a state stores them; fields() per state is slow)
+
+
 class ZuptNavigator:
     """Streaming ZUPT-aided MARG navigator for a foot-mounted sensor of any mounting.
 
@@ -720,7 +723,7 @@ class ZuptNavigator:
         else:
             tn = t[-1]  # everything processed: the next sample's window starts after t[-1] - half window
         # detector windows reach back half_window_s + erosion_s (and one extra sample per window level)
-        keep = int(np.searchsorted(t, tn - self.config.half_window_s - self.config.erosion_s, side="left"))
+        keep = int(t.searchsorted(tn - self.config.half_window_s - self.config.erosion_s, "left"))
         keep = max(min(keep, self._next) - 2, 0)
         if keep:
             self._rows.drop(keep)
@@ -806,7 +809,7 @@ class ZuptNavigator:
         """Complete state as plain values and numpy arrays (for :mod:`energy.codec`)."""
         return {
             "version": 1,
-            "config": {f.name: getattr(self.config, f.name) for f in fields(self.config)},  # flat: no deep copy
+            "config": {name: getattr(self.config, name) for name in _CONFIG_FIELDS},  # flat: no deep copy
             "x": self._x.copy(),
             "P": self._P.copy(),
             "fs": self._fs.copy(),
