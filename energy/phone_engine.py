@@ -232,17 +232,28 @@ class PhoneEngineConfig:
 
 
 class _Streams:
-    """Samples waiting until every stream has reached their time (the merge horizon)."""
+    """Samples waiting until every stream has reached their time (the merge horizon).
+
+    A stream is waited for while it is delivering: while a sample of it arrived within the wait (``wait_ns`` of
+    :meth:`horizon`) of the accelerometer's newest time, however far its time stamps lag (a decimating filter's
+    group delay: the emulated 10-Hz magnetometer's is 0.8 s). Only a stream that has gone silent (a gyroscope
+    that is off, a device without magnetometer) is left behind after the wait. Silence is measured in arrival,
+    the accelerometer's time at the upload that brought the stream's latest sample, not in time-stamp lag: with
+    the lag, a stream lagging by ``L`` > ``wait_ns`` lost ``min(1, (L - wait) / batch)`` of its samples, every
+    magnetometer sample with 0.25-s uploads (docs/phone.md, "Shorter batches do not buy the turns back").
+    """
 
     def __init__(self) -> None:
         self.t = {n: np.zeros(0, dtype=np.int64) for n in STREAMS}
         self.v = {n: np.zeros((0, 3)) for n in STREAMS}
         self.last = {n: -(2 ** 62) for n in STREAMS}  # newest time received [ns]
+        self.arrived = {n: -(2 ** 62) for n in STREAMS}  # the accelerometer's newest time when it last delivered [ns]
         self.done = -(2 ** 62)  # everything up to here was processed [ns]
         self.dropped = 0  # samples that came after their time had been processed
         self.dropped_by = {n: 0 for n in STREAMS}  # ... per stream
 
     def push(self, batch: SensorBatch) -> None:
+        first = self.last["acc"] == -(2 ** 62)
         for n in STREAMS:
             t, v = batch.stream(n)
             if not len(t):
@@ -255,12 +266,20 @@ class _Streams:
                 self.t[n] = np.concatenate([self.t[n], t])
                 self.v[n] = np.concatenate([self.v[n], v])
                 self.last[n] = max(self.last[n], int(t[-1]))
+        for n in STREAMS:
+            # the session's first upload presumes every stream delivering: one whose first samples are still in its
+            # filter is waited for as one that went silent would be
+            if len(batch.stream(n)[0]) or (first and self.last["acc"] > -(2 ** 62)):
+                self.arrived[n] = self.last["acc"]
 
     def horizon(self, wait_ns: int) -> int:
+        """Newest time [ns] every stream still delivering has reached (those silent for ``wait_ns``: the
+        accelerometer's newest time less ``wait_ns``)."""
         la = self.last["acc"]
         h = la
         for n in ("gyr", "mag"):
-            h = min(h, max(self.last[n], la - wait_ns))
+            live = self.arrived[n] >= la - wait_ns
+            h = min(h, self.last[n] if live else max(self.last[n], la - wait_ns))
         return h
 
     def take(self, upto_ns: int | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -278,6 +297,7 @@ class _Streams:
 
     def get_state(self) -> dict[str, Any]:
         return {"t": {n: self.t[n] for n in STREAMS}, "v": {n: self.v[n] for n in STREAMS}, "last": dict(self.last),
+                "arrived": dict(self.arrived),
                 "done": self.done, "dropped": self.dropped, "dropped_by": dict(self.dropped_by)}
 
     @classmethod
@@ -287,6 +307,7 @@ class _Streams:
             obj.t[n] = np.asarray(d["t"][n], dtype=np.int64).reshape(-1)
             obj.v[n] = np.asarray(d["v"][n], dtype=np.float64).reshape(-1, 3)
             obj.last[n] = int(d["last"][n])
+            obj.arrived[n] = int((d.get("arrived") or d["last"])[n])  # older states: time stamps as arrival
         obj.done, obj.dropped = int(d["done"]), int(d["dropped"])
         obj.dropped_by.update({n: int(v) for n, v in (d.get("dropped_by") or {}).items() if n in obj.dropped_by})
         return obj
