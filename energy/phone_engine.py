@@ -7,7 +7,8 @@ out. What it does per step (003 Figure 5, eq. 24):
 
 1. the front end (:mod:`models.pdr`) runs the MARG filter, the step detector and the walking-direction
    statistics over the merged samples, in time order, up to the newest time every stream has reached (a
-   stream more than ``stream_wait_s`` behind, e.g. a gyroscope that is off, is not waited for);
+   stream that delivered nothing for ``stream_wait_s``, e.g. a gyroscope that is off, is not waited for; one
+   still delivering is, however far its time stamps lag);
 2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
    walking direction: the device's forward axis held in front, the horizontal acceleration's principal
    direction otherwise;
@@ -172,7 +173,9 @@ class PhoneEngineConfig:
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
-        How long the accelerometer waits for a lagging gyroscope or magnetometer stream.
+        How long the accelerometer waits for a gyroscope or magnetometer stream that has gone silent (nothing
+        arrived for this long of the accelerometer's time) before it is taken as off. A stream still delivering is
+        waited for however far its time stamps lag (the emulated 10-Hz magnetometer's filter delay is 0.8 s).
     run_step_hz : float
         Steps at this frequency or faster are labelled ``run``.
     """
@@ -404,7 +407,9 @@ class PhoneEngine:
     @property
     def late_samples(self) -> dict[str, int]:
         """Samples per stream that arrived after the merge had passed their time and were not used (a stream
-        lagging the accelerometer by more than ``stream_wait_s``, e.g. a decimated magnetometer's filter delay)."""
+        that was silent for longer than ``stream_wait_s`` and then delivered samples older than the merge's time;
+        at the session's start, a stream whose first samples come more than ``stream_wait_s`` after the first
+        upload)."""
         return dict(self._streams.dropped_by)
 
     def feed(self, batch: SensorBatch) -> Update:
