@@ -7,7 +7,8 @@ out. What it does per step (003 Figure 5, eq. 24):
 
 1. the front end (:mod:`models.pdr`) runs the MARG filter, the step detector and the walking-direction
    statistics over the merged samples, in time order, up to the newest time every stream has reached (a
-   stream more than ``stream_wait_s`` behind, e.g. a gyroscope that is off, is not waited for);
+   stream that delivered nothing for ``stream_wait_s``, e.g. a gyroscope that is off, is not waited for; one
+   still delivering is, however far its time stamps lag);
 2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
    walking direction: the device's forward axis held in front, the horizontal acceleration's principal
    direction otherwise;
@@ -172,7 +173,9 @@ class PhoneEngineConfig:
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
-        How long the accelerometer waits for a lagging gyroscope or magnetometer stream.
+        How long the accelerometer waits for a gyroscope or magnetometer stream that has gone silent (nothing
+        arrived for this long of the accelerometer's time) before it is taken as off. A stream still delivering is
+        waited for however far its time stamps lag (the emulated 10-Hz magnetometer's filter delay is 0.8 s).
     run_step_hz : float
         Steps at this frequency or faster are labelled ``run``.
     """
@@ -232,17 +235,28 @@ class PhoneEngineConfig:
 
 
 class _Streams:
-    """Samples waiting until every stream has reached their time (the merge horizon)."""
+    """Samples waiting until every stream has reached their time (the merge horizon).
+
+    A stream is waited for while it is delivering: while a sample of it arrived within the wait (``wait_ns`` of
+    :meth:`horizon`) of the accelerometer's newest time, however far its time stamps lag (a decimating filter's
+    group delay: the emulated 10-Hz magnetometer's is 0.8 s). Only a stream that has gone silent (a gyroscope
+    that is off, a device without magnetometer) is left behind after the wait. Silence is measured in arrival,
+    the accelerometer's time at the upload that brought the stream's latest sample, not in time-stamp lag: with
+    the lag, a stream lagging by ``L`` > ``wait_ns`` lost ``min(1, (L - wait) / batch)`` of its samples, every
+    magnetometer sample with 0.25-s uploads (docs/phone.md, "Shorter batches do not buy the turns back").
+    """
 
     def __init__(self) -> None:
         self.t = {n: np.zeros(0, dtype=np.int64) for n in STREAMS}
         self.v = {n: np.zeros((0, 3)) for n in STREAMS}
         self.last = {n: -(2 ** 62) for n in STREAMS}  # newest time received [ns]
+        self.arrived = {n: -(2 ** 62) for n in STREAMS}  # the accelerometer's newest time when it last delivered [ns]
         self.done = -(2 ** 62)  # everything up to here was processed [ns]
         self.dropped = 0  # samples that came after their time had been processed
         self.dropped_by = {n: 0 for n in STREAMS}  # ... per stream
 
     def push(self, batch: SensorBatch) -> None:
+        first = self.last["acc"] == -(2 ** 62)
         for n in STREAMS:
             t, v = batch.stream(n)
             if not len(t):
@@ -255,12 +269,20 @@ class _Streams:
                 self.t[n] = np.concatenate([self.t[n], t])
                 self.v[n] = np.concatenate([self.v[n], v])
                 self.last[n] = max(self.last[n], int(t[-1]))
+        for n in STREAMS:
+            # the session's first upload presumes every stream delivering: one whose first samples are still in its
+            # filter is waited for as one that went silent would be
+            if len(batch.stream(n)[0]) or (first and self.last["acc"] > -(2 ** 62)):
+                self.arrived[n] = self.last["acc"]
 
     def horizon(self, wait_ns: int) -> int:
+        """Newest time [ns] every stream still delivering has reached (those silent for ``wait_ns``: the
+        accelerometer's newest time less ``wait_ns``)."""
         la = self.last["acc"]
         h = la
         for n in ("gyr", "mag"):
-            h = min(h, max(self.last[n], la - wait_ns))
+            live = self.arrived[n] >= la - wait_ns
+            h = min(h, self.last[n] if live else max(self.last[n], la - wait_ns))
         return h
 
     def take(self, upto_ns: int | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -278,6 +300,7 @@ class _Streams:
 
     def get_state(self) -> dict[str, Any]:
         return {"t": {n: self.t[n] for n in STREAMS}, "v": {n: self.v[n] for n in STREAMS}, "last": dict(self.last),
+                "arrived": dict(self.arrived),
                 "done": self.done, "dropped": self.dropped, "dropped_by": dict(self.dropped_by)}
 
     @classmethod
@@ -287,6 +310,7 @@ class _Streams:
             obj.t[n] = np.asarray(d["t"][n], dtype=np.int64).reshape(-1)
             obj.v[n] = np.asarray(d["v"][n], dtype=np.float64).reshape(-1, 3)
             obj.last[n] = int(d["last"][n])
+            obj.arrived[n] = int((d.get("arrived") or d["last"])[n])  # older states: time stamps as arrival
         obj.done, obj.dropped = int(d["done"]), int(d["dropped"])
         obj.dropped_by.update({n: int(v) for n, v in (d.get("dropped_by") or {}).items() if n in obj.dropped_by})
         return obj
@@ -383,7 +407,9 @@ class PhoneEngine:
     @property
     def late_samples(self) -> dict[str, int]:
         """Samples per stream that arrived after the merge had passed their time and were not used (a stream
-        lagging the accelerometer by more than ``stream_wait_s``, e.g. a decimated magnetometer's filter delay)."""
+        that was silent for longer than ``stream_wait_s`` and then delivered samples older than the merge's time;
+        at the session's start, a stream whose first samples come more than ``stream_wait_s`` after the first
+        upload)."""
         return dict(self._streams.dropped_by)
 
     def feed(self, batch: SensorBatch) -> Update:

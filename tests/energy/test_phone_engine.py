@@ -77,33 +77,78 @@ def test_works_with_what_the_device_sends() -> None:
     assert not any(np.isnan(pos).ravel())
 
 
-def _lagged(batch: SensorBatch, lag_s: float, every_s: float) -> list[SensorBatch]:
-    """Upload batches of ``every_s`` in which the magnetometer's samples arrive ``lag_s`` after their time stamps
-    (as a decimating filter's delay delivers them), the other streams at once."""
+def _lagged(batch: SensorBatch, lag_s: float, edges_s: list[float]) -> list[SensorBatch]:
+    """Upload batches ending ``edges_s`` [s] after the recording's start (and one with the rest) in which the
+    magnetometer's samples arrive ``lag_s`` after their time stamps (as a decimating filter's delay delivers them:
+    the emulated 10-Hz magnetometer's is 0.8 s), the other streams at once; the last batch brings everything left."""
     t0, t1 = int(batch.t_start_ns), int(batch.t_end_ns) + 1
-    lag, step = int(lag_s * 1e9), int(every_s * 1e9)
-    out = []
-    for a in range(t0, t1, step):
-        b = min(a + step, t1)
+    lag = int(lag_s * 1e9)
+    ends = sorted({min(t0 + int(e * 1e9), t1) for e in edges_s} | {t1})
+    out, a = [], t0
+    for b in ends:
+        if b <= a:
+            continue
         now = batch.time_slice(a, b)
-        m = (batch.mag_t_ns >= a - lag) & (batch.mag_t_ns < b - lag)
+        m = (batch.mag_t_ns >= a - lag) & (batch.mag_t_ns < (b - lag if b < t1 else t1))
         out.append(SensorBatch(acc_t_ns=now.acc_t_ns, acc=now.acc, gyr_t_ns=now.gyr_t_ns, gyr=now.gyr,
                                mag_t_ns=batch.mag_t_ns[m], mag=batch.mag[m]))
+        a = b
     return out
 
 
+def _every(batch: SensorBatch, every_s: float) -> list[float]:
+    return list(np.arange(every_s, (int(batch.t_end_ns) - int(batch.t_start_ns)) / 1e9 + every_s, every_s))
+
+
+@pytest.mark.parametrize("mode", ["auto", "always-on"])
+@pytest.mark.parametrize("every_s", [0.25, 0.5, 1.0])
+def test_lagging_stream_is_waited_for(mode: str, every_s: float) -> None:
+    """A magnetometer whose samples arrive 0.3 s more behind their time stamps than ``stream_wait_s`` (the
+    emulated 10-Hz magnetometer's filter delay, 0.8 s) still delivers with every upload: it is waited for, loses
+    no sample and the track is the one of the whole recording in one batch, whatever the upload period (it lost
+    ``(lag - wait) / period`` of its samples, all of them with 0.25-s uploads)."""
+    rec = _rec("phone-walk")
+    whole = _positions(PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR), [rec.batch])
+    e = PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR)
+    lag = e.config.stream_wait_s + 0.3
+    parts = _positions(e, _lagged(rec.batch, lag, [1.0] + [1.0 + x for x in _every(rec.batch, every_s)]))
+    assert e.late_samples == {"acc": 0, "gyr": 0, "mag": 0}
+    assert whole.shape == parts.shape and len(whole) > 50
+    np.testing.assert_allclose(parts, whole, atol=1e-9, rtol=0)
+
+
+@settings(max_examples=8, deadline=None)
+@given(fractions=st.lists(st.floats(0.02, 0.999), min_size=1, max_size=40), lag_s=st.floats(0.0, 1.5))
+def test_chunk_invariance_auto_lagged(fractions: list[float], lag_s: float) -> None:
+    """``auto`` fed the same samples (not following its own configuration) is chunk invariant, also when the
+    magnetometer's samples arrive late by up to 1.5 s: after the first upload (which outlasts the lag) the upload
+    periods are arbitrary."""
+    rec = _rec("phone-walk")
+    dur = (int(rec.batch.t_end_ns) - int(rec.batch.t_start_ns)) / 1e9
+    whole = _positions(PhoneEngine("auto", placement="phone-hand", anchor=ANCHOR), [rec.batch])
+    e = PhoneEngine("auto", placement="phone-hand", anchor=ANCHOR)
+    parts = _positions(e, _lagged(rec.batch, lag_s, [2.0] + [2.0 + f * (dur - 2.0) for f in fractions]))
+    assert e.late_samples["mag"] == 0
+    assert whole.shape == parts.shape and len(whole) > 50
+    np.testing.assert_allclose(parts, whole, atol=1e-9, rtol=0)
+
+
 def test_late_samples_are_counted_per_stream() -> None:
-    """A magnetometer lagging by more than ``stream_wait_s`` loses the samples whose time the merge has passed:
-    they are counted on their stream (none when it is on time), and the count survives the state round trip."""
+    """A magnetometer that falls silent for longer than ``stream_wait_s`` is not waited for; the samples it then
+    delivers late, behind the time the merge has passed, are counted on their stream (none when it is on time),
+    and the count survives the state round trip."""
     rec = _rec("phone-walk")
     e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
-    _positions(e, _lagged(rec.batch, 0.0, 1.0))
+    _positions(e, _lagged(rec.batch, 0.0, _every(rec.batch, 1.0)))
     assert e.late_samples == {"acc": 0, "gyr": 0, "mag": 0}
-    wait = e.config.stream_wait_s
     e = PhoneEngine("always-on", placement="phone-hand", anchor=ANCHOR)
-    batches = _lagged(rec.batch, wait + 0.3, 1.0)
-    for b in batches[: len(batches) // 2]:
-        e.feed(b)
+    batches = _lagged(rec.batch, 0.0, _every(rec.batch, 1.0))
+    silent = batches[5:9]  # 4 s without a magnetometer sample, then its backlog at once
+    backlog = (np.concatenate([b.mag_t_ns for b in silent]), np.concatenate([b.mag for b in silent]))
+    for i, b in enumerate(batches[:8]):
+        e.feed(b if i < 5 else SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, gyr_t_ns=b.gyr_t_ns, gyr=b.gyr))
+    b = batches[8]
+    e.feed(SensorBatch(acc_t_ns=b.acc_t_ns, acc=b.acc, gyr_t_ns=b.gyr_t_ns, gyr=b.gyr, mag_t_ns=backlog[0], mag=backlog[1]))
     late = e.late_samples
     assert late["mag"] > 0 and late["acc"] == late["gyr"] == 0
     assert engine_from_bytes(e.to_bytes()).late_samples == late  # type: ignore[attr-defined]
