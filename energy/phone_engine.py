@@ -8,7 +8,7 @@ out. What it does per step (003 Figure 5, eq. 24):
 1. the front end (:mod:`models.pdr`) runs the MARG filter, the step detector and the walking-direction
    statistics over the merged samples, in time order, up to the newest time every stream has reached (a
    stream that delivered nothing for ``stream_wait_s``, e.g. a gyroscope that is off, is not waited for; one
-   still delivering is, however far its time stamps lag);
+   still delivering is, while its time stamps lag by at most ``stream_max_lag_s``);
 2. the placement (given, or recognised between hand and pocket for a phone, :mod:`models.placement`) picks the
    walking direction: the device's forward axis held in front, the horizontal acceleration's principal
    direction otherwise;
@@ -175,7 +175,14 @@ class PhoneEngineConfig:
     stream_wait_s : float
         How long the accelerometer waits for a gyroscope or magnetometer stream that has gone silent (nothing
         arrived for this long of the accelerometer's time) before it is taken as off. A stream still delivering is
-        waited for however far its time stamps lag (the emulated 10-Hz magnetometer's filter delay is 0.8 s).
+        waited for while its time stamps lag by at most ``stream_max_lag_s`` (the emulated 10-Hz magnetometer's
+        filter delay is 0.8 s).
+    stream_max_lag_s : float
+        The most a delivering stream's time stamps may lag the accelerometer's and still be waited for: beyond it
+        the merge goes on without the stream (its samples then come too late and are counted in
+        ``late_samples``), so a stream whose clock falls ever further behind cannot hold the accelerometer's
+        samples, and with them the answers, back without bound (10 s: 1000 accelerometer samples at 100 Hz held
+        at most). A safety bound, far above the longest filter delay known (0.8 s), not a fitted value.
     run_step_hz : float
         Steps at this frequency or faster are labelled ``run``.
     """
@@ -204,12 +211,13 @@ class PhoneEngineConfig:
     swing_sleep_s: float = 1.5
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
+    stream_max_lag_s: float = 10.0
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
         for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "auto_gyr_rate_hz", "stand_acc_rate_hz",
                      "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "swing_rad",
-                     "swing_window_s", "swing_sleep_s", "batch_s", "stream_wait_s", "run_step_hz"):
+                     "swing_window_s", "swing_sleep_s", "batch_s", "stream_wait_s", "stream_max_lag_s", "run_step_hz"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
@@ -238,8 +246,8 @@ class _Streams:
     """Samples waiting until every stream has reached their time (the merge horizon).
 
     A stream is waited for while it is delivering: while a sample of it arrived within the wait (``wait_ns`` of
-    :meth:`horizon`) of the accelerometer's newest time, however far its time stamps lag (a decimating filter's
-    group delay: the emulated 10-Hz magnetometer's is 0.8 s). Only a stream that has gone silent (a gyroscope
+    :meth:`horizon`) of the accelerometer's newest time, while its time stamps lag by at most ``max_lag_ns`` (a
+    decimating filter's group delay: the emulated 10-Hz magnetometer's is 0.8 s). Only a stream that has gone silent (a gyroscope
     that is off, a device without magnetometer) is left behind after the wait. Silence is measured in arrival,
     the accelerometer's time at the upload that brought the stream's latest sample, not in time-stamp lag: with
     the lag, a stream lagging by ``L`` > ``wait_ns`` lost ``min(1, (L - wait) / batch)`` of its samples, every
@@ -275,14 +283,14 @@ class _Streams:
             if len(batch.stream(n)[0]) or (first and self.last["acc"] > -(2 ** 62)):
                 self.arrived[n] = self.last["acc"]
 
-    def horizon(self, wait_ns: int) -> int:
-        """Newest time [ns] every stream still delivering has reached (those silent for ``wait_ns``: the
-        accelerometer's newest time less ``wait_ns``)."""
+    def horizon(self, wait_ns: int, max_lag_ns: int) -> int:
+        """Newest time [ns] every stream still delivering has reached, but no more than ``max_lag_ns`` behind the
+        accelerometer's newest time (those silent for ``wait_ns``: the accelerometer's newest time less ``wait_ns``)."""
         la = self.last["acc"]
         h = la
         for n in ("gyr", "mag"):
             live = self.arrived[n] >= la - wait_ns
-            h = min(h, self.last[n] if live else max(self.last[n], la - wait_ns))
+            h = min(h, max(self.last[n], la - max_lag_ns) if live else max(self.last[n], la - wait_ns))
         return h
 
     def take(self, upto_ns: int | None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -430,7 +438,8 @@ class PhoneEngine:
         self._streams.push(batch)
         if not len(self._streams.t["acc"]):
             return self._update([], [])
-        return self._process(self._streams.take(self._streams.horizon(int(self.config.stream_wait_s * 1e9))))
+        return self._process(self._streams.take(self._streams.horizon(int(self.config.stream_wait_s * 1e9),
+                                                                       int(self.config.stream_max_lag_s * 1e9))))
 
     def flush(self) -> Update:
         """End of the session: process what waits for lagging streams."""

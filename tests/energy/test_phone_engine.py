@@ -117,6 +117,36 @@ def test_lagging_stream_is_waited_for(mode: str, every_s: float) -> None:
     np.testing.assert_allclose(parts, whole, atol=1e-9, rtol=0)
 
 
+@pytest.mark.parametrize("mode", ["auto", "always-on"])
+def test_a_stream_lagging_beyond_the_bound_does_not_hold_the_answers_back(mode: str) -> None:
+    """A magnetometer that keeps delivering but whose clock falls ever further behind (its samples arrive 0.6 s
+    later per second of recording: 30 s at the end of the walk) is waited for while it lags by at most
+    ``stream_max_lag_s``, and no longer: the last steps come about that bound after their time, not as late as
+    the clock lags, and the samples that arrive too late are counted, not held (the accelerometer's buffer stays
+    bounded)."""
+    rec = _rec("phone-walk")
+    e = PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR)
+    bound_s = e.config.stream_max_lag_s
+    b0 = rec.batch
+    t0, t1 = int(b0.t_start_ns), int(b0.t_end_ns) + 1
+    arrival = t0 + (b0.mag_t_ns - t0) * 1.6
+    ends = [t0 + int(x * 1e9) for x in _every(b0, 1.0)]
+    newest_ns, behind_s, a = None, [], t0
+    for b in ends:
+        now = b0.time_slice(a, min(b, t1))
+        m = (arrival >= a) & (arrival < b)
+        batch = SensorBatch(acc_t_ns=now.acc_t_ns, acc=now.acc, gyr_t_ns=now.gyr_t_ns, gyr=now.gyr,
+                            mag_t_ns=b0.mag_t_ns[m], mag=b0.mag[m])
+        a = b
+        for p in e.feed(batch).positions:
+            newest_ns = p.t_ns
+        if newest_ns is not None and len(now.acc_t_ns):
+            behind_s.append((int(now.acc_t_ns[-1]) - newest_ns) / 1e9)
+    # the walk's last seconds (walking: a step answered once the look-ahead has passed it)
+    assert len(behind_s) > 10 and max(behind_s[-5:]) < bound_s + 2.0
+    assert e.late_samples["mag"] > 0
+
+
 @settings(max_examples=8, deadline=None)
 @given(fractions=st.lists(st.floats(0.02, 0.999), min_size=1, max_size=40), lag_s=st.floats(0.0, 1.5))
 def test_chunk_invariance_auto_lagged(fractions: list[float], lag_s: float) -> None:
