@@ -640,7 +640,7 @@ def _run_ipin(args: argparse.Namespace) -> int:
 
     bound = None if args.max_heading_std_deg is None else math.radians(args.max_heading_std_deg)
     doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
-                        max_heading_std_rad=bound, phases=max(1, int(args.phases)))
+                        max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration)
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:
@@ -767,6 +767,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="also replay with the upload batches' boundaries moved by k/N of a batch (k = 1 .. N-1) and "
                          "report each phase's medians and their mean (an energy-aware engine switches sensors at batch "
                          "boundaries); default 1: phase 0 only")
+    pi.add_argument("--calibration", choices=("population", "returning-user"), default="population",
+                    help="the step length constant: population = fitted on the other routes (default); returning-user "
+                         "= the population's, calibrated by the engine on the user's other walk of the route as a "
+                         "known distance (a profile calibrated by POST /v1/sessions/{id}/distance)")
     pi.set_defaults(func=_run_ipin)
     pw = esub.add_parser("phone-watch", help="a phone's and a watch's steps fused (000 eq. 70) on synthetic walks "
                                              "(no public recording has both)")

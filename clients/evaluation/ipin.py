@@ -18,6 +18,13 @@ Fitted on the data, and so left out per trial (leave-one-route-out: the two repe
 walker's same walk, both are left out): the Weinberg constant of the engine and of the baseline, each as the
 surveyed path length over the sum of the model's unscaled step lengths of the other routes' trials.
 
+``calibration="returning-user"`` (the engine only): the user has walked a known distance before, the other
+repetition of the route (its surveyed length and the engine's own unscaled steps over it), and the profile's
+constant is that walk merged into the population constant above by the engine's own calibration
+(:meth:`models.pdr_step_length.PdrStepLength.calibrate`, as ``POST /v1/sessions/{id}/distance`` does): what the
+issue's per-user calibration from a known distance buys, on a walk of the same route (so the known distance is
+the trial's own surveyed length: an optimistic setting for the path ratio, not for the landmark errors).
+
 The baseline (the issue's "simple baseline"): steps from the accelerometer magnitude (2nd-order Butterworth at
 3 Hz applied forward and backward, peaks 0.7 m/s^2 above g at least 0.35 s apart), Weinberg step length with one
 constant, and the phone's own rotation vector (the logfile's AHRS quaternion) for the heading of its forward
@@ -38,7 +45,9 @@ import numpy as np
 
 from clients.recording import Recording
 
-__all__ = ["LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
+CALIBRATIONS: tuple[str, ...] = ("population", "returning-user")
+
+__all__ = ["CALIBRATIONS", "LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
            "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "leave_one_route_out",
            "print_loro", "landmarks", "TRIAL_FIELDS"]
 
@@ -264,6 +273,23 @@ def _loo_k(name: str, totals: dict[str, tuple[float, float]]) -> float:
     return num / den
 
 
+def _returning_user_k(name: str, k_population: float, walked: dict[str, tuple[float, np.ndarray]]) -> float:
+    """The constant of a user who walked the other repetitions of ``name``'s route as known distances, each
+    merged into the population constant ``k_population`` by the engine's calibration (``k_population`` when
+    there is none)."""
+    from dataclasses import replace
+
+    from energy.phone_engine import PhoneEngineConfig
+    from models.pdr_step_length import PdrStepLength
+
+    base = PhoneEngineConfig().step_length
+    sl = PdrStepLength(replace(base, weinberg_k=float(k_population)))
+    for other, (distance_m, unscaled) in walked.items():
+        if other != name and route_of(other) == route_of(name):
+            sl.calibrate(distance_m, unscaled)
+    return float(sl.k)
+
+
 def landmarks(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     """The trial's surveyed landmarks (POSI lines): times [ns] and positions (N, 2) [m, local frame]."""
     if rec.truth is None or rec.truth.positions is None or rec.truth.t_ns is None:
@@ -284,8 +310,10 @@ def _surveyed(rec: Recording) -> float:
 
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
                   batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
-                  max_heading_std_rad: float | None = None, phases: int = 1) -> dict[str, Any]:
-    """The ``pednav eval ipin`` document for loaded recordings (see the module docstring).
+                  max_heading_std_rad: float | None = None, phases: int = 1,
+                  calibration: str = "population") -> dict[str, Any]:
+    """The ``pednav eval ipin`` document for loaded recordings (see the module docstring; ``calibration``:
+    ``"population"`` or ``"returning-user"``).
 
     Every trial is replayed always-on (the energy baseline; its steps also fit the Weinberg constant of the
     others) and, with ``mode="auto"``, energy-aware; the trial's row reports ``mode``'s track; ``always_on``
@@ -299,9 +327,12 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
     """
     from energy.phone_engine import PhoneEngineConfig
 
+    if calibration not in CALIBRATIONS:
+        raise ValueError(f"calibration: one of {', '.join(CALIBRATIONS)}, got {calibration!r}")
     k0 = PhoneEngineConfig().step_length.weinberg_k
     always: dict[str, TrialResult] = {}
     totals: dict[str, tuple[float, float]] = {}
+    walked: dict[str, tuple[float, np.ndarray]] = {}  # surveyed length, unscaled steps over it (returning user)
     base_totals: dict[str, tuple[float, float]] = {}
     for rec in recs:  # pass 1: features for the leave-one-route-out constants (independent of the constant)
         if progress:
@@ -309,6 +340,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
         r = run_phone(rec, "always-on", k0, placement, batch_seconds)
         always[rec.name] = r
         totals[rec.name] = (_surveyed(rec), _window_sum(rec, r.t_ns, r.step_m / k0))
+        T, _ = landmarks(rec)
+        walked[rec.name] = (_surveyed(rec), (r.step_m / k0)[(r.t_ns > T[0]) & (r.t_ns <= T[-1])])
         bt, _, _, feat = baseline_track(rec, 1.0)
         base_totals[rec.name] = (_surveyed(rec), _window_sum(rec, bt, feat))
     trials = []
@@ -317,6 +350,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
             progress(rec.name)
         T, L = landmarks(rec)
         k = _loo_k(rec.name, totals)
+        if calibration == "returning-user":
+            k = _returning_user_k(rec.name, k, walked)
         on = run_phone(rec, "always-on", k, placement, batch_seconds)
         run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad)
         e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
@@ -332,7 +367,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
                "always_on": {**e_on.row(), "energy_mj": on.energy_mj, "late_samples": on.late_samples},
                "baseline": {**e_b.row(), "weinberg_k": kb}}
         trials.append(row)
-    doc = {"dataset": "ipin", "mode": mode, "placement": placement, "trials": trials, "summary": ipin_summary(trials)}
+    doc = {"dataset": "ipin", "mode": mode, "placement": placement, "calibration": calibration, "trials": trials,
+           "summary": ipin_summary(trials)}
     if phases > 1:
         doc["phases"] = _phases(recs, trials, mode, placement, batch_seconds, max_heading_std_rad, int(phases), progress)
     if max_heading_std_rad is not None:

@@ -341,3 +341,27 @@ def test_phone_heading_parameters_are_the_dev_trials_statistics(ipin_dir) -> Non
     lo, hi = rng["compass_rho_per_step"]
     assert lo - 0.005 <= PhoneEngine().config.orientation_rho <= hi + 0.005
     assert deg(PhoneEngine().config.marg_settled_std_rad) > rng["marg_yaw_std_p95_deg"][1]
+
+
+def test_ipin_returning_user_calibration(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """``evaluate_ipin(calibration="returning-user")``: the SM-G930F walker's constant calibrated by the engine on
+    his other walk of the route (a known distance) brings both walks' path lengths closer to the surveyed ones than
+    the other routes' population constant does (docs/phone.md "Known limits"); a trial without another walk of
+    its route keeps the population constant."""
+    from clients.evaluation.ipin import evaluate_ipin
+    from clients.importers import load
+
+    names = ("Trial21_repetition01", "Trial21_repetition02", "Trial23_repetition01")
+    recs = [load(ipin_dir / f"IPIN2023_T3_Training{n}.txt") for n in names]
+    pop = {t["name"]: t for t in evaluate_ipin(recs, mode="always-on")["trials"]}
+    doc = evaluate_ipin(recs, mode="always-on", calibration="returning-user")
+    assert doc["calibration"] == "returning-user"
+    ru = {t["name"]: t for t in doc["trials"]}
+    for n in names[:2]:
+        name = f"IPIN2023_T3_Training{n}"
+        assert abs(ru[name]["path_ratio"] - 1.0) < abs(pop[name]["path_ratio"] - 1.0)
+        assert ru[name]["weinberg_k"] > pop[name]["weinberg_k"]  # his steps are longer at the same feature
+    alone = "IPIN2023_T3_TrainingTrial23_repetition01"
+    assert ru[alone]["weinberg_k"] == pop[alone]["weinberg_k"]
+    with pytest.raises(ValueError, match="calibration"):
+        evaluate_ipin(recs[:1], calibration="per-trial")
