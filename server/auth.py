@@ -25,7 +25,7 @@ from server.models import Token
 from server.security import hash_token
 
 __all__ = ["QUERY_TOKEN_ROUTE", "FailedAuthGuard", "RateLimiter", "admit", "authenticate", "query_token_refused",
-           "require_token"]
+           "require_token", "token_expiry"]
 
 _T = Token.__table__
 
@@ -154,19 +154,27 @@ def authenticate(db: Session, token: str | None, limiter: RateLimiter | None) ->
     return admit(h, row, limiter)
 
 
+def token_expiry(expires_at: Any) -> datetime | None:
+    """A token's ``expires_at`` as a driver reads it (raw SQLite rows: SQLAlchemy's text form of a UTC
+    datetime; naive datetimes are UTC) as an aware datetime, or None (never expires)."""
+    if expires_at is None:
+        return None
+    if isinstance(expires_at, str):
+        expires_at = datetime.fromisoformat(expires_at)
+    return expires_at if expires_at.tzinfo else expires_at.replace(tzinfo=timezone.utc)
+
+
 def admit(h: str, row: Any, limiter: RateLimiter | None) -> int:
     """The user id of the token whose hash is ``h`` and whose row ``(user_id, revoked, expires_at)`` was read
     (``None``: no such token), after taking one request from its user's rate limit (shared by all the user's
     tokens); raises as :func:`authenticate`."""
     if row is None or row[0] is None:
         raise _unauthorized("invalid token")
-    user_id, revoked, expires_at = row[0], row[1], row[2]
+    user_id, revoked = row[0], row[1]
     if revoked:
         raise _unauthorized("token revoked")
-    if expires_at is not None:
-        if isinstance(expires_at, str):  # raw SQLite rows: SQLAlchemy's text form of a UTC datetime
-            expires_at = datetime.fromisoformat(expires_at)
-        exp = expires_at if expires_at.tzinfo else expires_at.replace(tzinfo=timezone.utc)
+    exp = token_expiry(row[2])
+    if exp is not None:
         if exp <= datetime.now(timezone.utc):
             raise _unauthorized(
                 f"token expired at {exp.isoformat(timespec='seconds')}; mint a new one (POST /v1/tokens with a valid "

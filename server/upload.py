@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 from fastapi import HTTPException, status
 
 from models.batch import BatchError, SensorBatch
-from server.auth import RateLimiter, admit, require_token
+from server.auth import RateLimiter, admit, require_token, token_expiry
 from server.formats import canonical_bytes, decode_upload, digest
 from server.ingest import (EngineHost, Fed, IngestConflict, StorageBusy, batch_busy_message, checkpoint_due,
                            engine_profile_from_stored, feed_engine, is_contention, pool_feed)
@@ -79,15 +79,6 @@ def _utc_text() -> str:
     from server.models import utcnow
 
     return utcnow().strftime(_DT_FORMAT)
-
-
-def _aware(expires_at: Any) -> datetime | None:
-    """A token's ``expires_at`` as read by the driver (SQLite: SQLAlchemy's UTC text form) as an aware datetime."""
-    if expires_at is None:
-        return None
-    if isinstance(expires_at, str):
-        expires_at = datetime.fromisoformat(expires_at)
-    return expires_at if expires_at.tzinfo else expires_at.replace(tzinfo=timezone.utc)
 
 
 def _write_params(session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None]) -> dict[str, Any]:
@@ -410,7 +401,7 @@ class Uploader:
                     try:
                         answer, replayed, after = self._apply(cur, session_id, seq, batch, sess, raw)
                         if after is not None:
-                            self._keep(session_id, _Known(h_tok, user_id, _aware(row[2]), after))
+                            self._keep(session_id, _Known(h_tok, user_id, token_expiry(row[2]), after))
                         return answer, replayed
                     except (_Raced, busy) as exc:  # nothing was committed: read again and start over
                         self.host.forget(session_id)
