@@ -352,9 +352,11 @@ class PednavClient:
     def upload_encoded(self, session_id: int, seq: int, body: bytes, ctype: str) -> dict[str, Any]:
         return self._json("PUT", f"/v1/sessions/{session_id}/batches/{seq}", content=body, headers={"content-type": ctype})
 
-    def trajectory(self, session_id: int, format: str = "json") -> Any:  # noqa: A002
-        """Positions as JSON or GeoJSON (dict), or GPX, KML, CSV (str)."""
-        r = self.request("GET", f"/v1/sessions/{session_id}/trajectory", params={"format": format})
+    def trajectory(self, session_id: int, format: str = "json", fuse_with: int | None = None) -> Any:  # noqa: A002
+        """Positions as JSON or GeoJSON (dict), or GPX, KML, CSV (str); ``fuse_with``: the id of the same user's
+        watch (or other phone) session whose steps are fused with this one's."""
+        params: dict[str, Any] = {"format": format, **({"fuse_with": fuse_with} if fuse_with is not None else {})}
+        r = self.request("GET", f"/v1/sessions/{session_id}/trajectory", params=params)
         _raise_for(r)
         return r.json() if format in ("json", "geojson") else r.text
 
@@ -739,8 +741,9 @@ class AsyncPednavClient:
     async def upload_encoded(self, session_id: int, seq: int, body: bytes, ctype: str) -> dict[str, Any]:
         return await self._json("PUT", f"/v1/sessions/{session_id}/batches/{seq}", content=body, headers={"content-type": ctype})
 
-    async def trajectory(self, session_id: int, format: str = "json") -> Any:  # noqa: A002
-        r = await self.request("GET", f"/v1/sessions/{session_id}/trajectory", params={"format": format})
+    async def trajectory(self, session_id: int, format: str = "json", fuse_with: int | None = None) -> Any:  # noqa: A002
+        params: dict[str, Any] = {"format": format, **({"fuse_with": fuse_with} if fuse_with is not None else {})}
+        r = await self.request("GET", f"/v1/sessions/{session_id}/trajectory", params=params)
         _raise_for(r)
         return r.text if format == "csv" else r.json()
 

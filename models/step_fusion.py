@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["StepFusionConfig", "fuse_steps"]
+__all__ = ["StepFusionConfig", "fuse_steps", "fuse_track"]
 
 
 @dataclass(frozen=True)
@@ -84,3 +84,35 @@ def fuse_steps(t_a: np.ndarray, len_a: np.ndarray, head_a: np.ndarray, t_b: np.n
             out_h[i] = ha[i] + c.weight * dh
             blended[i] = True
     return out_l, out_h, blended
+
+
+def fuse_track(north: np.ndarray, east: np.ndarray, t_a_s: np.ndarray, len_a: np.ndarray, head_a: np.ndarray,
+               t_b_s: np.ndarray, len_b: np.ndarray, head_b: np.ndarray,
+               config: StepFusionConfig | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The primary's step-and-heading track with its steps fused with the secondary's (:func:`fuse_steps`).
+
+    A step-and-heading track is the sum of its step vectors, ``p_k = p_(k-1) + L_k (cos h_k, sin h_k)`` (north,
+    east); each position moves by the running sum of the fused steps' vectors minus the primary's own, so a
+    track with no blended step comes back unchanged, bit for bit.
+
+    Parameters
+    ----------
+    north, east : ndarray, shape (N,)
+        The primary's positions [m] in its engine's frame.
+    t_a_s, len_a, head_a : ndarray, shape (N,)
+        The primary's step times [s], lengths [m] and headings [rad] (same frame as ``north``/``east``).
+    t_b_s, len_b, head_b : ndarray, shape (M,)
+        The secondary's steps, its times on the same clock [s] and its headings in the same frame.
+
+    Returns
+    -------
+    north, east, length, heading : ndarray, shape (N,)
+        The fused track [m], step lengths [m] and headings [rad].
+    blended : ndarray of bool, shape (N,)
+        Which of the primary's steps took the secondary's into account.
+    """
+    la, ha = np.asarray(len_a, dtype=float), np.asarray(head_a, dtype=float)
+    lf, hf, blended = fuse_steps(t_a_s, la, ha, t_b_s, len_b, head_b, config)
+    dn = np.cumsum(lf * np.cos(hf) - la * np.cos(ha))
+    de = np.cumsum(lf * np.sin(hf) - la * np.sin(ha))
+    return np.asarray(north, dtype=float) + dn, np.asarray(east, dtype=float) + de, lf, hf, blended

@@ -2,7 +2,8 @@
 
 GeoJSON (RFC 7946), GPX 1.1 and KML need an anchored session (``pednav sessions anchor``, the API's PATCH, or
 the session's start); CSV keeps the NED columns and adds latitude/longitude when anchored. A local replay
-writes the same files with ``pednav replay FILE --anchor LAT,LON --export OUT.gpx``.
+writes the same files with ``pednav replay FILE --anchor LAT,LON --export OUT.gpx``. ``--fuse-with WATCH``: a
+phone session's steps fused with those of the watch worn on the same walk.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def _run(args: argparse.Namespace) -> int:
         fmt = suffix if suffix in FORMATS else "json"
     fmt = fmt or "json"
     with client_of(args) as api:
-        doc = api.trajectory(args.session, fmt)
+        doc = api.trajectory(args.session, fmt, fuse_with=args.fuse_with)
     text = doc if isinstance(doc, str) else json.dumps(doc, indent=None if args.output else 2)
     if args.output:
         with open(args.output, "w", encoding="utf-8") as fh:
@@ -53,6 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_server_options(p)
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="output format (default: by the suffix of --output, else json)")
+    p.add_argument("--fuse-with", type=_session_id, default=None, metavar="SESSION",
+                   help="a phone session's steps fused with the same walk's watch session (000 eq. 70)")
     p.add_argument("-o", "--output", default=None, help="write to this file instead of stdout")
     p.add_argument("--json", action="store_true", help="(accepted for symmetry; JSON formats print JSON)")
     p.set_defaults(func=_run)

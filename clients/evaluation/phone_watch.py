@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["evaluate_phone_watch"]
+__all__ = ["evaluate_phone_watch", "phone_and_watch"]
 
 
 def _track(rec: Any, device_kind: str, placement: str, declination_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -39,21 +39,29 @@ def _errors(truth: Any, t: np.ndarray, length: np.ndarray, head: np.ndarray) -> 
     return {"mean_err_m": e.mean_err_m, "final_err_m": e.final_err_m, "path_ratio": e.path_ratio}
 
 
-def evaluate_phone_watch(seeds: range = range(6)) -> dict[str, Any]:
-    """Per seed, the errors of phone, watch and fused tracks; medians in the summary."""
+def phone_and_watch(seed: int) -> tuple[Any, Any, float]:
+    """One planned walk carried at once by a phone held in front and a watch on the wrist, on one clock: the two
+    synthetic recordings and the synthetic field's declination [rad] (the seed draws the disturbances, the
+    initial heading and each device's gyroscope bias)."""
     from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
-    from models.step_fusion import fuse_steps
 
     base = PHONE_SCENARIOS["phone-walk"]
+    rng = np.random.default_rng(1000 + seed)
+    dist = ((4.0, 6.0, 3.0, *rng.normal(0, 12, 3)), (10.0, -3.0, 3.0, *rng.normal(0, 12, 3)))
+    common = {"disturbances": dist, "heading0_deg": float(rng.uniform(-180, 180))}
+    phone = replace(base, placement="phone-hand", gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
+    watch = replace(base, placement="watch", swing_deg=30.0, gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
+    decl = float(np.arctan2(base.field_ned_ut[1], base.field_ned_ut[0]))
+    return synthesize_phone(phone, seed=seed), synthesize_phone(watch, seed=seed + 100), decl
+
+
+def evaluate_phone_watch(seeds: range = range(6)) -> dict[str, Any]:
+    """Per seed, the errors of phone, watch and fused tracks; medians in the summary."""
+    from models.step_fusion import fuse_steps
+
     rows = []
     for seed in seeds:
-        rng = np.random.default_rng(1000 + seed)
-        dist = ((4.0, 6.0, 3.0, *rng.normal(0, 12, 3)), (10.0, -3.0, 3.0, *rng.normal(0, 12, 3)))
-        common = {"disturbances": dist, "heading0_deg": float(rng.uniform(-180, 180))}
-        phone = replace(base, placement="phone-hand", gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
-        watch = replace(base, placement="watch", swing_deg=30.0, gyr_bias_rad_s=tuple(rng.normal(0, 0.006, 3)), **common)
-        rp, rw = synthesize_phone(phone, seed=seed), synthesize_phone(watch, seed=seed + 100)
-        decl = float(np.arctan2(base.field_ned_ut[1], base.field_ned_ut[0]))
+        rp, rw, decl = phone_and_watch(seed)
         tp, lp, hp = _track(rp, "phone", "phone-hand", decl)
         tw, lw, hw = _track(rw, "watch", "watch", decl)
         lf, hf, blended = fuse_steps(tp * 1e-9, lp, hp, tw * 1e-9, lw, hw)

@@ -330,6 +330,30 @@ def test_step_fusion_blends_agreeing_steps_and_keeps_the_primary_otherwise() -> 
         StepFusionConfig(ratio_low=1.1)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(3, 40), st.floats(-0.3, 0.3), st.integers(0, 2**31 - 1))
+def test_fused_track_is_the_sum_of_the_fused_steps(n: int, offset_rad: float, seed: int) -> None:
+    """``fuse_track``: without a partner the track comes back bit for bit; a secondary whose every step agrees in
+    length and turns the heading by ``offset_rad`` (inside the gate) turns the track about its start by half of
+    it (000 eq. 70, weight 0.5)."""
+    from models.step_fusion import fuse_track
+
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.45, 0.7, n))
+    length, head = rng.uniform(0.5, 0.8, n), np.cumsum(rng.normal(0.0, 0.3, n))
+    start = rng.normal(0.0, 5.0, 2)
+    north = start[0] + np.cumsum(length * np.cos(head))
+    east = start[1] + np.cumsum(length * np.sin(head))
+    fn, fe, fl, fh, blended = fuse_track(north, east, t, length, head, t + 60.0, length, head)
+    assert not blended.any() and np.array_equal(fn, north) and np.array_equal(fe, east) and np.array_equal(fh, head)
+    fn, fe, fl, fh, blended = fuse_track(north, east, t, length, head, t + 0.02, length, head + offset_rad)
+    assert blended.all() and np.allclose(fl, length) and np.allclose(fh, head + offset_rad / 2)
+    c, s = math.cos(offset_rad / 2), math.sin(offset_rad / 2)
+    dn, de = north - start[0], east - start[1]
+    assert np.allclose(fn, start[0] + c * dn - s * de, atol=1e-9)
+    assert np.allclose(fe, start[1] + s * dn + c * de, atol=1e-9)
+
+
 def test_orientation_std_shrinks_with_independent_votes_and_grows_with_their_spread() -> None:
     """DominantDirections.orientation_std_rad: the votes' circular spread (of 4 theta) / 4 over the square root of
     n (1 - rho) / (1 + rho) independent votes."""

@@ -137,3 +137,56 @@ def test_older_sessions_become_foot_sessions(tmp_path) -> None:  # type: ignore[
     with eng.connect() as conn:
         assert conn.execute(text("SELECT placement FROM sessions")).scalar_one() == "foot"
     eng.dispose()
+
+
+@lru_cache(maxsize=None)
+def _pair(seed: int):  # type: ignore[no-untyped-def]
+    from clients.evaluation.phone_watch import phone_and_watch
+
+    return phone_and_watch(seed)
+
+
+def test_a_phone_trajectory_fused_with_the_watch_of_the_same_walk(client, make_user) -> None:  # type: ignore[no-untyped-def]
+    """``GET .../trajectory?fuse_with=`` (issue 26, 000 eq. 70): the phone's stored steps fused with the watch's
+    session of the same user and clock, as :func:`models.step_fusion.fuse_track` fuses the two stored tracks; a
+    companion without steps changes nothing; the refusals name ``fuse_with``."""
+    import numpy as np
+
+    from models.step_fusion import fuse_track
+
+    phone_rec, watch_rec, _ = _pair(0)
+    _, tok = make_user()
+    api = PednavClient(token=tok, http=client)
+    phone = PhoneSimulator(phone_rec, placement="phone-hand").run(api).session_id
+    watch = WatchSimulator(watch_rec).run(api).session_id
+    own, other = api.trajectory(phone), api.trajectory(watch)
+    fused = api.trajectory(phone, fuse_with=watch)
+    assert fused["fused_with"] == watch and len(fused["positions"]) == len(own["positions"])
+    assert 0 < fused["blended_steps"] <= len(own["positions"])
+    col = {k: np.array([p[k] for p in own["positions"]], dtype=float) for k in ("t_ns", "north", "east", "step_length_m", "heading_rad")}
+    oc = {k: np.array([p[k] for p in other["positions"]], dtype=float) for k in ("t_ns", "step_length_m", "heading_rad")}
+    n, e, length, heading, blended = fuse_track(col["north"], col["east"], col["t_ns"] * 1e-9, col["step_length_m"],
+                                                col["heading_rad"], oc["t_ns"] * 1e-9, oc["step_length_m"], oc["heading_rad"])
+    got = {k: np.array([p[k] for p in fused["positions"]], dtype=float) for k in ("north", "east", "step_length_m", "heading_rad")}
+    assert np.allclose(got["north"], n, atol=1e-6) and np.allclose(got["east"], e, atol=1e-6)
+    assert np.allclose(got["step_length_m"], length) and np.allclose(got["heading_rad"], heading)
+    assert [p["blended"] for p in fused["positions"]] == blended.tolist() and int(blended.sum()) == fused["blended_steps"]
+    assert "fuse_with" not in own and "blended" not in own["positions"][0]
+    # a companion that has no steps yet: the phone's own track
+    empty = _start(client, tok, device_kind="watch").json()["id"]
+    alone = api.trajectory(phone, fuse_with=empty)
+    assert alone["blended_steps"] == 0 and [p["north"] for p in alone["positions"]] == [p["north"] for p in own["positions"]]
+    assert client.get(f"/v1/sessions/{phone}/trajectory", params={"fuse_with": watch, "format": "csv"},
+                      headers=auth(tok)).status_code == 200
+    # refusals: another user's session, the session itself, a foot session, an id beyond the column
+    _, stranger = make_user()
+    theirs = _start(client, stranger, device_kind="watch").json()["id"]
+    r = client.get(f"/v1/sessions/{phone}/trajectory", params={"fuse_with": theirs}, headers=auth(tok))
+    assert r.status_code == 404 and "fuse_with" in r.text
+    r = client.get(f"/v1/sessions/{phone}/trajectory", params={"fuse_with": phone}, headers=auth(tok))
+    assert r.status_code == 422 and "fuse_with" in r.text
+    foot = _start(client, tok, device_kind="foot").json()["id"]
+    r = client.get(f"/v1/sessions/{phone}/trajectory", params={"fuse_with": foot}, headers=auth(tok))
+    assert r.status_code == 409 and "fuse_with" in r.text and "foot" in r.text
+    r = client.get(f"/v1/sessions/{phone}/trajectory", params={"fuse_with": 2**40}, headers=auth(tok))
+    assert r.status_code == 422 and "fuse_with" in r.text
