@@ -244,16 +244,24 @@ class MargState:
 
 
 # ---------------------------------------------------------------------------------------------- compiled core
-@njit(cache=True)
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    return np.array([p[0] * q[0] - p[1] * q[1] - p[2] * q[2] - p[3] * q[3],
-                     p[0] * q[1] + p[1] * q[0] + p[2] * q[3] - p[3] * q[2],
-                     p[0] * q[2] - p[1] * q[3] + p[2] * q[0] + p[3] * q[1],
-                     p[0] * q[3] + p[1] * q[2] - p[2] * q[1] + p[3] * q[0]])
+# The per-sample functions work on scalars and tuples and on one scratch array per call of the outer loop
+# (``work``, :data:`_WORK_ROWS` x 7): a heap array per sample cost more than the arithmetic.
+_W_K0, _W_K1, _W_DX, _W_HP0, _W_HP1, _W_PH, _W_H = range(7)
+_WORK_ROWS = 7
 
 
 @njit(cache=True)
-def _rv2q(v0: float, v1: float, v2: float) -> np.ndarray:
+def _qmul(p0: float, p1: float, p2: float, p3: float, q0: float, q1: float, q2: float, q3: float
+          ) -> tuple[float, float, float, float]:
+    """Quaternion product ``p q`` (w, x, y, z)."""
+    return (p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
+            p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
+            p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
+
+
+@njit(cache=True)
+def _rv2q(v0: float, v1: float, v2: float) -> tuple[float, float, float, float]:
     """Quaternion of rotation vector ``v`` [rad]; below 0.1 rad the series to the 4th order (error < 3e-9,
     no trigonometry: the per-sample increments and the error injections are all that small)."""
     a2 = v0 * v0 + v1 * v1 + v2 * v2
@@ -264,17 +272,25 @@ def _rv2q(v0: float, v1: float, v2: float) -> np.ndarray:
         a = math.sqrt(a2)
         c = math.cos(0.5 * a)
         s = math.sin(0.5 * a) / a
-    q = np.array([c, v0 * s, v1 * s, v2 * s])
-    return q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    x, y, z = v0 * s, v1 * s, v2 * s
+    n = math.sqrt(c * c + x * x + y * y + z * z)
+    return c / n, x / n, y / n, z / n
+
+
+@njit(cache=True)
+def dcm(q: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+    """Rows of the body -> NED direction cosine matrix of quaternion ``q`` (w, x, y, z), as tuples."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
 
 
 @njit(cache=True)
 def q2dcm(q: np.ndarray) -> np.ndarray:
     """Body -> NED direction cosine matrix of quaternion ``q`` (w, x, y, z)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    r0, r1, r2 = dcm(q)
+    return np.array([[r0[0], r0[1], r0[2]], [r1[0], r1[1], r1[2]], [r2[0], r2[1], r2[2]]])
 
 
 @njit(cache=True)
@@ -285,8 +301,8 @@ def _wrap(a: float) -> float:
 @njit(cache=True)
 def _inject(q: np.ndarray, b: np.ndarray, s: np.ndarray, dx: np.ndarray) -> None:
     """Move the estimated error into the nominal state (the error state is zero again)."""
-    dq = _rv2q(dx[0], dx[1], dx[2])
-    qn = _qmul(dq, q)
+    d0, d1, d2, d3 = _rv2q(dx[0], dx[1], dx[2])
+    qn = _qmul(d0, d1, d2, d3, q[0], q[1], q[2], q[3])
     nrm = math.sqrt(qn[0] ** 2 + qn[1] ** 2 + qn[2] ** 2 + qn[3] ** 2)
     for i in range(4):
         q[i] = qn[i] / nrm
@@ -297,10 +313,11 @@ def _inject(q: np.ndarray, b: np.ndarray, s: np.ndarray, dx: np.ndarray) -> None
 
 
 @njit(cache=True)
-def _scalar_update(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, h: np.ndarray, z: float, r: float) -> None:
+def _scalar_update(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, h: np.ndarray, z: float, r: float,
+                   work: np.ndarray) -> None:
     """Kalman update with one scalar measurement ``z = h . x + noise(r)``: ``P <- P - k (P h)^T``, symmetrised."""
     n = P.shape[0]
-    ph = np.zeros(n)
+    ph = work[_W_PH]
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -309,7 +326,7 @@ def _scalar_update(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, h
     sv = r
     for i in range(n):
         sv += h[i] * ph[i]
-    dx = np.empty(n)
+    dx = work[_W_DX]
     for i in range(n):
         dx[i] = ph[i] / sv * z
     for i in range(n):
@@ -349,24 +366,24 @@ def marg_predict(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: 
     if dt > c[17]:
         dt = c[17]
     gyro = (t - s[S_TGYR]) <= c[4]
-    C = q2dcm(q)
+    C = dcm(q)
     if gyro:
-        qn = _qmul(q, _rv2q((w[0] - b[0]) * dt, (w[1] - b[1]) * dt, (w[2] - b[2]) * dt))
+        r0, r1, r2, r3 = _rv2q((w[0] - b[0]) * dt, (w[1] - b[1]) * dt, (w[2] - b[2]) * dt)
+        qn = _qmul(q[0], q[1], q[2], q[3], r0, r1, r2, r3)
         nrm = math.sqrt(qn[0] ** 2 + qn[1] ** 2 + qn[2] ** 2 + qn[3] ** 2)
         for i in range(4):
             q[i] = qn[i] / nrm
-        # P <- F P F^T + Q with F = [[I, -C dt, 0], [0, I, 0], [0, 0, 1]]: rows 0-2, then columns 0-2
+        # P <- F P F^T + Q with F = [[I, -C dt, 0], [0, I, 0], [0, 0, 1]]: rows 0-2, then columns 0-2 (in place:
+        # the rows update reads rows 3-5 only, the columns update columns 3-5 only)
         n = P.shape[0]
-        A = np.empty((3, n))
         for i in range(3):
+            Ci = C[i]
             for j in range(n):
-                A[i, j] = P[i, j] - dt * (C[i, 0] * P[3, j] + C[i, 1] * P[4, j] + C[i, 2] * P[5, j])
-        P[0:3, :] = A
-        B = np.empty((n, 3))
+                P[i, j] = P[i, j] - dt * (Ci[0] * P[3, j] + Ci[1] * P[4, j] + Ci[2] * P[5, j])
         for i in range(n):
             for j in range(3):
-                B[i, j] = P[i, j] - dt * (P[i, 3] * C[j, 0] + P[i, 4] * C[j, 1] + P[i, 5] * C[j, 2])
-        P[:, 0:3] = B
+                Cj = C[j]
+                P[i, j] = P[i, j] - dt * (P[i, 3] * Cj[0] + P[i, 4] * Cj[1] + P[i, 5] * Cj[2])
         for i in range(3):
             P[i, i] += c[0] * c[0] * dt
             P[3 + i, 3 + i] += c[1] * c[1] * dt
@@ -385,7 +402,8 @@ def marg_predict(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: 
 
 
 @njit(cache=True)
-def marg_gravity(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, f: np.ndarray, c: np.ndarray) -> None:
+def marg_gravity(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, f: np.ndarray, c: np.ndarray,
+                 work: np.ndarray) -> None:
     """Gravity update with specific force ``f`` [m/s^2] (body): NED ``C f`` against ``(0, 0, -g)``.
 
     ``C f - (0, 0, -g) = (g dtheta_y, -g dtheta_x, 0)`` to first order: one update with the north and east
@@ -393,9 +411,9 @@ def marg_gravity(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, f: 
     n = math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
     sig = c[5] + c[6] * abs(n - G)
     r = sig * sig
-    C = q2dcm(q)
-    z0 = C[0, 0] * f[0] + C[0, 1] * f[1] + C[0, 2] * f[2]
-    z1 = C[1, 0] * f[0] + C[1, 1] * f[1] + C[1, 2] * f[2]
+    C0, C1, _ = dcm(q)
+    z0 = C0[0] * f[0] + C0[1] * f[1] + C0[2] * f[2]
+    z1 = C1[0] * f[0] + C1[1] * f[1] + C1[2] * f[2]
     m = P.shape[0]
     # P H^T: columns g P[:, 1] and -g P[:, 0]; S = H P H^T + R
     s00 = G * G * P[1, 1] + r
@@ -403,19 +421,19 @@ def marg_gravity(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, f: 
     s11 = G * G * P[0, 0] + r
     det = s00 * s11 - s01 * s01
     i00, i01, i11 = s11 / det, -s01 / det, s00 / det
-    K = np.empty((m, 2))
+    K0, K1, dx, HP0, HP1 = work[_W_K0], work[_W_K1], work[_W_DX], work[_W_HP0], work[_W_HP1]
     for i in range(m):
         a0, a1 = G * P[i, 1], -G * P[i, 0]
-        K[i, 0] = a0 * i00 + a1 * i01
-        K[i, 1] = a0 * i01 + a1 * i11
-    dx = np.empty(m)
+        K0[i] = a0 * i00 + a1 * i01
+        K1[i] = a0 * i01 + a1 * i11
     for i in range(m):
-        dx[i] = K[i, 0] * z0 + K[i, 1] * z1
-    HP0 = G * P[1, :].copy()
-    HP1 = -G * P[0, :].copy()
+        dx[i] = K0[i] * z0 + K1[i] * z1
+    for j in range(m):
+        HP0[j] = G * P[1, j]
+        HP1[j] = -G * P[0, j]
     for i in range(m):
         for j in range(m):
-            P[i, j] -= K[i, 0] * HP0[j] + K[i, 1] * HP1[j]
+            P[i, j] -= K0[i] * HP0[j] + K1[i] * HP1[j]
     for i in range(m):
         for j in range(i + 1, m):
             a = 0.5 * (P[i, j] + P[j, i])
@@ -445,7 +463,7 @@ def still_update(s: np.ndarray, f: np.ndarray, t: float, c: np.ndarray) -> None:
 
 @njit(cache=True)
 def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w: np.ndarray, ref: np.ndarray,
-                  m: np.ndarray, t: float, c: np.ndarray) -> None:
+                  m: np.ndarray, t: float, c: np.ndarray, work: np.ndarray) -> None:
     """Compass and quasi-static field updates with field ``m`` [uT] (body), every ``compass_interval_s``."""
     spacing = t - s[S_TMAGS]
     s[S_TMAGS] = t
@@ -454,10 +472,9 @@ def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w:
     if t - s[S_TMAG] < c[9] and spacing < 0.5 * c[9]:
         return
     s[S_TMAG] = t
-    C = q2dcm(q)
-    mn = np.empty(3)
-    for i in range(3):
-        mn[i] = C[i, 0] * m[0] + C[i, 1] * m[1] + C[i, 2] * m[2]
+    C = dcm(q)
+    mn = (C[0][0] * m[0] + C[0][1] * m[1] + C[0][2] * m[2], C[1][0] * m[0] + C[1][1] * m[1] + C[1][2] * m[2],
+          C[2][0] * m[0] + C[2][1] * m[1] + C[2][2] * m[2])
     mh = math.sqrt(mn[0] ** 2 + mn[1] ** 2)
     if mh < 1.0:
         return
@@ -469,10 +486,11 @@ def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w:
     still = s[S_STILL] > 0.5
     # quasi-static field: the device at one place, its field unchanged -> its azimuth must not change
     if still and gyro and s[S_CLONE] > 0.5 and abs(mag - s[S_MREF]) < c[13] and abs(dip - s[S_DIPREF]) < c[14]:
-        h = np.zeros(_N)
+        h = work[_W_H]
+        h[:] = 0.0
         h[2] = 1.0
         h[6] = -1.0
-        _scalar_update(q, b, P, s, h, _wrap(s[S_PSIREF] - psi), c[12] * c[12])
+        _scalar_update(q, b, P, s, h, _wrap(s[S_PSIREF] - psi), c[12] * c[12], work)
         s[S_NQSF] += 1.0
     elif still and gyro and rate < c[11]:
         s[S_CLONE] = 1.0  # a new period: clone the heading error
@@ -501,16 +519,17 @@ def marg_magnetic(q: np.ndarray, b: np.ndarray, P: np.ndarray, s: np.ndarray, w:
         r = c[7] * c[7] * max(c[8] / c[9], 1.0)
         if ref[0] > 0.0:
             r += (c[10] * dmin / mh) ** 2 * max(c[8] / c[9], 1.0)
-        h = np.zeros(_N)
+        h = work[_W_H]
+        h[:] = 0.0
         h[2] = 1.0
-        _scalar_update(q, b, P, s, h, _wrap(ref[2] - psi), r)
+        _scalar_update(q, b, P, s, h, _wrap(ref[2] - psi), r, work)
         s[S_NCOMP] += 1.0
 
 
 @njit(cache=True)
 def marg_event(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: np.ndarray, ref: np.ndarray, t: float,
-               kind: int, v: np.ndarray, c: np.ndarray) -> None:
-    """One sample of any stream, in time order."""
+               kind: int, v: np.ndarray, c: np.ndarray, work: np.ndarray) -> None:
+    """One sample of any stream, in time order (``work``: scratch, :func:`new_work`)."""
     if s[S_INIT] < 0.5:
         if kind == KIND_ACC:
             marg_init(q, s, v, t)
@@ -525,21 +544,27 @@ def marg_event(q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray, s: np
         s[S_TGYR] = t
     elif kind == KIND_ACC:
         still_update(s, v, t, c)
-        marg_gravity(q, b, P, s, v, c)
+        marg_gravity(q, b, P, s, v, c, work)
     else:
-        marg_magnetic(q, b, P, s, w, ref, v, t, c)
+        marg_magnetic(q, b, P, s, w, ref, v, t, c, work)
         if t - s[S_TGYR] <= c[4] and vertical_bias_var(q, P) <= c[19] * c[19]:
             s[S_TSETTLED] = t
 
 
 @njit(cache=True)
+def new_work() -> np.ndarray:
+    """Scratch for :func:`marg_event` (one per loop over samples, not per sample)."""
+    return np.zeros((_WORK_ROWS, _N))
+
+
+@njit(cache=True)
 def vertical_bias_var(q: np.ndarray, P: np.ndarray) -> float:
     """Variance of the gyroscope bias about the vertical [(rad/s)^2]: ``(C P_bb C^T)[2, 2]``, ``C`` body -> NED."""
-    C = q2dcm(q)
+    C2 = dcm(q)[2]
     acc = 0.0
     for i in range(3):
         for j in range(3):
-            acc += C[2, i] * P[3 + i, 3 + j] * C[2, j]
+            acc += C2[i] * P[3 + i, 3 + j] * C2[j]
     return max(acc, 0.0)
 
 
@@ -551,8 +576,9 @@ def bias_settled(s: np.ndarray) -> bool:
 @njit(cache=True)
 def _run(t: np.ndarray, kind: np.ndarray, v: np.ndarray, q: np.ndarray, b: np.ndarray, P: np.ndarray, w: np.ndarray,
          s: np.ndarray, ref: np.ndarray, c: np.ndarray, out_q: np.ndarray) -> None:
+    work = new_work()
     for i in range(t.shape[0]):
-        marg_event(q, b, P, w, s, ref, t[i], kind[i], v[i], c)
+        marg_event(q, b, P, w, s, ref, t[i], kind[i], v[i], c, work)
         out_q[i] = q
 
 

@@ -106,35 +106,36 @@ def pdr_run(t: np.ndarray, kind: np.ndarray, v: np.ndarray, q: np.ndarray, b: np
     n_out = 0
     det = np.zeros(4)
     size = ring.shape[0]
+    work = M.new_work()
     for i in range(t.shape[0]):
         ti = t[i]
         k = kind[i]
         vi = v[i]
         if s[M.S_INIT] > 0.5 and ti > s[M.S_T] and ti - s[M.S_TGYR] <= mc[4]:
             # the turn about the vertical the filter's prediction is about to integrate (z down: + = clockwise)
-            C0 = M.q2dcm(q)
-            ac[_A_DYAW] += (C0[2, 0] * (w[0] - b[0]) + C0[2, 1] * (w[1] - b[1]) + C0[2, 2] * (w[2] - b[2])) \
+            C2 = M.dcm(q)[2]
+            ac[_A_DYAW] += (C2[0] * (w[0] - b[0]) + C2[1] * (w[1] - b[1]) + C2[2] * (w[2] - b[2])) \
                 * min(ti - s[M.S_T], mc[17])
-        M.marg_event(q, b, P, w, s, ref, ti, k, vi, mc)
+        M.marg_event(q, b, P, w, s, ref, ti, k, vi, mc, work)
         if s[M.S_INIT] < 0.5:
             continue
-        C = M.q2dcm(q)
+        C = M.dcm(q)
         if k == M.KIND_ACC:
             a = math.sqrt(vi[0] ** 2 + vi[1] ** 2 + vi[2] ** 2)
             j = ring_n[0] % size
             ring[j, 0] = ti
-            ring[j, 1] = C[0, 0] * vi[0] + C[0, 1] * vi[1] + C[0, 2] * vi[2]
-            ring[j, 2] = C[1, 0] * vi[0] + C[1, 1] * vi[1] + C[1, 2] * vi[2]
-            ring[j, 3] = C[2, 0] * vi[0] + C[2, 1] * vi[1] + C[2, 2] * vi[2]
+            ring[j, 1] = C[0][0] * vi[0] + C[0][1] * vi[1] + C[0][2] * vi[2]
+            ring[j, 2] = C[1][0] * vi[0] + C[1][1] * vi[1] + C[1][2] * vi[2]
+            ring[j, 3] = C[2][0] * vi[0] + C[2][1] * vi[1] + C[2][2] * vi[2]
             ring_n[0] += 1
             az = forward_azimuth(C)
             ac[_A_FC] += math.cos(az)
             ac[_A_FS] += math.sin(az)
             ac[_A_FN] += 1.0
             ac[_A_NACC] += 1.0
-            ac[_A_DX] += C[2, 0]  # the body's down direction (row 3 of C): how steady the device's tilt is
-            ac[_A_DY] += C[2, 1]
-            ac[_A_DZ] += C[2, 2]
+            ac[_A_DX] += C[2][0]  # the body's down direction (row 3 of C): how steady the device's tilt is
+            ac[_A_DY] += C[2][1]
+            ac[_A_DZ] += C[2][2]
             if ti - s[M.S_TGYR] <= mc[4]:
                 ac[_A_NGYR] += 1.0
                 ac[_A_RATE] += math.sqrt((w[0] - b[0]) ** 2 + (w[1] - b[1]) ** 2 + (w[2] - b[2]) ** 2)
@@ -148,9 +149,9 @@ def pdr_run(t: np.ndarray, kind: np.ndarray, v: np.ndarray, q: np.ndarray, b: np
                           _A_RATE, _A_DYAW):
                     ac[z] = 0.0
         elif k == M.KIND_MAG:
-            mn0 = C[0, 0] * vi[0] + C[0, 1] * vi[1] + C[0, 2] * vi[2]
-            mn1 = C[1, 0] * vi[0] + C[1, 1] * vi[1] + C[1, 2] * vi[2]
-            mn2 = C[2, 0] * vi[0] + C[2, 1] * vi[1] + C[2, 2] * vi[2]
+            mn0 = C[0][0] * vi[0] + C[0][1] * vi[1] + C[0][2] * vi[2]
+            mn1 = C[1][0] * vi[0] + C[1][1] * vi[1] + C[1][2] * vi[2]
+            mn2 = C[2][0] * vi[0] + C[2][1] * vi[1] + C[2][2] * vi[2]
             mh = math.sqrt(mn0 * mn0 + mn1 * mn1)
             if mh > 1.0:
                 psi = math.atan2(mn1, mn0)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
@@ -29,9 +31,10 @@ RING = 512  # samples of NED specific force kept (5 s at 100 Hz)
 
 
 @njit(cache=True)
-def forward_azimuth(C: np.ndarray) -> float:
-    """Azimuth [rad] (clockwise from north) of a hand-held device's forward axis, from its body -> NED DCM."""
-    return math.atan2(-C[0, 0], C[1, 0])
+def forward_azimuth(C: Any) -> float:
+    """Azimuth [rad] (clockwise from north) of a hand-held device's forward axis, from its body -> NED DCM (an
+    array, or its rows as tuples: :func:`models.marg.dcm`)."""
+    return math.atan2(-C[0][0], C[1][0])
 
 
 @njit(cache=True)
