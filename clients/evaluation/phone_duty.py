@@ -16,15 +16,16 @@ counterpart) and is charged from its power-up ``t_on`` earlier, so its energy ag
 The rate about the vertical is the recorded 100-Hz gyroscope (raw, no bias removed) projected on the
 accelerometer's direction low-passed with ``TAU_S`` (no gyroscope in the vertical, as the device would have it
 between on-windows; :mod:`clients.evaluation.phone_swing`'s vertical), + clockwise as ``gyro_dyaw``. ``d = 1``
-(always on, the same vertical and integration) is the control: its error against ``gyro_dyaw`` is what the
-vertical and the missing bias correction cost, not the duty cycle.
+(always on, the same vertical and integration) is the control, reported against ``gyro_dyaw``: what the vertical,
+the missing bias correction and the step's boundaries cost, not the duty cycle.
 
 References, between the first and the last landmark (no landmark position used):
 
 - per step and per turn of 45 deg or more (:mod:`clients.evaluation.phone_centripetal`'s steps and its 50 turns:
   a run of steps turning 10 deg or more adding to 45 deg, with the step before and two after; the reference is
-  ``gyro_dyaw`` of the always-on front end, the compass's error across the same turn alongside): the duty-cycled
-  step turn minus ``gyro_dyaw``; straight steps (``|gyro_dyaw| < 10 deg``): robust SD (1.4826 MAD), RMS, 95th
+  ``gyro_dyaw`` of the always-on front end, which classifies the steps and turns, the compass's error across the
+  same turn alongside): the duty-cycled step turn minus the full gyroscope's over the same step (same vertical);
+  straight steps (``|gyro_dyaw| < 10 deg``): robust SD (1.4826 MAD), RMS, 95th
   percentile of the absolute error; turns: RMS, robust SD, 95th percentile of the absolute error;
 - per turn of :mod:`clients.evaluation.phone_swing` (its 94 turns: the gyroscope's largest turn within 1 s,
   at 10 Hz, rising through 20 deg into a stretch that reaches 45 deg), measured from 1 s before the crossing to the
@@ -195,18 +196,22 @@ def duty_trial(rec: Recording, front: np.ndarray | None = None) -> DutyTrial:
 
 
 def _offset_figures(trials: Sequence[DutyTrial], period_s: float, duty: float, offset_s: float,
-                    estimator: str) -> dict[str, float]:
+                    estimator: str, reference: str = "full") -> dict[str, float]:
     from clients.evaluation.phone_centripetal import CentripetalTable, _pct, _rms, _turns
     from clients.evaluation.phone_heading import _robust_sd
 
     est_tables, swing_err, win_err = [], [], []
     for tr in trials:
         y = duty_yaw(tr.t_s, tr.rate, period_s, duty, offset_s, estimator)
+        full = _integrate(tr.t_s, tr.rate)
         step = np.interp(tr.step_t1, tr.t_s, y) - np.interp(tr.step_t0, tr.t_s, y)
         s = tr.steps
+        if reference == "full":  # the error against the full gyroscope's step turn, classified by gyro_dyaw
+            step = step - (np.interp(tr.step_t1, tr.t_s, full) - np.interp(tr.step_t0, tr.t_s, full)) + s.gyro
+        elif reference != "gyro_dyaw":
+            raise ValueError(f"unknown reference {reference!r}")
         est_tables.append(CentripetalTable(s.name, step, s.gyro, s.direction, s.compass, s.index, s.a_lat, s.rate,
                                            s.speed))
-        full = _integrate(tr.t_s, tr.rate)
         edges = np.arange(tr.span[0], tr.span[1] + 1e-9, WINDOW_S)
         if len(edges) > 1:
             win_err.append(np.diff(np.interp(edges, tr.t_s, y)) - np.diff(np.interp(edges, tr.t_s, full)))
@@ -247,11 +252,15 @@ def _offset_figures(trials: Sequence[DutyTrial], period_s: float, duty: float, o
 
 
 def duty_statistics(trials: Sequence[DutyTrial], period_s: float, duty: float,
-                    estimator: str = "scaled", n_offsets: int = N_OFFSETS) -> dict[str, float]:
+                    estimator: str = "scaled", n_offsets: int = N_OFFSETS, reference: str = "full") -> dict[str, float]:
     """The module docstring's figures for one ``(P, d, estimator)`` over the given trials: each the mean over
     ``n_offsets`` on-window offsets, the error figures' worst offset as ``..._worst``, and the gyroscope's
-    energy fraction for each power-up overhead of ``TURN_ON_S`` (``energy_<ms>ms``)."""
-    per = [_offset_figures(trials, period_s, duty, k * period_s / n_offsets, estimator) for k in range(n_offsets)]
+    energy fraction for each power-up overhead of ``TURN_ON_S`` (``energy_<ms>ms``). ``reference``: the per-step
+    and per-turn (50 turns) errors against the full gyroscope's turn over the same steps (``"full"``: the duty
+    cycle's own error) or against ``gyro_dyaw`` (``"gyro_dyaw"``: with the vertical's and the bias's cost, the
+    control's use)."""
+    per = [_offset_figures(trials, period_s, duty, k * period_s / n_offsets, estimator, reference)
+           for k in range(n_offsets)]
     out = {k: float(np.mean([p[k] for p in per])) for k in per[0]}
     for k in ("straight_sd_deg", "straight_rms_deg", "turn_rms_deg", "turn_p95_deg", "swing_turn_rms_deg",
               "window_rms_deg"):
@@ -329,7 +338,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     out: dict[str, Any] = {}
     for p, d, e in _grid():
         name = "always on (control)" if d >= 1.0 else f"{e} P {p} s d {d}"
-        out[name] = leave_one_route_out(trials, lambda ts, p=p, d=d, e=e: duty_statistics(ts, p, d, e))
+        ref = "gyro_dyaw" if d >= 1.0 else "full"
+        out[name] = leave_one_route_out(trials, lambda ts, p=p, d=d, e=e, ref=ref: duty_statistics(ts, p, d, e,
+                                                                                              reference=ref))
     fractions = sorted({gyro_energy_fraction(p, d, t) for p, d, _ in _grid() for t in TURN_ON_S})
     energy = energy_estimate(recs, fractions)
     for p, d, e in _grid():
