@@ -1,7 +1,7 @@
 """A duty-cycled gyroscope while walking: its turns per step and per turn against the full gyroscope's.
 
 ``python -m clients.evaluation.phone_duty [DIR] [--json]`` over the IPIN 2023 T3 dev trials (GetSensorData
-logfiles; default ``PEDNAV_DATA/ipin2023-t3-phone``), docs/phone.md "A duty-cycled gyroscope (measured)".
+logfiles; default ``PEDNAV_DATA/ipin2023-t3-phone``), docs/phone.md "A duty-cycled gyroscope (measured; not built)".
 
 The idea (issue #26): instead of switching the gyroscope off for whole batches (``auto``), run it for a fraction
 ``d`` of every period ``P`` while walking, so that every turn is partly measured. The gyroscope delivers over
@@ -32,8 +32,8 @@ References, between the first and the last landmark (no landmark position used):
   stretch's end (the full gyroscope's turn over that interval, same vertical, is the reference);
 - over consecutive ``WINDOW_S`` windows from the first landmark on (walking, standing and turning alike): the
   accumulated error of the duty-cycled turn against the full gyroscope's (same vertical), the drift a heading
-  carried by it alone would gather (the hand's wobble at the step frequency, sampled by on-windows whose period
-  is near the step's, aliases into a slow drift that per-step figures do not show).
+  carried by it alone would gather (slow errors the per-step figures do not show, such as the hand's wobble at the
+  step frequency aliased by on-windows whose period is near the step's).
 
 The whole device's energy (``system_<t_on>``, :func:`energy_estimate`): ``auto``'s replay (batch phase 0) accounted
 as ``pednav eval ipin`` accounts it (``energy/power.py``, profile ``phone-bmi270``), with its gyroscope's energy

@@ -1,5 +1,5 @@
 """``clients.evaluation.phone_duty``: a duty-cycled gyroscope's turn on synthetic rates, and the dev trials'
-finding (docs/phone.md "A duty-cycled gyroscope (measured)")."""
+finding (docs/phone.md "A duty-cycled gyroscope (measured; not built)")."""
 
 from __future__ import annotations
 
