@@ -33,7 +33,7 @@ import numpy as np
 
 from clients.recording import Recording
 
-__all__ = ["SwingTable", "swing_table", "swing_statistics", "loro_statistics", "main"]
+__all__ = ["SwingTable", "swing_table", "turn_spans", "swing_statistics", "loro_statistics", "main"]
 
 ACC_HZ = 50.0  # the phone engine's walking accelerometer rate (PhoneEngineConfig.acc_rate_hz)
 MAG_HZ = 10.0  # ... and its walking magnetometer rate (PhoneEngineConfig.walk_mag_rate_hz)
@@ -99,21 +99,29 @@ def swing_table(rec: Recording, window_s: float, tau_s: float) -> SwingTable:
     return SwingTable(rec.name, (t[keep] - t[keep][0]) * 1e-9, np.degrees(D[keep]), np.degrees(G[keep]))
 
 
+def turn_spans(gyro_deg: np.ndarray) -> list[tuple[int, int, float]]:
+    """The turns of a table's ``G`` [deg] (per output, the gyroscope's largest turn within ``REF_WINDOW_S``): each
+    rise through ``CROSS_DEG`` into a stretch that reaches ``TURN_DEG``, as (the crossing's index, the index after
+    the stretch's end, the stretch's largest ``G`` [deg])."""
+    out = []
+    above = gyro_deg >= CROSS_DEG
+    for k in np.flatnonzero(above[1:] & ~above[:-1]) + 1:
+        end = int(k)
+        while end < len(gyro_deg) and gyro_deg[end] >= CROSS_DEG:
+            end += 1
+        top = float(gyro_deg[k:end].max())
+        if top >= TURN_DEG:
+            out.append((int(k), end, top))
+    return out
+
+
 def _turns(s: SwingTable, thr_deg: float) -> list[tuple[float, float, float]]:
     """Per turn (``G`` rising through ``CROSS_DEG`` into a stretch that reaches ``TURN_DEG``): the time [s] from the
     crossing to the detector's first swing from 0.5 s before it (up to 2 s after; NaN: missed), the gyroscope's
     turn within the second before that swing (how far the device had turned when it woke the gyroscope) and the
     stretch's largest ``G`` [deg]."""
     out = []
-    above = s.gyro >= CROSS_DEG
-    starts = np.flatnonzero(above[1:] & ~above[:-1]) + 1
-    for k in starts:
-        end = k
-        while end < len(s.gyro) and s.gyro[end] >= CROSS_DEG:
-            end += 1
-        top = float(s.gyro[k:end].max())
-        if top < TURN_DEG:
-            continue
+    for k, _end, top in turn_spans(s.gyro):
         tk = s.t_s[k]
         m = np.flatnonzero((s.t_s >= tk - 0.5) & (s.t_s <= tk + 2.0) & (s.detector > thr_deg))
         out.append((float(s.t_s[m[0]] - tk), float(s.gyro[m[0]]), top) if len(m) else (math.nan, math.nan, top))
