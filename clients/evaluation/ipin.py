@@ -48,6 +48,7 @@ from clients.recording import Recording
 CALIBRATIONS: tuple[str, ...] = ("population", "returning-user")
 
 __all__ = ["CALIBRATIONS", "LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
+           "logfile_recordings",
            "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "leave_one_route_out",
            "print_loro", "landmarks", "TRIAL_FIELDS"]
 
@@ -130,6 +131,22 @@ def logfile_cli(prog: str, description: str, argv: Sequence[str] | None) -> tupl
         print(f"error: no GetSensorData logfiles in {d}")
         return None
     return a, files
+
+
+def logfile_recordings(prog: str, module_doc: str, argv: Sequence[str] | None) -> tuple[Any, list[Recording]] | None:
+    """:func:`logfile_cli` with the logfiles loaded, the description the module docstring's first line:
+    ``(arguments, recordings)``, or None after one line naming a file that is not a logfile (the caller exits
+    with 2)."""
+    from clients.importers import ImporterError, load
+
+    parsed = logfile_cli(prog, module_doc.split("\n")[0], argv)
+    if parsed is None:
+        return None
+    try:
+        return parsed[0], [load(f) for f in parsed[1]]
+    except ImporterError as exc:
+        print(f"error: {exc}")
+        return None
 
 
 def route_of(name: str) -> str:

@@ -350,14 +350,12 @@ def loro_statistics(tables: Sequence[CentripetalTable]) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli, print_loro
-    from clients.importers import load
+    from clients.evaluation.ipin import logfile_recordings, print_loro
 
-    parsed = logfile_cli("python -m clients.evaluation.phone_centripetal", __doc__.split("\n")[0], argv)
+    parsed = logfile_recordings("python -m clients.evaluation.phone_centripetal", __doc__, argv)
     if parsed is None:
         return 2
-    a, files = parsed
-    recs = [load(f) for f in files]
+    a, recs = parsed
     fronts = [front_end(r) for r in recs]
     from clients.evaluation.ipin import leave_one_route_out
 

@@ -326,14 +326,12 @@ COLUMNS = ("energy_80ms", "energy_2ms", "system_80ms", "system_2ms", "straight_s
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import leave_one_route_out, logfile_cli
-    from clients.importers import load
+    from clients.evaluation.ipin import leave_one_route_out, logfile_recordings
 
-    parsed = logfile_cli("python -m clients.evaluation.phone_duty", __doc__.split("\n")[0], argv)
+    parsed = logfile_recordings("python -m clients.evaluation.phone_duty", __doc__, argv)
     if parsed is None:
         return 2
-    a, files = parsed
-    recs = [load(f) for f in files]
+    a, recs = parsed
     trials = [duty_trial(r) for r in recs]
     out: dict[str, Any] = {}
     for p, d, e in _grid():

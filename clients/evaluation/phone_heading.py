@@ -201,14 +201,13 @@ def loro_statistics(tables: Sequence[StepTable]) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli, print_loro
-    from clients.importers import load
+    from clients.evaluation.ipin import logfile_recordings, print_loro
 
-    parsed = logfile_cli("python -m clients.evaluation.phone_heading", __doc__.split("\n")[0], argv)
+    parsed = logfile_recordings("python -m clients.evaluation.phone_heading", __doc__, argv)
     if parsed is None:
         return 2
-    a, files = parsed
-    out = loro_statistics([step_table(load(f)) for f in files])
+    a, recs = parsed
+    out = loro_statistics([step_table(r) for r in recs])
     if a.json:
         print(json.dumps(out, indent=1))
     else:

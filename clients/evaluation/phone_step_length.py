@@ -73,14 +73,13 @@ def trial_statistics(rec: Recording) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli
-    from clients.importers import load
+    from clients.evaluation.ipin import logfile_recordings
 
-    parsed = logfile_cli("python -m clients.evaluation.phone_step_length", __doc__.split("\n")[0], argv)
+    parsed = logfile_recordings("python -m clients.evaluation.phone_step_length", __doc__, argv)
     if parsed is None:
         return 2
-    a, files = parsed
-    rows = [trial_statistics(load(f)) for f in files]
+    a, recs = parsed
+    rows = [trial_statistics(r) for r in recs]
     if a.json:
         print(json.dumps(rows, indent=1))
         return 0

@@ -167,14 +167,12 @@ GRID = ((0.5, 0.25), (0.5, 0.5), (0.5, 1.0), (1.0, 0.5), (1.5, 0.5))  # (window_
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from clients.evaluation.ipin import logfile_cli, print_loro
-    from clients.importers import load
+    from clients.evaluation.ipin import logfile_recordings, print_loro
 
-    parsed = logfile_cli("python -m clients.evaluation.phone_swing", __doc__.split("\n")[0], argv)
+    parsed = logfile_recordings("python -m clients.evaluation.phone_swing", __doc__, argv)
     if parsed is None:
         return 2
-    a, files = parsed
-    recs = [load(f) for f in files]
+    a, recs = parsed
     out = {f"window {w} s, tau {tau} s": loro_statistics([swing_table(r, w, tau) for r in recs]) for w, tau in GRID}
     if a.json:
         print(json.dumps(out, indent=1))

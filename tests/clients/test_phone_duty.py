@@ -78,3 +78,18 @@ def test_duty_cycled_turn_beats_the_compass_on_the_dev_trials(ipin_dir) -> None:
     slow = duty_statistics(trials, 1.0, 0.3, "interp")
     assert slow["turn_rms_deg"] > st["compass_turn_rms_deg"]
     assert not math.isnan(st["window_rms_deg"])
+
+
+@pytest.mark.parametrize("module", ["phone_duty", "phone_swing", "phone_centripetal", "phone_heading", "phone_step_length"])
+def test_diagnosis_scripts_refuse_a_folder_without_logfiles_in_one_line(module: str, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """The phone diagnosis scripts (``python -m clients.evaluation.phone_*``): an empty folder or a ``.txt`` that is not
+    a GetSensorData logfile ends with one ``error:`` line and exit code 2, never a traceback."""
+    import importlib
+
+    main = importlib.import_module(f"clients.evaluation.{module}").main
+    assert main([str(tmp_path)]) == 2
+    assert capsys.readouterr().out.startswith("error: no GetSensorData logfiles")
+    (tmp_path / "notes.txt").write_text("% time seconds\n1 2\n")
+    assert main([str(tmp_path)]) == 2
+    out = capsys.readouterr().out
+    assert out.startswith("error: ") and "notes.txt" in out and out.count("\n") == 1
