@@ -108,7 +108,7 @@ _SQLITE_UPDATE_TOKEN = _SQLITE_UPDATE + (
 )
 _SQLITE_BATCH = (
     "INSERT INTO batches (session_id, seq, body_sha256, raw, n_acc, n_gyr, n_mag, response, received_at) "
-    "VALUES (:sid, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, :response, :received_at)"
+    "VALUES (:sid, :seq, :sha, :raw, :n_acc, :n_gyr, :n_mag, :response, :now)"
 )
 _SQLITE_POS = (
     "INSERT INTO positions (session_id, seq, " + ", ".join(_POS_COLS) + ") VALUES (?, ?, " + ", ".join("?" * len(_POS_COLS)) + ")"
@@ -145,18 +145,18 @@ class _LazyCursor:
 _Job = tuple[int, int, int, Fed, dict[str, int | None], str | None]  # session, version, seq, fed, watermarks, token
 
 
-def _sqlite_write(cur: Any, job: _Job) -> bool:
-    """One upload's rows inside the open transaction; False when the version check (and with a token hash, the
-    token check) failed: nothing written."""
+def _sqlite_write(cur: Any, job: _Job, now: str) -> bool:
+    """One upload's rows inside the open transaction (``now``: its time, :func:`_utc_text`, the batch's
+    ``received_at`` and the instant its token must not have expired by); False when the version check (and with a
+    token hash, the token check) failed: nothing written."""
     session_id, version, seq, fed, newest, tok = job
     p = _write_params(session_id, version, seq, fed, newest)
-    if tok is None:
-        cur.execute(_SQLITE_UPDATE, p)
-    else:
-        cur.execute(_SQLITE_UPDATE_TOKEN, {**p, "tok": tok, "now": _utc_text()})
+    p["tok"] = tok
+    p["now"] = now  # (a statement takes only the named parameters it has from the mapping)
+    cur.execute(_SQLITE_UPDATE if tok is None else _SQLITE_UPDATE_TOKEN, p)
     if cur.rowcount != 1:
         return False
-    cur.execute(_SQLITE_BATCH, {**p, "received_at": _utc_text()})
+    cur.execute(_SQLITE_BATCH, p)
     ps, es = fed.resp["positions"], fed.resp["events"]
     if ps:
         cur.executemany(_SQLITE_POS, [(session_id, seq, *(x[k] for k in _POS_COLS)) for x in ps])
@@ -246,11 +246,12 @@ class SqliteGroupWriter:
             # each upload in its own savepoint, but a group of one needs none: its failure rolls back the
             # whole transaction, which holds nothing else (two statements less per upload when idle)
             single = len(boxes) == 1
+            now = _utc_text()  # one clock reading and text for the group (received_at, the token's expiry)
             for b in boxes:
                 if not single:
                     cur.execute("SAVEPOINT upload")
                 try:
-                    b[2] = _sqlite_write(cur, b[0])
+                    b[2] = _sqlite_write(cur, b[0], now)
                 except sqlite3.IntegrityError:
                     b[2] = False  # (session, seq) already stored: answered as a retry
                 if not single:
