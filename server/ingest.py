@@ -176,7 +176,8 @@ class EngineHost:
         self.serialize_writes = serialize_writes
         self.write_lock: Any = threading.Lock() if serialize_writes else nullcontext()
         self._engine_cls = engine_cls
-        self._cache: OrderedDict[int, tuple[int, EngineLike]] = OrderedDict()
+        # session id -> (version, engine, stored as a complete state: the next batch stores a checkpoint)
+        self._cache: OrderedDict[int, tuple[int, EngineLike, bool]] = OrderedDict()
         self._locks: dict[int, threading.Lock] = {}
         self._guard = threading.Lock()
 
@@ -251,11 +252,13 @@ class EngineHost:
         load_raws: Callable[[int], list[bytes]] | None,
     ) -> tuple[EngineLike, int | None, bool]:
         """:meth:`restore_at`, returning ``(engine, held, restored)``: ``held`` the batches the stored blob holds
-        (None: a complete state), ``restored`` False for the cached engine (:func:`checkpoint_due`)."""
+        (None: a complete state), ``restored`` False for the cached engine (:func:`checkpoint_due`), True for
+        one remembered as stored in a complete state (:meth:`remember`): its next batch stores the checkpoint a
+        restore from that state would."""
         hit = self._cache.get(session_id)
         if hit is not None and hit[0] == version:
             self._cache.move_to_end(session_id)
-            return hit[1], None, False
+            return hit[1], None, hit[2]
         blob = load_state()
         if blob is None:  # only sessions from before engine states were stored: all ran the foot engine
             return self.new(mode, engine_profile_from_stored(profile)), None, True
@@ -271,16 +274,18 @@ class EngineHost:
         raws = load_raws(held) if held is not None and load_raws is not None else []
         return replay_engine(from_bytes(state), raws), held, True
 
-    def remember(self, session_id: int, version: int, engine: EngineLike | None) -> None:
+    def remember(self, session_id: int, version: int, engine: EngineLike | None, complete: bool = False) -> None:
         """After the commit of ``version``: keep ``engine`` for the next batch (None: the engine helper's, which
-        fed it; see :mod:`server.engine_pool`)."""
+        fed it; see :mod:`server.engine_pool`). ``complete``: the commit stored ``engine`` as a complete state
+        (a session start), so its next batch is treated as one after a restore from that state
+        (:func:`checkpoint_due`), with the engine kept instead of decoded from the bytes just stored."""
         if engine is None:
             if self.pool is not None:
                 self.pool.committed(session_id, version)
             return
         if self.cache_size <= 0:
             return
-        self._cache[session_id] = (version, engine)
+        self._cache[session_id] = (version, engine, complete)
         self._cache.move_to_end(session_id)
         while len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)

@@ -86,7 +86,7 @@ def _cpu_probe(server_pid: int, workers: int = 1) -> dict[str, float]:
     helpers) and all postgres processes (on a shared machine the latter include other clients of the database).
     ``server_worker_event_loop``: the part of ``server_worker`` spent in the workers' main threads (the event
     loop); the rest is their ingest threads (authentication, decoding, the engine helper round trip, the database
-    round trips) and, on SQLite, the group-commit writer thread."""
+    round trips, on SQLite the group commit, which runs in the ingest thread that leads it)."""
     if not os.path.isdir("/proc"):
         return {}
     st = _proc_stats()
