@@ -208,6 +208,8 @@ class DeviceEmulator:
         self._swing: CompassSwing | None = None  # compass-swing wake: the device's detector, while the mode is on
         self._duty_epoch_ns: int | None = None  # duty-cycled gyroscope: the power-up of its period 0 [ns], device clock
         self._duty_key: tuple[int, int] | None = None  # ... its (period, on) [ns]
+        self._duty_pre_on = False  # ... the gyroscope was fully on before it began
+        self._gyro_full = False  # the last batch's configuration had the gyroscope fully on
         self._last_acc_ns = np.iinfo(np.int64).min
         self.last_spans: list[Span] = []
 
@@ -266,9 +268,12 @@ class DeviceEmulator:
             self._ref = None
             windows = self._duty_windows(t0_ns, t1_ns, config)
             s_t, s_v = kw["gyr_t_ns"], kw["gyr"]
-            keep = np.zeros(len(s_t), dtype=bool)
-            for _, deliver, off in windows:
-                keep |= (s_t >= deliver) & (s_t < off)
+            # by time stamp, not by batch: the filter's delay hands a window's last samples out with the next batch
+            period, on = self._duty_key or (1, 0)
+            e = self._duty_epoch_ns or 0
+            ph = (s_t - e) % period
+            keep = (ph >= self.gyro_turn_on_ns) & (ph < self.gyro_turn_on_ns + on) & (s_t >= e)
+            keep |= (s_t < e) & self._duty_pre_on  # the previous configuration's gyroscope, fully on
             kw["gyr_t_ns"], kw["gyr"] = s_t[keep], s_v[keep]
             self.last_spans = self._spans(t0_ns, t1_ns, windows, config, acc_follows_gyro=False)
         elif not wake:
@@ -288,6 +293,7 @@ class DeviceEmulator:
                     keep |= (s_t >= deliver) & (s_t < off)
                 kw[f"{name}_t_ns"], kw[name] = s_t[keep], s_v[keep]
             self.last_spans = self._spans(t0_ns, t1_ns, windows, config)
+        self._gyro_full = bool(config.gyro_on and not config.gyr_duty and not wake)
         newer = kw["acc_t_ns"] > self._last_acc_ns  # across a rate switch the outputs never go back in time
         kw["acc_t_ns"], kw["acc"] = kw["acc_t_ns"][newer], kw["acc"][newer]
         if len(kw["acc_t_ns"]):
@@ -303,6 +309,7 @@ class DeviceEmulator:
         key = (int(round(config.gyr_duty_period_s * 1e9)), int(round(config.gyr_duty_on_s * 1e9)))
         if self._duty_epoch_ns is None or self._duty_key != key:
             self._duty_epoch_ns, self._duty_key = int(t0), key
+            self._duty_pre_on = self._gyro_full
         period, on = key
         e = self._duty_epoch_ns
         length = self.gyro_turn_on_ns + on

@@ -178,6 +178,17 @@ class PhoneEngineConfig:
         the windows' mean rates (:class:`_DutyFill`), so that the MARG filter integrates a continuous rate and the
         step is a gyroscope step. 0, 0 (the default): off. Measured on the IPIN dev trials in docs/phone.md, "A
         duty-cycled gyroscope".
+    gyro_duty_only : bool
+        With the duty cycle: walking, ``auto`` asks for the full gyroscope only while the compass's noise is unknown
+        (and for ``gyro_min_steps`` once asked), not where the heading's forecast one gyroscope-off step ahead
+        exceeds ``max_heading_std_rad``: that forecast is the compass's, and the duty cycle measures the turns
+        (docs/phone.md: 8.5 deg RMS per turn against the compass's 15.6). False: full where the default asks.
+    gyro_duty_sigma_rad : float
+        With the duty cycle: a step whose gyroscope samples were partly filled turns with this much more noise
+        [rad] (times the filled fraction of the step, squared into the variance) than a gyroscope step, and its
+        compass innovation does not teach the compass's noise (the heading it is measured against is not the full
+        gyroscope's). 0 (the default): a filled step is a gyroscope step. docs/phone.md's measurement: 2.5 deg
+        robust SD per straight step at ``P`` 0.5 s, ``d`` 0.3 (``python -m clients.evaluation.phone_duty``).
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -219,6 +230,8 @@ class PhoneEngineConfig:
     swing_sleep_s: float = 1.5
     gyro_duty_period_s: float = 0.0
     gyro_duty_on_s: float = 0.0
+    gyro_duty_only: bool = False
+    gyro_duty_sigma_rad: float = 0.0
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     stream_max_lag_s: float = 10.0
@@ -238,6 +251,9 @@ class PhoneEngineConfig:
                 and (p == 0 or on < p)):
             raise ValueError("PhoneEngineConfig: gyro_duty_period_s and gyro_duty_on_s must both be 0 or both positive "
                              f"with gyro_duty_on_s below gyro_duty_period_s, got {p!r}, {on!r}")
+        sd = float(self.gyro_duty_sigma_rad)
+        if not (math.isfinite(sd) and sd >= 0):
+            raise ValueError(f"PhoneEngineConfig: gyro_duty_sigma_rad must be finite and >= 0, got {sd!r}")
         if not 0.0 <= float(self.orientation_rho) < 1.0:
             raise ValueError(f"PhoneEngineConfig: orientation_rho must lie in [0, 1), got {self.orientation_rho!r}")
 
@@ -382,6 +398,15 @@ class _DutyFill:
         self.gap: tuple[int, np.ndarray, int] | None = None  # a gap before the current run: (t, mean rate, interval)
         self.held_t = np.zeros(0, dtype=np.int64)  # the current run's samples held for the gap's line
         self.held_v = np.zeros((0, 3))
+        self.fills: list[list[int]] = []  # the gaps filled [t_a, t_b] [ns] (pruned by the engine)
+
+    def filled_ns(self, t0: int, t1: int) -> int:
+        """How much of ``[t0, t1)`` [ns] was filled (not measured)."""
+        return int(sum(max(0, min(b, t1) - max(a, t0)) for a, b in self.fills))
+
+    def prune(self, before_ns: int) -> None:
+        """Forget the fills that ended before ``before_ns``."""
+        self.fills = [f for f in self.fills if f[1] >= before_ns]
 
     def _resolve(self, out_t: list[np.ndarray], out_v: list[np.ndarray]) -> None:
         """The current run's mean is known: give out the gap's line and the held samples."""
@@ -393,6 +418,7 @@ class _DutyFill:
             w = ((ft - ta) / (tb - ta))[:, None]
             out_t.append(ft)
             out_v.append(ma[None, :] + (self.run_mean - ma)[None, :] * w)
+            self.fills.append([int(ta), tb])
         out_t.append(self.held_t)
         out_v.append(self.held_v)
         self.gap = None
@@ -475,7 +501,8 @@ class _DutyFill:
                 "run_sum": self.run_sum, "run_n": self.run_n, "run_done": self.run_done, "run_mean": self.run_mean,
                 "tail_t": self.tail_t, "tail_v": self.tail_v,
                 "gap": None if self.gap is None else [self.gap[0], self.gap[1], self.gap[2]],
-                "held_t": self.held_t, "held_v": self.held_v}
+                "held_t": self.held_t, "held_v": self.held_v,
+                "fills": np.asarray(self.fills, dtype=np.int64).reshape(-1, 2)}
 
     @classmethod
     def from_state(cls, d: dict[str, Any]) -> _DutyFill:
@@ -493,6 +520,7 @@ class _DutyFill:
         obj.gap = None if g is None else (int(g[0]), np.asarray(g[1], dtype=np.float64).reshape(3).copy(), int(g[2]))
         obj.held_t = np.asarray(d["held_t"], dtype=np.int64).reshape(-1)
         obj.held_v = np.asarray(d["held_v"], dtype=np.float64).reshape(-1, 3)
+        obj.fills = np.asarray(d.get("fills", []), dtype=np.int64).reshape(-1, 2).tolist()
         return obj
 
 
@@ -803,6 +831,8 @@ class PhoneEngine:
             return
         dc = 0.0 if not math.isfinite(change) else change
         dyaw = float(r[_F["gyro_dyaw"]])
+        extra = self._duty_var(r, t_ns) if gyro else 0.0
+        learn = walking and extra == 0.0
         settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
                    and yaw_std < c.marg_settled_std_rad)
         # the gyroscope has come back (after a stretch without it) and its bias has settled: until the MARG
@@ -812,13 +842,13 @@ class PhoneEngine:
                   and (not self._prev_gyro or self._returning))
         self._returning = follow
         if settled:
-            hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
+            hd.predict_gyro(wrap(direction - self._prev_dir), dc, extra)  # the MARG filter's change over the step
             if has_c:
-                hd.update_compass(compass, r_c, anomaly, learn=walking)
+                hd.update_compass(compass, r_c, anomaly, learn=learn)
         elif follow:
-            hd.predict_gyro(dyaw, dc)
+            hd.predict_gyro(dyaw, dc, extra)
             if has_c:
-                hd.update_compass(compass, r_c, anomaly, learn=walking)
+                hd.update_compass(compass, r_c, anomaly, learn=learn)
         elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
             # the MARG filter is still converging (the session just began, or the gyroscope came back before its
             # bias settled): its heading moves with its compass corrections, so its changes are not the walker's;
@@ -849,6 +879,20 @@ class PhoneEngine:
                     sigma = math.hypot(sigma, self._directions.orientation_std_rad(c.orientation_rho))
                 hd.update_dominant(ref, sigma, dd.gate_rad)
 
+    def _duty_var(self, r: np.ndarray, t_ns: int) -> float:
+        """The added turn variance [rad^2] of a step whose gyroscope samples were partly filled
+        (``gyro_duty_sigma_rad`` squared, times the step's filled fraction over the duty cycle's off fraction, at
+        most 1); 0 without the duty cycle or its noise."""
+        c = self.config
+        if self._duty is None or not c.gyro_duty_sigma_rad > 0:
+            return 0.0
+        period = float(r[_F["period_s"]])
+        span = int(round((period if math.isfinite(period) and period > 0 else 0.5) * 1e9))
+        self._duty.prune(t_ns - 10 * span)
+        frac = self._duty.filled_ns(t_ns - span, t_ns) / span
+        off = 1.0 - c.gyro_duty_on_s / c.gyro_duty_period_s
+        return c.gyro_duty_sigma_rad ** 2 * min(1.0, frac / off)
+
     def _schedule(self, t_ns: int, events: list[Event]) -> None:
         """Gyroscope on demand (``auto``): after each step."""
         if self.mode != "auto":
@@ -861,8 +905,9 @@ class PhoneEngine:
             forecast = math.inf
         else:
             forecast = hd.forecast(*self._reading)[0]
+        uncertain = forecast > c.max_heading_std_rad and not locked and not (c.gyro_duty_period_s > 0 and c.gyro_duty_only)
         want = (self._turned or learnt < c.gyro_min_steps
-                or (forecast > c.max_heading_std_rad and not locked)
+                or uncertain
                 or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))
         if want != self._gyro_want:
             reason = ("turn" if self._turned else "compass noise unknown" if learnt < c.gyro_min_steps

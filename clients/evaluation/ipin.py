@@ -186,12 +186,13 @@ class TrialResult:
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
               batch_seconds: float = 1.0, max_heading_std_rad: float | None = None,
-              start_offset_s: float = 0.0, gyro_duty: tuple[float, float] | None = None) -> TrialResult:
+              start_offset_s: float = 0.0, gyro_duty: tuple[float, ...] | None = None) -> TrialResult:
     """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
     (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's; ``start_offset_s`` [s]: the
     replay starts this long after the recording, which moves the upload batches' boundaries against the walk;
     ``gyro_duty``: ``(P, on)`` [s], ``auto`` duty-cycles the gyroscope where it would switch it off walking,
-    ``PhoneEngineConfig.gyro_duty_period_s`` / ``gyro_duty_on_s``; None: the engine's default)."""
+    ``PhoneEngineConfig.gyro_duty_period_s`` / ``gyro_duty_on_s``; ``(P, on, 1)``: also ``gyro_duty_only``; ``(P, on, only,
+    sigma_deg)``: also ``gyro_duty_sigma_rad``; None: the engine's default)."""
     from dataclasses import replace
 
     from energy.device import replay
@@ -203,7 +204,9 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     if max_heading_std_rad is not None:
         cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
     if gyro_duty is not None:
-        cfg = replace(cfg, gyro_duty_period_s=float(gyro_duty[0]), gyro_duty_on_s=float(gyro_duty[1]))
+        cfg = replace(cfg, gyro_duty_period_s=float(gyro_duty[0]), gyro_duty_on_s=float(gyro_duty[1]),
+                      gyro_duty_only=len(gyro_duty) > 2 and bool(gyro_duty[2]),
+                      gyro_duty_sigma_rad=math.radians(float(gyro_duty[3])) if len(gyro_duty) > 3 else 0.0)
     eng = PhoneEngine(mode=mode, config=cfg, device_kind="phone", placement=placement, anchor=anchor, date=day)
     batch = rec.batch
     if start_offset_s > 0:
@@ -315,7 +318,7 @@ def _surveyed(rec: Recording) -> float:
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
                   batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
                   max_heading_std_rad: float | None = None, phases: int = 1,
-                  calibration: str = "population", gyro_duty: tuple[float, float] | None = None) -> dict[str, Any]:
+                  calibration: str = "population", gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
     """The ``pednav eval ipin`` document for loaded recordings (see the module docstring; ``calibration``:
     ``"population"`` or ``"returning-user"``).
 
@@ -381,13 +384,13 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
     if max_heading_std_rad is not None:
         doc["max_heading_std_rad"] = max_heading_std_rad
     if gyro_duty is not None:
-        doc["gyro_duty"] = [float(gyro_duty[0]), float(gyro_duty[1])]
+        doc["gyro_duty"] = [float(x) for x in gyro_duty]
     return doc
 
 
 def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, placement: str | None,
             batch_seconds: float, max_heading_std_rad: float | None, phases: int,
-            progress: Callable[[str], None] | None, gyro_duty: tuple[float, float] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None, gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
     """Median and worst mean landmark error, median 75th percentile and median energy ratio of ``mode`` and of
     always-on for each batch phase (phase 0: ``trials``), their means over the phases, and each trial's mean
     error averaged over the phases."""
