@@ -179,10 +179,11 @@ class PhoneEngineConfig:
         step is a gyroscope step. 0, 0 (the default): off. Measured on the IPIN dev trials in docs/phone.md, "A
         duty-cycled gyroscope".
     gyro_duty_only : bool
-        With the duty cycle: walking, ``auto`` asks for the full gyroscope only while the compass's noise is unknown
-        (and for ``gyro_min_steps`` once asked), not where the heading's forecast one gyroscope-off step ahead
-        exceeds ``max_heading_std_rad``: that forecast is the compass's, and the duty cycle measures the turns
-        (docs/phone.md: 8.5 deg RMS per turn against the compass's 15.6). False: full where the default asks.
+        With the duty cycle: walking, the heading's forecast that decides whether ``auto`` asks for the full gyroscope
+        is one duty-cycled step ahead, the heading's standard deviation grown by ``gyro_duty_sigma_rad`` (0: never
+        above ``max_heading_std_rad``), not one gyroscope-off step ahead (the compass's, which must find the turns
+        the duty cycle measures: docs/phone.md, 8.5 deg RMS per turn against the compass's 15.6); the full gyroscope
+        still while the compass's noise is unknown. False: full where the default asks.
     gyro_duty_sigma_rad : float
         With the duty cycle: a step whose gyroscope samples were partly filled turns with this much more noise
         [rad] (times the filled fraction of the step, squared into the variance) than a gyroscope step, and its
@@ -905,7 +906,11 @@ class PhoneEngine:
             forecast = math.inf
         else:
             forecast = hd.forecast(*self._reading)[0]
-        uncertain = forecast > c.max_heading_std_rad and not locked and not (c.gyro_duty_period_s > 0 and c.gyro_duty_only)
+        if c.gyro_duty_period_s > 0 and c.gyro_duty_only:
+            # the step ahead is a duty-cycled one: its heading grows by the duty cycle's own noise, not by a turn the
+            # compass must find (without that noise the duty cycle is taken as the gyroscope: never uncertain)
+            forecast = math.hypot(hd.std, c.gyro_duty_sigma_rad) if c.gyro_duty_sigma_rad > 0 else 0.0
+        uncertain = forecast > c.max_heading_std_rad and not locked
         want = (self._turned or learnt < c.gyro_min_steps
                 or uncertain
                 or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))

@@ -170,3 +170,24 @@ def test_auto_asks_for_the_duty_cycle_walking() -> None:
     assert not any(c.gyr_duty for _, c in plain.configs)  # off by default
     # where the default switches the gyroscope off walking, the duty cycle's steps are gyroscope steps
     assert np.mean([p.gyro_on for p in res.positions]) > np.mean([p.gyro_on for p in plain.positions])
+
+
+def test_filled_steps_noise_and_duty_only_schedule() -> None:
+    """``gyro_duty_sigma_rad``: the filled steps widen the heading's uncertainty (they are not the full gyroscope's);
+    ``gyro_duty_only``: walking, the duty cycle replaces the full gyroscope the heading's forecast asked for."""
+    with pytest.raises(ValueError, match="gyro_duty_sigma_rad"):
+        PhoneEngineConfig(gyro_duty_period_s=P, gyro_duty_on_s=ON, gyro_duty_sigma_rad=-0.1)
+    rec = _duty_cycled(_rec().batch, 0.13)
+    stds = []
+    for sigma in (0.0, np.radians(2.5)):
+        e = PhoneEngine("auto", config=replace(CFG, gyro_duty_sigma_rad=float(sigma)), placement="phone-hand",
+                        anchor=ANCHOR)
+        e.feed(rec)
+        e.flush()
+        stds.append(e._heading.std)
+    assert stds[1] > stds[0]
+    full = replay(PhoneEngine("auto", config=CFG, anchor=ANCHOR), _rec().batch, 1.0)
+    only = replay(PhoneEngine("auto", config=replace(CFG, gyro_duty_only=True), anchor=ANCHOR), _rec().batch, 1.0)
+    n_full = sum(c.gyro_on and not c.gyr_duty for _, c in full.configs)
+    n_only = sum(c.gyro_on and not c.gyr_duty for _, c in only.configs)
+    assert n_only < n_full
