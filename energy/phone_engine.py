@@ -34,7 +34,9 @@ building's dominant directions) at 50 Hz, the magnetometer at 10 Hz; standing, t
 run at their low rates and the gyroscope is off once the MARG filter's vertical bias has settled
 (:func:`models.marg.bias_settled`: after the start and after the device was waved about it stays on, the
 quasi-static field settling the bias). A gyroscope that comes back with a settled bias carries the heading by its
-own measured turn (``gyro_dyaw``) until the MARG filter has settled again. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
+own measured turn (``gyro_dyaw``) until the MARG filter has settled again. With ``gyro_duty_period_s`` (off by
+default) the walking gyroscope-off batches ask for a duty-cycled gyroscope instead, whose gaps :class:`_DutyFill`
+fills. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
 North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
 geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
 Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.
