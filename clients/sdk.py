@@ -618,7 +618,10 @@ class BatchStream:
         the still reference, and ``"high_g"``, the absolute acceleration, beyond ``wake_threshold_ms2``;
         ``"weak_field"``, a still stance whose field calibrated by ``mag_offset_ut`` and ``mag_matrix`` has a
         horizontal part below ``wake_field_ut``; ``"compass_swing"``, a phone's compass azimuth changing by more than
-        ``wake_swing_rad`` within ``wake_window_s``), see :class:`energy.device.DeviceEmulator`.
+        ``wake_swing_rad`` within ``wake_window_s``); with ``gyro_on`` and ``gyr_duty_period_s`` > 0 the device
+        duty-cycles the gyroscope itself (powered up every ``gyr_duty_period_s`` of its own clock, delivering for
+        ``gyr_duty_on_s`` after its turn-on time; keys absent in older servers' answers mean 0, not duty-cycled),
+        see :class:`energy.device.DeviceEmulator`.
         """
         return None if self.last_response is None else self.last_response["sensor_config"]
 

@@ -167,6 +167,13 @@ class DeviceEmulator:
     ``wake_swing_rad`` within ``wake_window_s`` (:meth:`_compass_swings`, :class:`energy.compass_swing.CompassSwing` on
     the detectors' accelerometer and magnetometer outputs); the rest is as with ``"weak_field"``.
 
+    A duty-cycled gyroscope (``config.gyr_duty_period_s`` ``P`` > 0, with ``gyro_on``): the device powers the gyroscope
+    up at ``e + k P`` (``e``: the start of the first batch under this duty cycle, kept across batches while the
+    configurations keep it: the phase is the device's, not the uploads'), it delivers its samples in
+    ``[e + k P + GYRO_TURN_ON_S, e + k P + GYRO_TURN_ON_S + gyr_duty_on_s)`` and nothing else, and is charged from each
+    power-up to the window's end (:attr:`last_spans`); the accelerometer and magnetometer run at their rates
+    throughout. The delivered fraction is ``gyr_duty_on_s / P``, the charged one ``(gyr_duty_on_s + GYRO_TURN_ON_S) / P``.
+
     The decision is made by the device on the samples it actually produces, between uploads; the engine just
     sees gyroscope samples start (or stop) in the middle of a batch. A configuration with ``gyro_on`` keeps
     the gyroscope awake; a switch to wake-on-motion then lets it sleep only after the inactivity duration.
@@ -199,6 +206,10 @@ class DeviceEmulator:
         self._mag_last: np.ndarray | None = None  # ... the latest magnetometer output [uT]
         self._event_mode: str | None = None  # the last batch's event-driven wake mode (weak field, compass swing)
         self._swing: CompassSwing | None = None  # compass-swing wake: the device's detector, while the mode is on
+        self._duty_epoch_ns: int | None = None  # duty-cycled gyroscope: the power-up of its period 0 [ns], device clock
+        self._duty_key: tuple[int, int] | None = None  # ... its (period, on) [ns]
+        self._duty_pre_on = False  # ... the gyroscope was fully on before it began
+        self._gyro_full = False  # the last batch's configuration had the gyroscope fully on
         self._last_acc_ns = np.iinfo(np.int64).min
         self.last_spans: list[Span] = []
 
@@ -248,7 +259,24 @@ class DeviceEmulator:
             # said so; the device's own event wakes it
             self._awake, self._armed_ns = False, t0_ns
         self._event_mode = event_mode
-        if not wake:
+        if not config.gyr_duty:
+            self._duty_epoch_ns = self._duty_key = None
+        if config.gyr_duty:
+            self._awake = True  # a configuration without the duty cycle keeps it as the host says
+            self._armed_ns = t1_ns
+            self._deliver_ns = np.iinfo(np.int64).min
+            self._ref = None
+            windows = self._duty_windows(t0_ns, t1_ns, config)
+            s_t, s_v = kw["gyr_t_ns"], kw["gyr"]
+            # by time stamp, not by batch: the filter's delay hands a window's last samples out with the next batch
+            period, on = self._duty_key or (1, 0)
+            e = self._duty_epoch_ns or 0
+            ph = (s_t - e) % period
+            keep = (ph >= self.gyro_turn_on_ns) & (ph < self.gyro_turn_on_ns + on) & (s_t >= e)
+            keep |= (s_t < e) & self._duty_pre_on  # the previous configuration's gyroscope, fully on
+            kw["gyr_t_ns"], kw["gyr"] = s_t[keep], s_v[keep]
+            self.last_spans = self._spans(t0_ns, t1_ns, windows, config, acc_follows_gyro=False)
+        elif not wake:
             self._awake = bool(config.gyro_on)
             self._armed_ns = t1_ns
             self._deliver_ns = np.iinfo(np.int64).min
@@ -265,11 +293,34 @@ class DeviceEmulator:
                     keep |= (s_t >= deliver) & (s_t < off)
                 kw[f"{name}_t_ns"], kw[name] = s_t[keep], s_v[keep]
             self.last_spans = self._spans(t0_ns, t1_ns, windows, config)
+        self._gyro_full = bool(config.gyro_on and not config.gyr_duty and not wake)
         newer = kw["acc_t_ns"] > self._last_acc_ns  # across a rate switch the outputs never go back in time
         kw["acc_t_ns"], kw["acc"] = kw["acc_t_ns"][newer], kw["acc"][newer]
         if len(kw["acc_t_ns"]):
             self._last_acc_ns = int(kw["acc_t_ns"][-1])
         return SensorBatch(**kw)
+
+    # ------------------------------------------------------------------ duty-cycled gyroscope
+    def _duty_windows(self, t0: int, t1: int, config: SensorConfig) -> list[tuple[int, int, int]]:
+        """The duty-cycled gyroscope's windows ``(powered up at, delivers from, off at)`` [ns] that overlap
+        ``[t0, t1)``: powered up at ``e + k P`` (``e``: the start of the first batch of this duty cycle, kept
+        across batches while the configuration keeps the same cycle: the device's own timer, not the uploads'),
+        delivering from ``GYRO_TURN_ON_S`` later for ``gyr_duty_on_s``, then powered down."""
+        key = (int(round(config.gyr_duty_period_s * 1e9)), int(round(config.gyr_duty_on_s * 1e9)))
+        if self._duty_epoch_ns is None or self._duty_key != key:
+            self._duty_epoch_ns, self._duty_key = int(t0), key
+            self._duty_pre_on = self._gyro_full
+        period, on = key
+        e = self._duty_epoch_ns
+        length = self.gyro_turn_on_ns + on
+        k = max(0, (t0 - e - length) // period)
+        out: list[tuple[int, int, int]] = []
+        while e + k * period < t1:
+            up = e + k * period
+            if up + length > t0:
+                out.append((up, up + self.gyro_turn_on_ns, up + length))
+            k += 1
+        return out
 
     # ------------------------------------------------------------------ wake-on-motion
     def _departs(self, v: np.ndarray, thr: float, high_g: bool) -> bool:
@@ -426,9 +477,11 @@ class DeviceEmulator:
         v = np.concatenate(out_v).reshape(-1, 3) if out_v else low_v[:0]
         return t, v, windows
 
-    def _spans(self, t0: int, t1: int, windows: list[tuple[int, int, int]], config: SensorConfig) -> list[Span]:
-        """Stretches of constant sensor state in ``[t0, t1)``: gyroscope charged from activity to power-down,
-        accelerometer at the shared rate while the gyroscope delivers."""
+    def _spans(self, t0: int, t1: int, windows: list[tuple[int, int, int]], config: SensorConfig,
+               acc_follows_gyro: bool = True) -> list[Span]:
+        """Stretches of constant sensor state in ``[t0, t1)``: gyroscope charged from activity (or power-up) to
+        power-down, accelerometer at the shared rate while the gyroscope delivers (``acc_follows_gyro``; False:
+        at ``acc_rate_hz`` throughout, the duty cycle)."""
         cuts = sorted({t0, t1, *[min(max(x, t0), t1) for w in windows for x in w]})
         spans: list[Span] = []
         for a, b in zip(cuts[:-1], cuts[1:]):
@@ -436,7 +489,7 @@ class DeviceEmulator:
                 continue
             charged = any(w[0] <= a and b <= w[2] for w in windows)
             delivering = any(w[1] <= a and b <= w[2] for w in windows)
-            acc = config.gyr_rate_hz if delivering else config.acc_rate_hz
+            acc = config.gyr_rate_hz if delivering and acc_follows_gyro else config.acc_rate_hz
             mag = config.mag_rate_hz if (charged or not config.mag_follows_gyro) else 0.0
             spans.append((a, b, self.delivered_rate_hz("acc", acc), self.delivered_rate_hz("gyr", config.gyr_rate_hz if charged else 0.0),
                           self.delivered_rate_hz("mag", mag)))

@@ -34,7 +34,9 @@ building's dominant directions) at 50 Hz, the magnetometer at 10 Hz; standing, t
 run at their low rates and the gyroscope is off once the MARG filter's vertical bias has settled
 (:func:`models.marg.bias_settled`: after the start and after the device was waved about it stays on, the
 quasi-static field settling the bias). A gyroscope that comes back with a settled bias carries the heading by its
-own measured turn (``gyro_dyaw``) until the MARG filter has settled again. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
+own measured turn (``gyro_dyaw``) until the MARG filter has settled again. With ``gyro_duty_period_s`` (off by
+default) the walking gyroscope-off batches ask for a duty-cycled gyroscope instead, whose gaps :class:`_DutyFill`
+fills. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
 North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
 geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
 Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.
@@ -45,6 +47,7 @@ from __future__ import annotations
 import datetime as _dt
 import math
 from dataclasses import asdict, dataclass, field
+from dataclasses import replace as _replace
 from typing import Any
 
 import numpy as np
@@ -170,6 +173,25 @@ class PhoneEngineConfig:
     swing_sleep_s : float
         The device powers the gyroscope it woke down this long after the last swing: the host's reaction time
         (``batch_s`` plus ``stream_wait_s``), after which the host has seen the turn and decides itself.
+    gyro_duty_period_s, gyro_duty_on_s : float
+        ``auto``: where it switches the gyroscope off while walking, ask for it duty-cycled instead
+        (``SensorConfig.gyr_duty_period_s`` ``P``, ``gyr_duty_on_s``: the device delivers ``gyr_duty_on_s`` of every
+        ``P``), and fill each gap of at most ``1.5 P`` between two delivered windows with the straight line between
+        the windows' mean rates (:class:`_DutyFill`), so that the MARG filter integrates a continuous rate and the
+        step is a gyroscope step. 0, 0 (the default): off. Measured on the IPIN dev trials in docs/phone.md, "A
+        duty-cycled gyroscope".
+    gyro_duty_only : bool
+        With the duty cycle: walking, the heading's forecast that decides whether ``auto`` asks for the full gyroscope
+        is one duty-cycled step ahead, the heading's standard deviation grown by ``gyro_duty_sigma_rad`` (0: never
+        above ``max_heading_std_rad``), not one gyroscope-off step ahead (the compass's, which must find the turns
+        the duty cycle measures: docs/phone.md, 8.5 deg RMS per turn against the compass's 15.6); the full gyroscope
+        still while the compass's noise is unknown. False: full where the default asks.
+    gyro_duty_sigma_rad : float
+        With the duty cycle: a step whose gyroscope samples were partly filled turns with this much more noise
+        [rad] (times the filled fraction of the step, squared into the variance) than a gyroscope step, and its
+        compass innovation does not teach the compass's noise (the heading it is measured against is not the full
+        gyroscope's). 0 (the default): a filled step is a gyroscope step. docs/phone.md's measurement: 2.5 deg
+        robust SD per straight step at ``P`` 0.5 s, ``d`` 0.3 (``python -m clients.evaluation.phone_duty``).
     batch_s : float
         Upload period asked of the device.
     stream_wait_s : float
@@ -209,6 +231,10 @@ class PhoneEngineConfig:
     swing_rad: float = SWING_RAD
     swing_window_s: float = SWING_WINDOW_S
     swing_sleep_s: float = 1.5
+    gyro_duty_period_s: float = 0.0
+    gyro_duty_on_s: float = 0.0
+    gyro_duty_only: bool = False
+    gyro_duty_sigma_rad: float = 0.0
     batch_s: float = 1.0
     stream_wait_s: float = 0.5
     stream_max_lag_s: float = 10.0
@@ -223,6 +249,14 @@ class PhoneEngineConfig:
                 raise ValueError(f"PhoneEngineConfig: {name} must be a positive finite number, got {v!r}")
         if int(self.gyro_min_steps) < 1:
             raise ValueError("PhoneEngineConfig: gyro_min_steps must be >= 1")
+        p, on = float(self.gyro_duty_period_s), float(self.gyro_duty_on_s)
+        if not (math.isfinite(p) and math.isfinite(on) and p >= 0 and on >= 0 and (p > 0) == (on > 0)
+                and (p == 0 or on < p)):
+            raise ValueError("PhoneEngineConfig: gyro_duty_period_s and gyro_duty_on_s must both be 0 or both positive "
+                             f"with gyro_duty_on_s below gyro_duty_period_s, got {p!r}, {on!r}")
+        sd = float(self.gyro_duty_sigma_rad)
+        if not (math.isfinite(sd) and sd >= 0):
+            raise ValueError(f"PhoneEngineConfig: gyro_duty_sigma_rad must be finite and >= 0, got {sd!r}")
         if not 0.0 <= float(self.orientation_rho) < 1.0:
             raise ValueError(f"PhoneEngineConfig: orientation_rho must lie in [0, 1), got {self.orientation_rho!r}")
 
@@ -263,7 +297,10 @@ class _Streams:
         self.dropped = 0  # samples that came after their time had been processed
         self.dropped_by = {n: 0 for n in STREAMS}  # ... per stream
 
-    def push(self, batch: SensorBatch) -> None:
+    def push(self, batch: SensorBatch, raw: SensorBatch | None = None) -> None:
+        """Queue ``batch``'s samples; a stream delivered in this upload if it has samples in ``raw`` (default
+        ``batch``: the upload as it came, before the duty cycle's gaps were filled)."""
+        raw = batch if raw is None else raw
         first = self.last["acc"] == -(2 ** 62)
         for n in STREAMS:
             t, v = batch.stream(n)
@@ -280,7 +317,7 @@ class _Streams:
         for n in STREAMS:
             # the session's first upload presumes every stream delivering: one whose first samples are still in its
             # filter is waited for as one that went silent would be
-            if len(batch.stream(n)[0]) or (first and self.last["acc"] > -(2 ** 62)):
+            if len(raw.stream(n)[0]) or (first and self.last["acc"] > -(2 ** 62)):
                 self.arrived[n] = self.last["acc"]
 
     def horizon(self, wait_ns: int, max_lag_ns: int) -> int:
@@ -321,6 +358,172 @@ class _Streams:
             obj.arrived[n] = int((d.get("arrived") or d["last"])[n])  # older states: time stamps as arrival
         obj.done, obj.dropped = int(d["done"]), int(d["dropped"])
         obj.dropped_by.update({n: int(v) for n, v in (d.get("dropped_by") or {}).items() if n in obj.dropped_by})
+        return obj
+
+
+class _DutyFill:
+    """A duty-cycled gyroscope's stream made continuous (``PhoneEngineConfig.gyro_duty_period_s``).
+
+    The samples arrive in runs (consecutive samples less than ``gap_ns`` apart: the on-windows, or a gyroscope that
+    is fully on). Each gap of at most ``fill_ns`` (``1.5 P``) between two runs is filled at the earlier run's sample
+    interval with the straight line between the earlier run's mean rate over its last ``on_ns`` and the later
+    run's over its first ``on_ns`` (docs/phone.md, "A duty-cycled gyroscope": the ``interp`` estimator; the knots
+    at the earlier run's last and the later run's first sample), so the MARG filter integrates a rate without
+    holes. A gap's line needs the later window: its samples are held until its first ``on_ns`` is complete (a
+    sample that late, or a gap), and :meth:`bound` tells the merge not to pass the samples given out while a
+    successor within ``fill_ns`` may still come. The output depends on the samples only, not on how they were cut
+    into batches (the close in :meth:`close` comes when no sample within ``fill_ns`` can still arrive).
+
+    Parameters
+    ----------
+    period_s, on_s : float
+        The duty cycle's period ``P`` and delivered time per period [s].
+    rate_hz : float
+        The gyroscope's rate when on [Hz]: a gap is an interval above 2.5 sample periods; the fill's interval
+        when the earlier run has a single sample.
+    """
+
+    def __init__(self, period_s: float, on_s: float, rate_hz: float) -> None:
+        self.on_ns = int(round(on_s * 1e9))
+        self.fill_ns = int(round(1.5 * period_s * 1e9))
+        self.gap_ns = int(round(2.5 / rate_hz * 1e9))
+        self.dt0_ns = int(round(1e9 / rate_hz))
+        self.last_t: int | None = None  # newest sample received [ns]
+        self.out_last: int | None = None  # newest sample given out [ns]
+        self.run_start = 0  # the current run's first sample [ns]
+        self.run_dt = 0  # ... its latest interval [ns] (0: one sample so far)
+        self.run_sum = np.zeros(3)  # ... sum and count of its samples within on_ns of its start
+        self.run_n = 0
+        self.run_done = False  # ... that mean is known
+        self.run_mean = np.zeros(3)
+        self.tail_t = np.zeros(0, dtype=np.int64)  # ... its samples within on_ns of its newest [ns, rad/s]
+        self.tail_v = np.zeros((0, 3))
+        self.gap: tuple[int, np.ndarray, int] | None = None  # a gap before the current run: (t, mean rate, interval)
+        self.held_t = np.zeros(0, dtype=np.int64)  # the current run's samples held for the gap's line
+        self.held_v = np.zeros((0, 3))
+        self.fills: list[list[int]] = []  # the gaps filled [t_a, t_b] [ns] (pruned by the engine)
+
+    def filled_ns(self, t0: int, t1: int) -> int:
+        """How much of ``[t0, t1)`` [ns] was filled (not measured)."""
+        return int(sum(max(0, min(b, t1) - max(a, t0)) for a, b in self.fills))
+
+    def prune(self, before_ns: int) -> None:
+        """Forget the fills that ended before ``before_ns``."""
+        self.fills = [f for f in self.fills if f[1] >= before_ns]
+
+    def _resolve(self, out_t: list[np.ndarray], out_v: list[np.ndarray]) -> None:
+        """The current run's mean is known: give out the gap's line and the held samples."""
+        if self.gap is not None and len(self.held_t):
+            ta, ma, dt = self.gap
+            tb = int(self.held_t[0])
+            n = max(0, int(np.ceil((tb - dt / 2 - ta) / dt)) - 1)
+            ft = ta + dt * np.arange(1, n + 1, dtype=np.int64)
+            w = ((ft - ta) / (tb - ta))[:, None]
+            out_t.append(ft)
+            out_v.append(ma[None, :] + (self.run_mean - ma)[None, :] * w)
+            self.fills.append([int(ta), tb])
+        out_t.append(self.held_t)
+        out_v.append(self.held_v)
+        self.gap = None
+        self.held_t, self.held_v = self.held_t[:0], self.held_v[:0]
+
+    def _complete(self, out_t: list[np.ndarray], out_v: list[np.ndarray]) -> None:
+        if not self.run_done:
+            self.run_done = True
+            self.run_mean = self.run_sum / max(self.run_n, 1)
+            self._resolve(out_t, out_v)
+
+    def push(self, t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Take new samples (time order) and return those given out, fills included."""
+        out_t: list[np.ndarray] = []
+        out_v: list[np.ndarray] = []
+        for i in range(len(t)):
+            ti, vi = int(t[i]), np.asarray(v[i], dtype=np.float64)
+            if self.last_t is not None and ti <= self.last_t:
+                continue
+            if self.last_t is None or ti - self.last_t > self.gap_ns:
+                gap = None
+                if self.last_t is not None:
+                    self._complete(out_t, out_v)  # the run ended: its first on_ns is what it has
+                    if ti - self.last_t <= self.fill_ns:
+                        m = self.tail_v.mean(axis=0) if len(self.tail_v) else self.run_mean
+                        gap = (self.last_t, m, self.run_dt or self.dt0_ns)
+                self.gap, self.run_start, self.run_dt = gap, ti, 0
+                self.run_sum, self.run_n, self.run_done = np.zeros(3), 0, False
+                self.tail_t, self.tail_v = self.tail_t[:0], self.tail_v[:0]
+            else:
+                self.run_dt = ti - self.last_t
+            if not self.run_done and ti >= self.run_start + self.on_ns:
+                self._complete(out_t, out_v)
+            if not self.run_done:
+                self.run_sum += vi
+                self.run_n += 1
+            keep = self.tail_t > ti - self.on_ns
+            self.tail_t = np.append(self.tail_t[keep], ti)
+            self.tail_v = np.vstack([self.tail_v[keep], vi[None, :]])
+            if self.gap is not None and not self.run_done:
+                self.held_t = np.append(self.held_t, ti)
+                self.held_v = np.vstack([self.held_v, vi[None, :]])
+            else:
+                out_t.append(np.array([ti], dtype=np.int64))
+                out_v.append(vi[None, :])
+            self.last_t = ti
+        return self._out(out_t, out_v)
+
+    def _out(self, out_t: list[np.ndarray], out_v: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        ot = np.concatenate(out_t).astype(np.int64) if out_t else np.zeros(0, dtype=np.int64)
+        ov = np.concatenate(out_v).reshape(-1, 3) if out_v else np.zeros((0, 3))
+        if len(ot):
+            self.out_last = int(ot[-1])
+        return ot, ov
+
+    def close(self, now_ns: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """``now_ns`` (the accelerometer's newest time less the stream wait; None: the session's end) is more than
+        ``fill_ns`` past the newest sample: no gap after it will be filled; give out what is held."""
+        out_t: list[np.ndarray] = []
+        out_v: list[np.ndarray] = []
+        if self.last_t is not None and (now_ns is None or now_ns > self.last_t + self.fill_ns):
+            self._complete(out_t, out_v)
+            if len(self.held_t):
+                self._resolve(out_t, out_v)
+        return self._out(out_t, out_v)
+
+    def bound(self, now_ns: int) -> int | None:
+        """The newest time [ns] the merge may reach: the newest sample given out while a gap after it may still be
+        filled (``now_ns``, the accelerometer's newest time less the stream wait, within ``fill_ns`` of the newest
+        sample received); None: no bound."""
+        if self.last_t is None or now_ns > self.last_t + self.fill_ns:
+            return None
+        if self.out_last is None:
+            return (int(self.held_t[0]) - 1) if len(self.held_t) else self.last_t
+        return self.out_last
+
+    def get_state(self) -> dict[str, Any]:
+        return {"on_ns": self.on_ns, "fill_ns": self.fill_ns, "gap_ns": self.gap_ns, "dt0_ns": self.dt0_ns,
+                "last_t": self.last_t, "out_last": self.out_last, "run_start": self.run_start, "run_dt": self.run_dt,
+                "run_sum": self.run_sum, "run_n": self.run_n, "run_done": self.run_done, "run_mean": self.run_mean,
+                "tail_t": self.tail_t, "tail_v": self.tail_v,
+                "gap": None if self.gap is None else [self.gap[0], self.gap[1], self.gap[2]],
+                "held_t": self.held_t, "held_v": self.held_v,
+                "fills": np.asarray(self.fills, dtype=np.int64).reshape(-1, 2)}
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any]) -> _DutyFill:
+        obj = cls.__new__(cls)
+        for k in ("on_ns", "fill_ns", "gap_ns", "dt0_ns", "run_start", "run_dt", "run_n"):
+            setattr(obj, k, int(d[k]))
+        obj.last_t = None if d["last_t"] is None else int(d["last_t"])
+        obj.out_last = None if d["out_last"] is None else int(d["out_last"])
+        obj.run_done = bool(d["run_done"])
+        obj.run_sum = np.asarray(d["run_sum"], dtype=np.float64).reshape(3).copy()
+        obj.run_mean = np.asarray(d["run_mean"], dtype=np.float64).reshape(3).copy()
+        obj.tail_t = np.asarray(d["tail_t"], dtype=np.int64).reshape(-1)
+        obj.tail_v = np.asarray(d["tail_v"], dtype=np.float64).reshape(-1, 3)
+        g = d["gap"]
+        obj.gap = None if g is None else (int(g[0]), np.asarray(g[1], dtype=np.float64).reshape(3).copy(), int(g[2]))
+        obj.held_t = np.asarray(d["held_t"], dtype=np.int64).reshape(-1)
+        obj.held_v = np.asarray(d["held_v"], dtype=np.float64).reshape(-1, 3)
+        obj.fills = np.asarray(d.get("fills", []), dtype=np.int64).reshape(-1, 2).tolist()
         return obj
 
 
@@ -382,6 +585,9 @@ class PhoneEngine:
         self._heading = HeadingEstimator(self.config.heading)
         self._directions = None if self.config.directions is None else DominantDirections(self.config.directions)
         self._streams = _Streams()
+        c = self.config
+        self._duty = (_DutyFill(c.gyro_duty_period_s, c.gyro_duty_on_s, c.auto_gyr_rate_hz)
+                      if mode == "auto" and c.gyro_duty_period_s > 0 else None)
         self._t0_ns: int | None = None
         self._pos = np.zeros(2)  # [north, east] m
         self._prev_dir = math.nan  # the gyroscope-carried walking direction of the previous step [rad]
@@ -435,14 +641,30 @@ class PhoneEngine:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._streams.done} ns)")
         if self._t0_ns is None and batch.t_start_ns is not None:
             self._t0_ns = int(batch.t_start_ns)
-        self._streams.push(batch)
+        wait_ns = int(self.config.stream_wait_s * 1e9)
+        if self._duty is None:
+            self._streams.push(batch)
+        else:
+            la = max(self._streams.last["acc"], int(t_acc[-1]) if len(t_acc) else -(2 ** 62))
+            gt, gv = self._duty.push(batch.gyr_t_ns, batch.gyr)
+            ct, cv = self._duty.close(la - wait_ns)
+            self._streams.push(_replace(batch, gyr_t_ns=np.concatenate([gt, ct]), gyr=np.concatenate([gv, cv])), raw=batch)
         if not len(self._streams.t["acc"]):
             return self._update([], [])
-        return self._process(self._streams.take(self._streams.horizon(int(self.config.stream_wait_s * 1e9),
-                                                                       int(self.config.stream_max_lag_s * 1e9))))
+        h = self._streams.horizon(wait_ns, int(self.config.stream_max_lag_s * 1e9))
+        if self._duty is not None:
+            b = self._duty.bound(self._streams.last["acc"] - wait_ns)
+            h = h if b is None else min(h, b)
+        return self._process(self._streams.take(h))
 
     def flush(self) -> Update:
         """End of the session: process what waits for lagging streams."""
+        if self._duty is not None:
+            ct, cv = self._duty.close(None)
+            if len(ct):
+                e = np.zeros(0, dtype=np.int64)
+                self._streams.push(SensorBatch(acc_t_ns=e, acc=np.zeros((0, 3)), gyr_t_ns=ct, gyr=cv,
+                                               mag_t_ns=e, mag=np.zeros((0, 3))))
         return self._process(self._streams.take(None))
 
     def profile_dict(self) -> dict[str, Any]:
@@ -612,6 +834,8 @@ class PhoneEngine:
             return
         dc = 0.0 if not math.isfinite(change) else change
         dyaw = float(r[_F["gyro_dyaw"]])
+        extra = self._duty_var(r, t_ns) if gyro else 0.0
+        learn = walking and extra == 0.0
         settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
                    and yaw_std < c.marg_settled_std_rad)
         # the gyroscope has come back (after a stretch without it) and its bias has settled: until the MARG
@@ -621,13 +845,13 @@ class PhoneEngine:
                   and (not self._prev_gyro or self._returning))
         self._returning = follow
         if settled:
-            hd.predict_gyro(wrap(direction - self._prev_dir), dc)  # the MARG filter's change over the step
+            hd.predict_gyro(wrap(direction - self._prev_dir), dc, extra)  # the MARG filter's change over the step
             if has_c:
-                hd.update_compass(compass, r_c, anomaly, learn=walking)
+                hd.update_compass(compass, r_c, anomaly, learn=learn)
         elif follow:
-            hd.predict_gyro(dyaw, dc)
+            hd.predict_gyro(dyaw, dc, extra)
             if has_c:
-                hd.update_compass(compass, r_c, anomaly, learn=walking)
+                hd.update_compass(compass, r_c, anomaly, learn=learn)
         elif gyro and self._prev_gyro and math.isfinite(self._prev_dir):
             # the MARG filter is still converging (the session just began, or the gyroscope came back before its
             # bias settled): its heading moves with its compass corrections, so its changes are not the walker's;
@@ -658,6 +882,20 @@ class PhoneEngine:
                     sigma = math.hypot(sigma, self._directions.orientation_std_rad(c.orientation_rho))
                 hd.update_dominant(ref, sigma, dd.gate_rad)
 
+    def _duty_var(self, r: np.ndarray, t_ns: int) -> float:
+        """The added turn variance [rad^2] of a step whose gyroscope samples were partly filled
+        (``gyro_duty_sigma_rad`` squared, times the step's filled fraction over the duty cycle's off fraction, at
+        most 1); 0 without the duty cycle or its noise."""
+        c = self.config
+        if self._duty is None or not c.gyro_duty_sigma_rad > 0:
+            return 0.0
+        period = float(r[_F["period_s"]])
+        span = int(round((period if math.isfinite(period) and period > 0 else 0.5) * 1e9))
+        self._duty.prune(t_ns - 10 * span)
+        frac = self._duty.filled_ns(t_ns - span, t_ns) / span
+        off = 1.0 - c.gyro_duty_on_s / c.gyro_duty_period_s
+        return c.gyro_duty_sigma_rad ** 2 * min(1.0, frac / off)
+
     def _schedule(self, t_ns: int, events: list[Event]) -> None:
         """Gyroscope on demand (``auto``): after each step."""
         if self.mode != "auto":
@@ -670,8 +908,13 @@ class PhoneEngine:
             forecast = math.inf
         else:
             forecast = hd.forecast(*self._reading)[0]
+        if c.gyro_duty_period_s > 0 and c.gyro_duty_only:
+            # the step ahead is a duty-cycled one: its heading grows by the duty cycle's own noise, not by a turn the
+            # compass must find (without that noise the duty cycle is taken as the gyroscope: never uncertain)
+            forecast = math.hypot(hd.std, c.gyro_duty_sigma_rad) if c.gyro_duty_sigma_rad > 0 else 0.0
+        uncertain = forecast > c.max_heading_std_rad and not locked
         want = (self._turned or learnt < c.gyro_min_steps
-                or (forecast > c.max_heading_std_rad and not locked)
+                or uncertain
                 or (self._gyro_want and self._gyro_steps < c.gyro_min_steps))
         if want != self._gyro_want:
             reason = ("turn" if self._turned else "compass noise unknown" if learnt < c.gyro_min_steps
@@ -704,6 +947,9 @@ class PhoneEngine:
             return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
         if self._gyro_want:
             return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
+        if c.gyro_duty_period_s > 0:  # the device duty-cycles the gyroscope by itself
+            return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
+                                gyr_duty_period_s=c.gyro_duty_period_s, gyr_duty_on_s=c.gyro_duty_on_s)
         if c.swing_wake:  # the device wakes the gyroscope itself on a turn (compass swing)
             return SensorConfig(False, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
                                 gyro_wake_on_motion=True, sleep_after_s=c.swing_sleep_s, wake_mode="compass_swing",
@@ -732,6 +978,7 @@ class PhoneEngine:
             "heading": self._heading.get_state(),
             "directions": None if self._directions is None else self._directions.get_state(),
             "streams": self._streams.get_state(),
+            "duty": None if self._duty is None else self._duty.get_state(),
             "t0_ns": self._t0_ns,
             "pos": self._pos,
             "prev_dir": self._prev_dir,
@@ -769,6 +1016,8 @@ class PhoneEngine:
         obj._heading = HeadingEstimator.from_state(obj.config.heading, d["heading"])
         obj._directions = None if d["directions"] is None else DominantDirections.from_state(d["directions"])
         obj._streams = _Streams.from_state(d["streams"])
+        if d.get("duty") is not None:  # older states: no duty cycle (the default), the new engine's own filler
+            obj._duty = _DutyFill.from_state(d["duty"])
         obj._t0_ns = None if d["t0_ns"] is None else int(d["t0_ns"])
         obj._pos = np.asarray(d["pos"], dtype=float).reshape(2).copy()
         obj._prev_dir = float(d["prev_dir"])

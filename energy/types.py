@@ -67,6 +67,13 @@ class SensorConfig:
         gyroscope.
     wake_window_s : float
         With ``wake_mode == "compass_swing"``: the window [s] of that change.
+    gyr_duty_period_s, gyr_duty_on_s : float
+        A duty-cycled gyroscope (both > 0; 0: not duty-cycled): with ``gyro_on``, the device itself powers the
+        gyroscope up at the start of every period ``P`` = ``gyr_duty_period_s`` [s] of its own clock (the phase
+        kept from the batch in which the duty cycle began), it delivers ``gyr_duty_on_s`` [s] of samples at
+        ``gyr_rate_hz`` from its turn-on time after each power-up and powers down again until the next period
+        (the host's uploads are too rare to switch it several times a second). See
+        :class:`energy.device.DeviceEmulator`.
 
     Raises
     ------
@@ -74,7 +81,9 @@ class SensorConfig:
         ``gyro_wake_on_motion`` together with ``gyro_on`` (contradictory), or without a positive
         ``gyr_rate_hz``, ``sleep_after_s`` and threshold (``wake_threshold_ms2``; ``"weak_field"``:
         ``wake_field_ut``, 3 offsets and 9 matrix entries, all finite; ``"compass_swing"``: ``wake_swing_rad`` and
-        ``wake_window_s``).
+        ``wake_window_s``). A duty cycle without ``gyro_on`` and a positive ``gyr_rate_hz``, with
+        ``gyro_wake_on_motion``, with only one of its two fields positive, or with ``gyr_duty_on_s`` not below
+        ``gyr_duty_period_s``.
     """
 
     gyro_on: bool
@@ -92,6 +101,13 @@ class SensorConfig:
     mag_matrix: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     wake_swing_rad: float = 0.0
     wake_window_s: float = 0.0
+    gyr_duty_period_s: float = 0.0
+    gyr_duty_on_s: float = 0.0
+
+    @property
+    def gyr_duty(self) -> bool:
+        """Whether the gyroscope is duty-cycled (``gyr_duty_period_s`` and ``gyr_duty_on_s`` set)."""
+        return self.gyr_duty_period_s > 0
 
     def __post_init__(self) -> None:
         if self.wake_mode not in WAKE_MODES:
@@ -113,6 +129,17 @@ class SensorConfig:
                           or not all(math.isfinite(x) for x in (*self.mag_offset_ut, *self.mag_matrix))):
                 raise ValueError("SensorConfig: wake_mode 'weak_field' needs 3 finite mag_offset_ut and 9 finite "
                                  f"mag_matrix entries, got {self.mag_offset_ut!r}, {self.mag_matrix!r}")
+        p, on = float(self.gyr_duty_period_s), float(self.gyr_duty_on_s)
+        if not (math.isfinite(p) and math.isfinite(on) and p >= 0 and on >= 0):
+            raise ValueError(f"SensorConfig: gyr_duty_period_s and gyr_duty_on_s must be finite and >= 0, got {p!r}, {on!r}")
+        if (p > 0) != (on > 0):
+            raise ValueError(f"SensorConfig: a duty cycle needs both gyr_duty_period_s and gyr_duty_on_s, got {p!r}, {on!r}")
+        if p > 0:
+            if not on < p:
+                raise ValueError(f"SensorConfig: gyr_duty_on_s must be below gyr_duty_period_s, got {on!r} >= {p!r}")
+            if not self.gyro_on or not self.gyr_rate_hz > 0 or self.gyro_wake_on_motion:
+                raise ValueError("SensorConfig: a duty-cycled gyroscope needs gyro_on, a positive gyr_rate_hz and no "
+                                 "gyro_wake_on_motion")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

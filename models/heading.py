@@ -356,12 +356,13 @@ class HeadingEstimator:
         c = self.config
         return np.diag([theta_var, 0.0, c.deflection_walk_rad**2 + field_change**2])
 
-    def predict_gyro(self, delta: float, field_change: float = 0.0) -> None:
+    def predict_gyro(self, delta: float, field_change: float = 0.0, extra_var: float = 0.0) -> None:
         """A stride whose heading change ``delta`` [rad] the gyroscope measured (ZUPT-KF); ``field_change`` [rad]
         the heading noise the change of the stance field's shape since the last stance could cause
-        (:meth:`CompassNoise.field_sigma` of one stance against the other)."""
+        (:meth:`CompassNoise.field_sigma` of one stance against the other); ``extra_var`` [rad^2] added to the
+        gyroscope's own (a duty-cycled gyroscope's unseen part of the stride)."""
         c = self.config
-        q = self._q(c.gyro_sigma_rad**2 + (c.gyro_scale * delta) ** 2, field_change)
+        q = self._q(c.gyro_sigma_rad**2 + (c.gyro_scale * delta) ** 2 + extra_var, field_change)
         self._mix()
         for j in range(2):
             self.x[j, 0] = wrap(self.x[j, 0] + delta)

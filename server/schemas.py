@@ -239,6 +239,11 @@ class SensorConfigOut(BaseModel):
     mag_matrix: tuple[float, float, float, float, float, float, float, float, float] = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     wake_swing_rad: float = 0.0
     wake_window_s: float = 0.0
+    # with gyro_on: a duty-cycled gyroscope, powered up by the device every gyr_duty_period_s [s] of its own clock and
+    # delivering gyr_duty_on_s [s] after its turn-on time (energy.types.SensorConfig; rows stored before these
+    # fields existed: 0, 0 = not duty-cycled)
+    gyr_duty_period_s: float = 0.0
+    gyr_duty_on_s: float = 0.0
 
 
 class SessionOut(_Out):

@@ -639,8 +639,22 @@ def _run_ipin(args: argparse.Namespace) -> int:
     import math
 
     bound = None if args.max_heading_std_deg is None else math.radians(args.max_heading_std_deg)
+    duty = None
+    if args.gyro_duty is not None:
+        try:
+            duty = tuple(float(x) for x in args.gyro_duty.split(","))
+            if len(duty) not in (2, 3, 4):
+                raise ValueError
+            from energy.phone_engine import PhoneEngineConfig
+
+            PhoneEngineConfig(gyro_duty_period_s=duty[0], gyro_duty_on_s=duty[1])
+        except ValueError:
+            print(f"pednav eval ipin: --gyro-duty wants P,ON[,ONLY[,SIGMA_DEG]] in seconds with 0 < ON < P, got {args.gyro_duty!r}",
+                  file=sys.stderr)
+            return 2
     doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
-                        max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration)
+                        max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration,
+                        gyro_duty=duty)  # type: ignore[arg-type]
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:
@@ -763,6 +777,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     pi.add_argument("--max-heading-std-deg", type=float, default=None, metavar="DEG",
                     help="auto: the heading standard deviation above which the gyroscope is asked for (default: the "
                          "engine's, 6 deg): the energy / accuracy trade-off")
+    pi.add_argument("--gyro-duty", default=None, metavar="P,ON[,ONLY[,DEG]]",
+                    help="auto: duty-cycle the gyroscope where it would be off walking, on for ON of every P seconds "
+                         "(PhoneEngineConfig.gyro_duty_period_s / gyro_duty_on_s; default: off); a third field 1: "
+                         "full only while the compass's noise is unknown (gyro_duty_only); a fourth: a filled step's "
+                         "added turn noise in degrees (gyro_duty_sigma_rad)")
     pi.add_argument("--phases", type=int, default=1, metavar="N",
                     help="also replay with the upload batches' boundaries moved by k/N of a batch (k = 1 .. N-1) and "
                          "report each phase's medians and their mean (an energy-aware engine switches sensors at batch "
