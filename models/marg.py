@@ -287,13 +287,6 @@ def dcm(q: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, float, 
 
 
 @njit(cache=True)
-def q2dcm(q: np.ndarray) -> np.ndarray:
-    """Body -> NED direction cosine matrix of quaternion ``q`` (w, x, y, z)."""
-    r0, r1, r2 = dcm(q)
-    return np.array([[r0[0], r0[1], r0[2]], [r1[0], r1[1], r1[2]], [r2[0], r2[1], r2[2]]])
-
-
-@njit(cache=True)
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
