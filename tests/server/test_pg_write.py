@@ -1,6 +1,7 @@
-"""The PostgreSQL write statement (server.upload._pg_write) stores the answer's positions and events exactly: the
-positions are read by PostgreSQL from the answer's JSON text, so every float must come back as the same double
-(signed zero, subnormals and the extremes included)."""
+"""PostgreSQL uploads: the write statement (server.upload._pg_write) stores the answer's positions and events
+exactly (the positions are read by PostgreSQL from the answer's JSON text, so every float must come back as the
+same double: signed zero, subnormals and the extremes included), and the uploads keep their pool connection from
+one upload to the next."""
 
 from __future__ import annotations
 
@@ -69,3 +70,37 @@ def test_positions_and_events_stored_to_the_bit(backend, app, client, make_user)
     assert got == want
     assert [tuple(r) for r in ev] == [(0, 5, "stance", {"a": 1.5, "b": [1, "x"]})]
     assert tuple(n) == (len(want), 3)  # the failed version check (an old version) wrote nothing
+
+
+def test_upload_connections_kept_between_uploads_and_returned(backend, app, client, make_user, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Uploads on PostgreSQL keep their pool connection (autocommit) for the next upload instead of returning it
+    each time; past ``_HOLD_S`` and at close it goes back to the pool, out of autocommit."""
+    if backend != "postgresql":
+        pytest.skip("PostgreSQL's upload connections")
+    from server.formats import MSGPACK_TYPE, encode_msgpack
+    from tests.server.conftest import still_batch
+
+    up, pool = app.state.uploader, app.state.db_engine.pool
+    up.close()
+    _, tok = make_user()
+    sid = client.post("/v1/sessions", json={"device_kind": "foot"}, headers=auth(tok)).json()["id"]
+
+    def put(seq: int) -> None:
+        body = encode_msgpack(still_batch(1_700_000_000_000_000_000 + seq * 10**9, seed=seq))
+        r = client.put(f"/v1/sessions/{sid}/batches/{seq}", content=body,
+                       headers={**auth(tok), "content-type": MSGPACK_TYPE})
+        assert r.status_code == 200, r.text
+
+    before = pool.checkedout()
+    put(0)
+    kept = list(up._idle)
+    assert len(kept) == 1 and kept[0].driver_connection.autocommit
+    for seq in (1, 2, 3):
+        put(seq)
+    assert up._idle == kept  # the same connection each time, no check-out from the pool
+    assert pool.checkedout() == before + 1
+    up.close()
+    assert up._idle == [] and pool.checkedout() == before
+    monkeypatch.setattr(upload, "_HOLD_S", 0.0)
+    put(4)
+    assert up._idle == [] and pool.checkedout() == before  # held too long: back to the pool after the upload
