@@ -142,6 +142,8 @@ class _LazyCursor:
         return self._cur.fetchall()
 
 
+_HOLD_S = 60.0  # PostgreSQL: an upload connection goes back to the pool after this long checked out [s]
+
 _Job = tuple[int, int, int, Fed, dict[str, int | None], str | None]  # session, version, seq, fed, watermarks, token
 
 
@@ -265,7 +267,11 @@ class SqliteGroupWriter:
             cur.close()
 
 
-# PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement (see module docstring)
+# PostgreSQL: the versioned update and every insert of an upload in ONE atomic statement (see module docstring).
+# The positions are taken from the answer's JSON text, which the statement sends anyway (the batch's stored
+# response): per position column a list parameter cost the worker ~12 array adaptations per upload in psycopg's
+# Python. float8 read from JSON text is the same double (Python writes the shortest text that round-trips, and
+# PostgreSQL reads it correctly rounded); NaN is null in both (server.ingest._answer).
 _PG_WRITE = """
 WITH u AS (
     UPDATE sessions SET version = %(v1)s, next_seq = %(next_seq)s,
@@ -279,33 +285,36 @@ WITH u AS (
     SELECT u.id, %(seq)s, %(sha)s, %(raw)s, %(n_acc)s, %(n_gyr)s, %(n_mag)s, CAST(%(response)s AS json), now() FROM u
 ), p AS (
     INSERT INTO positions (session_id, seq, t_ns, north, east, down, heading_rad, behaviour, mode, step_length_m, gyro_on)
-    SELECT u.id, %(seq)s, x.* FROM u, unnest(CAST(%(p_t)s AS bigint[]), CAST(%(p_n)s AS float8[]),
-        CAST(%(p_e)s AS float8[]), CAST(%(p_d)s AS float8[]), CAST(%(p_h)s AS float8[]), CAST(%(p_b)s AS text[]),
-        CAST(%(p_m)s AS text[]), CAST(%(p_l)s AS float8[]), CAST(%(p_g)s AS boolean[])) AS x
-), e AS (
-    INSERT INTO events (session_id, seq, t_ns, kind, detail)
-    SELECT u.id, %(seq)s, x.* FROM u, unnest(CAST(%(e_t)s AS bigint[]), CAST(%(e_k)s AS text[]), CAST(%(e_d)s AS json[])) AS x
-)
+    SELECT u.id, %(seq)s, x.* FROM u, json_to_recordset(CAST(%(response)s AS json) -> 'positions') AS x(
+        t_ns bigint, north float8, east float8, down float8, heading_rad float8, behaviour text, mode text,
+        step_length_m float8, gyro_on boolean)
+){events}
 SELECT count(*) FROM u
 """
-_PG_WRITE_READ = _PG_WRITE.format(token="")  # after this upload's read (token and session read just before)
+# the events (one upload in ~10 has any) as arrays, their detail as before (json.dumps text, stored as sent)
+_PG_EVENTS = """, e AS (
+    INSERT INTO events (session_id, seq, t_ns, kind, detail)
+    SELECT u.id, %(seq)s, x.* FROM u, unnest(CAST(%(e_t)s AS bigint[]), CAST(%(e_k)s AS text[]), CAST(%(e_d)s AS json[])) AS x
+)"""
 # an upload after this worker's own commit (no read): the token is checked in the same statement as the version
-_PG_WRITE_TOKEN = _PG_WRITE.format(token=(
+_PG_TOKEN = (
     "\n        AND EXISTS (SELECT 1 FROM tokens t WHERE t.token_hash = %(tok)s AND t.user_id = sessions.user_id"
-    "\n            AND NOT t.revoked AND (t.expires_at IS NULL OR t.expires_at > now()))"))
+    "\n            AND NOT t.revoked AND (t.expires_at IS NULL OR t.expires_at > now()))")
+# (token checked, events present) -> statement; without the token check after this upload's read
+_PG_WRITES = {(tok, ev): _PG_WRITE.format(token=_PG_TOKEN if tok else "", events=_PG_EVENTS if ev else "")
+              for tok in (False, True) for ev in (False, True)}
 
 
 def _pg_write(cur: Any, session_id: int, version: int, seq: int, fed: Fed, newest: dict[str, int | None],
               tok: str | None = None) -> bool:
     p = _write_params(session_id, version, seq, fed, newest)
     p["tok"] = tok
-    ps, es = fed.resp["positions"], fed.resp["events"]
-    for key, col in zip(("p_t", "p_n", "p_e", "p_d", "p_h", "p_b", "p_m", "p_l", "p_g"), _POS_COLS):
-        p[key] = [x[col] for x in ps]
-    p["e_t"] = [e["t_ns"] for e in es]
-    p["e_k"] = [e["kind"] for e in es]
-    p["e_d"] = [json.dumps(e["detail"]) for e in es]
-    cur.execute(_PG_WRITE_READ if tok is None else _PG_WRITE_TOKEN, p)
+    es = fed.resp["events"]
+    if es:
+        p["e_t"] = [e["t_ns"] for e in es]
+        p["e_k"] = [e["kind"] for e in es]
+        p["e_d"] = [json.dumps(e["detail"]) for e in es]
+    cur.execute(_PG_WRITES[tok is not None, bool(es)], p)
     return bool(cur.fetchone()[0] == 1)
 
 
@@ -357,15 +366,28 @@ class Uploader:
         self._known: OrderedDict[int, _Known] = OrderedDict()
         self._known_lock = threading.Lock()
         self.known_max = max(1, int(known_max))
+        # PostgreSQL: the uploads' pool connections, kept checked out in autocommit mode between uploads (at most
+        # one per concurrent upload) instead of going back to the pool after each one (see _release)
+        self._idle: list[Any] = []
+        self._idle_lock = threading.Lock()
 
     def close(self) -> None:
         if self.writer is not None:
             self.writer.stop()
+        with self._idle_lock:
+            idle, self._idle = self._idle, []
+        for conn in idle:
+            self._to_pool(conn)
 
     def _connect(self) -> Any:
+        if not self.sqlite:
+            with self._idle_lock:
+                if self._idle:
+                    return self._idle.pop()
         conn = self.db_engine.raw_connection()
         if not self.sqlite:
             conn.driver_connection.autocommit = True  # every statement is its own transaction (no BEGIN trips)
+            conn.info["pednav_checked_out"] = time.monotonic()
         return conn
 
     def _release(self, conn: Any) -> None:
@@ -373,10 +395,26 @@ class Uploader:
             conn.close()
             return
         if not self.sqlite:
-            try:
-                conn.driver_connection.autocommit = False  # back to the pool as the ORM expects it
-            except Exception:  # noqa: BLE001 - a broken connection is dropped by the pool
-                conn.invalidate()
+            from psycopg.pq import TransactionStatus
+
+            # kept for the next upload (the pool's check-out, reset and return and the two autocommit switches
+            # cost ~35 us of the worker's CPU per upload); back to the pool now and then, so that its recycling
+            # (pool_recycle) still replaces the connection
+            if time.monotonic() - conn.info.get("pednav_checked_out", 0.0) < _HOLD_S and (
+                    conn.driver_connection.info.transaction_status == TransactionStatus.IDLE):
+                with self._idle_lock:
+                    self._idle.append(conn)
+                return
+            self._to_pool(conn)
+            return
+        conn.close()
+
+    @staticmethod
+    def _to_pool(conn: Any) -> None:
+        try:
+            conn.driver_connection.autocommit = False  # back to the pool as the ORM expects it
+        except Exception:  # noqa: BLE001 - a broken connection is dropped by the pool
+            conn.invalidate()
         conn.close()
 
     def upload(self, token: str | None, session_id: int, seq: int, body: bytes, content_type: str | None,
