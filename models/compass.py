@@ -377,13 +377,14 @@ class MagCalibrator:
         lam[5] = 1.0 / self.vertical_hard_iron_std**2
         if self.soft_iron:
             lam[6:11] = 1.0 / self.soft_iron_std**2
+        prior = np.diag(lam)
         wts = np.ones(rows.shape[0])
         s = 5.0  # uT
         x = np.zeros(p)
         for _ in range(10):
             wr = np.repeat(wts, 3) / s**2
             aw = a * wr[:, None]  # the same product both normal-equation terms used to compute on their own
-            x = np.linalg.solve(aw.T @ a + np.diag(lam), aw.T @ y)
+            x = np.linalg.solve(aw.T @ a + prior, aw.T @ y)
             r = (y - a @ x).reshape(-1, 3)
             rn = np.sqrt(np.add.reduce(r * r, axis=1))  # = np.linalg.norm(r, axis=1), bit for bit
             s = max(1.4826 * median(rn) / math.sqrt(3.0) * 1.2, 0.5)
