@@ -109,23 +109,6 @@ def _level_heading(f: tuple[float, float, float] | list[float], m: tuple[float, 
     return math.atan2(h_e, h_n)
 
 
-def _calibrated(m: list[float], b: list[float], w: list[list[float]]) -> list[float]:
-    """``W (m - b)`` on plain floats (``m``, ``b`` [uT], ``w`` the rows of W)."""
-    d = [m[0] - b[0], m[1] - b[1], m[2] - b[2]]
-    return [w[0][0] * d[0] + w[0][1] * d[1] + w[0][2] * d[2],
-            w[1][0] * d[0] + w[1][1] * d[1] + w[1][2] * d[2],
-            w[2][0] * d[0] + w[2][1] * d[1] + w[2][2] * d[2]]
-
-
-def _shape(f: list[float], m: list[float]) -> tuple[float, float]:
-    """Magnitude [uT] and dip [rad] of the calibrated field ``m`` [uT] with the specific force ``f`` [m/s^2] as
-    the vertical, on plain floats (:meth:`MagCalibrator.field_shape`)."""
-    nm = math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2)
-    nf = max(math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2), 1e-9)
-    down_dot = -(m[0] * f[0] + m[1] * f[1] + m[2] * f[2]) / nf
-    return nm, math.asin(max(-1.0, min(1.0, down_dot / max(nm, 1e-9))))
-
-
 def level_heading(acc: np.ndarray, mag: np.ndarray) -> float:
     """Angle [rad] of the levelled field's horizontal part seen from the body with zero yaw: atan2(E, N)."""
     return _level_heading(np.asarray(acc, dtype=np.float64).reshape(3).tolist(),
@@ -423,8 +406,7 @@ class MagCalibrator:
     def _heading_rms(self, rows: np.ndarray) -> tuple[float, float]:
         """RMS [rad] of compass minus ZUPT-KF heading over stance rows ``[acc, mag, heading]``, and its robust
         version (the square root of the median square over 0.6745, the RMS of a normal spread)."""
-        d2 = np.square(np.angle(np.exp(1j * np.asarray([h - r[6] for h, r in zip(self._headings(rows), rows.tolist())],
-                                                       dtype=np.float64))))
+        d2 = np.square(np.angle(np.exp(1j * np.asarray([self.heading(r[:3], r[3:6]) - r[6] for r in rows]))))
         return math.sqrt(float(np.mean(d2))), math.sqrt(median(d2)) / 0.6745
 
     def _shape_scale(self, rows: np.ndarray) -> tuple[float, float]:
@@ -432,8 +414,7 @@ class MagCalibrator:
         ``[acc, mag, heading]`` about m_n's (as :meth:`_heading_rms`'s robust version: the square root of the
         median square over 0.6745; a bias of the stances against m_n is included)."""
         ref, dip_ref = self.field_reference()
-        b, w = self.b.tolist(), self.w.tolist()
-        sh = np.asarray([_shape(r[:3], _calibrated(r[3:6], b, w)) for r in rows.tolist()], dtype=np.float64).reshape(-1, 2)
+        sh = np.asarray([self.field_shape(r[:3], r[3:6]) for r in rows], dtype=np.float64).reshape(-1, 2)
         if sh.shape[0] == 0:
             return math.nan, math.nan
         return (math.sqrt(median(np.square(sh[:, 0] - ref))) / 0.6745,
@@ -739,12 +720,23 @@ class MagCalibrator:
 
     def _cal3(self, mag: np.ndarray | tuple[float, ...]) -> list[float]:
         """:meth:`calibrate` on plain floats (per-step path)."""
-        return _calibrated(np.asarray(mag, dtype=np.float64).reshape(3).tolist(), self.b.tolist(), self.w.tolist())
+        m = np.asarray(mag, dtype=np.float64).reshape(3).tolist()
+        b = self.b.tolist()
+        d = [m[0] - b[0], m[1] - b[1], m[2] - b[2]]
+        w = self.w.tolist()
+        return [w[0][0] * d[0] + w[0][1] * d[1] + w[0][2] * d[2],
+                w[1][0] * d[0] + w[1][1] * d[1] + w[1][2] * d[2],
+                w[2][0] * d[0] + w[2][1] * d[1] + w[2][2] * d[2]]
 
     def field_shape(self, acc_stance: np.ndarray, mag_stance: np.ndarray) -> tuple[float, float]:
         """Magnitude [uT] and dip [rad] (positive down) of the calibrated stance field; the accelerometer
         gives the vertical. Both are invariant under a rotation of the foot about the vertical."""
-        return _shape(np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist(), self._cal3(mag_stance))
+        m = self._cal3(mag_stance)
+        nm = math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2)
+        f = np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist()
+        nf = max(math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2), 1e-9)
+        down_dot = -(m[0] * f[0] + m[1] * f[1] + m[2] * f[2]) / nf
+        return nm, math.asin(max(-1.0, min(1.0, down_dot / max(nm, 1e-9))))
 
     def field_reference(self) -> tuple[float, float]:
         """Magnitude [uT] and dip [rad] (positive down) of m_n: the field the disturbance gate tests against."""
@@ -771,19 +763,6 @@ class MagCalibrator:
         alpha = _level_heading(np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist(), self._cal3(mag_stance))
         psi = math.atan2(float(self.m_n[1]), float(self.m_n[0])) - alpha
         return math.atan2(math.sin(psi), math.cos(psi))
-
-    def _headings(self, rows: np.ndarray) -> list[float]:
-        """:meth:`heading` of each stance row ``[acc, mag, heading]`` (the same operations, the calibration
-        read once: a fit takes it on every stance it holds)."""
-        if not self.ready:
-            return [float("nan")] * rows.shape[0]
-        b, w = self.b.tolist(), self.w.tolist()
-        north = math.atan2(float(self.m_n[1]), float(self.m_n[0]))
-        out = []
-        for r in rows.tolist():
-            psi = north - _level_heading(r[:3], _calibrated(r[3:6], b, w))
-            out.append(math.atan2(math.sin(psi), math.cos(psi)))
-        return out
 
     def get_state(self) -> dict:
         """Plain-data state for ``energy.codec``."""
