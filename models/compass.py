@@ -216,10 +216,10 @@ class MagCalibrator:
             swing: np.ndarray | None = None) -> None:
         """Record one stance: mean specific force [m/s^2], mean field [uT] (body), ZUPT-KF heading [rad], and
         optionally field samples [uT] (body, shape (k, 3)) of the swing that led to it (:meth:`add_swing`)."""
-        a = np.asarray(acc_stance, dtype=np.float64).reshape(3)
-        m = np.asarray(mag_stance, dtype=np.float64).reshape(3)
-        if np.all(np.isfinite(a)) and np.all(np.isfinite(m)) and math.isfinite(heading_kf):
-            self._rows.append([*a.tolist(), *m.tolist(), float(heading_kf)])
+        row = [*np.asarray(acc_stance, dtype=np.float64).reshape(3).tolist(),
+               *np.asarray(mag_stance, dtype=np.float64).reshape(3).tolist(), float(heading_kf)]
+        if all(map(math.isfinite, row)):
+            self._rows.append(row)
             del self._rows[:-_ROWS_KEEP]
             self._added += 1
             self._row_swings.append(self.add_swing(swing) if swing is not None else 0)
@@ -235,7 +235,9 @@ class MagCalibrator:
         come from the low-rate stream whether or not the gyroscope is on. Returns the samples recorded.
         """
         m = np.asarray(mag, dtype=np.float64).reshape(-1, 3)
-        m = m[np.all(np.isfinite(m), axis=1)]
+        fin = np.isfinite(m)
+        if not fin.all():  # (the rare case: the rows with a non-finite value dropped)
+            m = m[fin.all(axis=1)]
         self._swing.extend(m.tolist())
         del self._swing[:-_SWING_KEEP]
         return int(m.shape[0])
@@ -344,9 +346,9 @@ class MagCalibrator:
 
     def _fit_all(self) -> bool:
         """The fit of :meth:`fit` on every recorded stance."""
-        rows = _table(self._rows, 7)
-        if rows.shape[0] < self.min_stances:
+        if len(self._rows) < self.min_stances:
             return self.ready
+        rows = _table(self._rows, 7)
         h = rows[:, 6]
         spread = 1.0 - math.hypot(float(np.mean(np.cos(h))), float(np.mean(np.sin(h))))  # circular variance
         if spread < 1.0 - math.cos(self.min_heading_spread / 2.0):
@@ -358,13 +360,14 @@ class MagCalibrator:
         lam[5] = 1.0 / self.vertical_hard_iron_std**2
         if self.soft_iron:
             lam[6:11] = 1.0 / self.soft_iron_std**2
+        prior = np.diag(lam)
         wts = np.ones(rows.shape[0])
         s = 5.0  # uT
         x = np.zeros(p)
         for _ in range(10):
             wr = np.repeat(wts, 3) / s**2
             aw = a * wr[:, None]  # the same product both normal-equation terms used to compute on their own
-            x = np.linalg.solve(aw.T @ a + np.diag(lam), aw.T @ y)
+            x = np.linalg.solve(aw.T @ a + prior, aw.T @ y)
             r = (y - a @ x).reshape(-1, 3)
             rn = np.sqrt(np.add.reduce(r * r, axis=1))  # = np.linalg.norm(r, axis=1), bit for bit
             s = max(1.4826 * median(rn) / math.sqrt(3.0) * 1.2, 0.5)

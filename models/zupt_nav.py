@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -553,6 +554,7 @@ class ZuptNavigator:
         self._next = 0  # index in the buffer of the first unprocessed sample
         self._t_last = -math.inf
         self._clip = ClipRepair(self.config.saturation())
+        self._config_state: dict[str, Any] | None = None  # the config's fields as a state stores them (read once)
 
     # ---- public state ---------------------------------------------------------------------------------
     @property
@@ -807,9 +809,11 @@ class ZuptNavigator:
     # ---- state ------------------------------------------------------------------------------------------
     def get_state(self) -> dict:
         """Complete state as plain values and numpy arrays (for :mod:`energy.codec`)."""
+        if self._config_state is None:  # (frozen config: its ~75 fields read at the first state only)
+            self._config_state = {name: getattr(self.config, name) for name in _CONFIG_FIELDS}
         return {
             "version": 1,
-            "config": {name: getattr(self.config, name) for name in _CONFIG_FIELDS},  # flat: no deep copy
+            "config": dict(self._config_state),  # flat: no deep copy
             "x": self._x.copy(),
             "P": self._P.copy(),
             "fs": self._fs.copy(),
