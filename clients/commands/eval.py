@@ -667,13 +667,14 @@ def _run_ipin(args: argparse.Namespace) -> int:
         s = doc["summary"]
         print(f"\n{s['trials']} trials ({args.mode}): median mean error {_fmt(s['mean_err_m']['median'], '.2f')} m "
               f"(worst {_fmt(s['mean_err_m']['worst'], '.2f')}), median p75 {_fmt(s['p75_err_m']['median'], '.2f')} m, "
-              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')}; always-on "
+              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')} "
+              f"({_fmt(s['energy_ratio_landmarks']['median'], '.2f')} between the landmarks); always-on "
               f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
         if "phases" in doc:
             m = doc["phases"]["mean"]
             print(f"over {doc['phases']['phases']} batch phases: median mean error {m['mean_err_m']:.2f} m "
                   f"(worst {m['worst_mean_err_m']:.2f}), median p75 {m['p75_err_m']:.2f} m, energy ratio "
-                  f"{m['energy_ratio']:.2f}; always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
+                  f"{m['energy_ratio']:.2f} ({m['energy_ratio_landmarks']:.2f} between the landmarks); always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
                   f"{m['ratio_of_medians']:.2f}")
     return 1 if rows_failed else 0
 
