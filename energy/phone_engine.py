@@ -19,7 +19,8 @@ out. What it does per step (003 Figure 5, eq. 24):
    ``marg_settled_std_rad``), and takes the MARG filter's heading as an observation while it is still
    converging; without the gyroscope its straight and turn models and the compass carry it (a compass change
    only a turn explains is taken as the turn; after a stand at one place the compass's change is the turn made
-   standing). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
+   standing; a step whose interval the gyroscope saw only in part, as when it came on during a stand, adds the
+   free turn of the unseen time, so the compass can supply a turn made there). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
    carries the heading and held, as the compass's spatially correlated error, when it is off;
 4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
    pull straight steps along them onto them (:meth:`models.heading.HeadingEstimator.update_dominant`, 003
@@ -835,6 +836,14 @@ class PhoneEngine:
         dc = 0.0 if not math.isfinite(change) else change
         dyaw = float(r[_F["gyro_dyaw"]])
         extra = self._duty_var(r, t_ns) if gyro else 0.0
+        if gyro:  # the time since the previous step the gyroscope did not see (after a stand, part of it) turns freely
+            frac = float(r[_F["gyro_frac"]])
+            since = float(r[_F["t_s"]]) - self._last_step_s if math.isfinite(self._last_step_s) else 0.0
+            unseen = (1.0 - frac) * since
+            if unseen > c.marg.gyro_gap_s:
+                extra += c.marg.no_gyro_rad_s ** 2 * unseen
+                if stood:
+                    dc = 0.0  # one place: the compass's change is the turn
         learn = walking and extra == 0.0
         settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
                    and yaw_std < c.marg_settled_std_rad)

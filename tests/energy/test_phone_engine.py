@@ -365,3 +365,34 @@ def test_ipin_returning_user_calibration(ipin_dir) -> None:  # type: ignore[no-u
     assert ru[alone]["weinberg_k"] == pop[alone]["weinberg_k"]
     with pytest.raises(ValueError, match="calibration"):
         evaluate_ipin(recs[:1], calibration="per-trial")
+
+
+def test_turn_standing_before_the_gyroscope_came_on_is_taken(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """A stand whose turn falls where the gyroscope was not yet on (it came on a moment after the walker stopped,
+    as ``auto`` switches it at batch boundaries): most of the stand had the gyroscope, but the turn is the part it
+    did not see, so the compass's change at that one place must still turn the heading. IPIN Trial27 rep01's
+    34-s stand with its 100-deg turn, in an always-on replay with the gyroscope cut as ``auto`` had it: off for
+    the last 15 s of walking before the stand (straight along a corridor) and the stand's first 2 s."""
+    from clients.importers import load
+
+    rec = load(ipin_dir / "IPIN2023_T3_TrainingTrial27_repetition01.txt")
+    kw = dict(rec.batch._kwargs())
+
+    def run(batch: SensorBatch) -> np.ndarray:
+        eng = PhoneEngine(mode="always-on", device_kind="phone", placement="phone-hand", anchor=ANCHOR)
+        return _positions(eng, batch.split_seconds(1.0))
+
+    whole = run(rec.batch)
+    t = whole[:, 0]
+    i = int(np.argmax(np.diff(t)))  # the longest stand
+    turned = math.degrees(abs(math.remainder(whole[i + 1, 3] - whole[i, 3], math.tau)))
+    assert np.diff(t)[i] > 20e9 and turned > 60.0
+    g = kw["gyr_t_ns"]
+    keep = (g < t[i] - 15e9) | (g >= t[i] + 2e9)  # off for the walk's last 15 s and the stand's first 2 s
+    kw["gyr_t_ns"], kw["gyr"] = g[keep], kw["gyr"][keep]
+    cut = run(SensorBatch(**kw))
+    j = int(np.argmin(np.abs(cut[:, 0] - t[i + 1])))
+    assert cut[j, 0] == t[i + 1]
+    after = slice(j, j + 5)  # the first steps after the stand
+    miss = np.degrees(np.abs(np.remainder(cut[after, 3] - whole[i + 1: i + 6, 3] + math.pi, math.tau) - math.pi))
+    assert np.max(miss) < 25.0, miss
