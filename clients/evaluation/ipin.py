@@ -208,13 +208,15 @@ class TrialResult:
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
               batch_seconds: float = 1.0, max_heading_std_rad: float | None = None,
-              start_offset_s: float = 0.0, gyro_duty: tuple[float, ...] | None = None) -> TrialResult:
+              start_offset_s: float = 0.0, gyro_duty: tuple[float, ...] | None = None,
+              walk_gyro: str | None = None) -> TrialResult:
     """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
     (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's; ``start_offset_s`` [s]: the
     replay starts this long after the recording, which moves the upload batches' boundaries against the walk;
     ``gyro_duty``: ``(P, on)`` [s], ``auto`` duty-cycles the gyroscope where it would switch it off walking,
     ``PhoneEngineConfig.gyro_duty_period_s`` / ``gyro_duty_on_s``; ``(P, on, 1)``: also ``gyro_duty_only``; ``(P, on, only,
-    sigma_deg)``: also ``gyro_duty_sigma_rad``; None: the engine's default)."""
+    sigma_deg)``: also ``gyro_duty_sigma_rad``; None: the engine's default; ``walk_gyro``:
+    :attr:`energy.phone_engine.PhoneEngineConfig.walk_gyro`, None: the engine's default)."""
     from dataclasses import replace
 
     from energy.device import replay
@@ -225,6 +227,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     cfg = replace(base, step_length=replace(base.step_length, weinberg_k=float(weinberg_k)))
     if max_heading_std_rad is not None:
         cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
+    if walk_gyro is not None:
+        cfg = replace(cfg, walk_gyro=walk_gyro)
     if gyro_duty is not None:
         cfg = replace(cfg, gyro_duty_period_s=float(gyro_duty[0]), gyro_duty_on_s=float(gyro_duty[1]),
                       gyro_duty_only=len(gyro_duty) > 2 and bool(gyro_duty[2]),
@@ -342,7 +346,8 @@ def _surveyed(rec: Recording) -> float:
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
                   batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
                   max_heading_std_rad: float | None = None, phases: int = 1,
-                  calibration: str = "population", gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
+                  calibration: str = "population", gyro_duty: tuple[float, ...] | None = None,
+                  walk_gyro: str | None = None) -> dict[str, Any]:
     """The ``pednav eval ipin`` document for loaded recordings (see the module docstring; ``calibration``:
     ``"population"`` or ``"returning-user"``).
 
@@ -355,7 +360,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
     the first landmark). An energy-aware engine switches its sensors at batch boundaries, so whether the
     gyroscope is back in time for a turn depends on where they fall: ``doc["phases"]`` holds the medians of each
     phase and their mean, the figure that does not depend on that luck (the rows are phase 0's).
-    ``gyro_duty``: ``(P, on)`` [s] of the energy-aware mode's duty-cycled gyroscope (:func:`run_phone`).
+    ``gyro_duty``: ``(P, on)`` [s] of the energy-aware mode's duty-cycled gyroscope, ``walk_gyro`` its gyroscope
+    while walking (:func:`run_phone`).
     """
     from energy.phone_engine import PhoneEngineConfig
 
@@ -386,7 +392,7 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
             k = _returning_user_k(rec.name, k, walked)
         on = run_phone(rec, "always-on", k, placement, batch_seconds)
         run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad,
-                                                       gyro_duty=gyro_duty)
+                                                       gyro_duty=gyro_duty, walk_gyro=walk_gyro)
         e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
         e_on = landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
         kb = _loo_k(rec.name, base_totals)
@@ -405,17 +411,20 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
            "summary": ipin_summary(trials)}
     if phases > 1:
         doc["phases"] = _phases(recs, trials, mode, placement, batch_seconds, max_heading_std_rad, int(phases), progress,
-                                gyro_duty)
+                                gyro_duty, walk_gyro)
     if max_heading_std_rad is not None:
         doc["max_heading_std_rad"] = max_heading_std_rad
     if gyro_duty is not None:
         doc["gyro_duty"] = [float(x) for x in gyro_duty]
+    if walk_gyro is not None:
+        doc["walk_gyro"] = walk_gyro
     return doc
 
 
 def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, placement: str | None,
             batch_seconds: float, max_heading_std_rad: float | None, phases: int,
-            progress: Callable[[str], None] | None, gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None, gyro_duty: tuple[float, ...] | None = None,
+            walk_gyro: str | None = None) -> dict[str, Any]:
     """Median and worst mean landmark error, median 75th percentile and median energy ratio of ``mode`` and of
     always-on for each batch phase (phase 0: ``trials``), their means over the phases, and each trial's mean
     error averaged over the phases."""
@@ -433,7 +442,8 @@ def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, 
             T, L = landmarks(rec)
             on = run_phone(rec, "always-on", ks[rec.name], placement, batch_seconds, start_offset_s=off)
             run = on if mode == "always-on" else run_phone(rec, mode, ks[rec.name], placement, batch_seconds,
-                                                           max_heading_std_rad, start_offset_s=off, gyro_duty=gyro_duty)
+                                                           max_heading_std_rad, start_offset_s=off, gyro_duty=gyro_duty,
+                                                           walk_gyro=walk_gyro)
             e, e_on = landmark_errors(T, L, run.t_ns, run.ne, run.step_m), landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
             per.append({"mean": e.mean_err_m, "p75": e.p75_err_m, "on": e_on.mean_err_m, "on_p75": e_on.p75_err_m,
                         "energy": run.energy_mj / on.energy_mj,

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
 from energy.device import replay
 from energy.engines import EngineSpec, engine_from_bytes, new_engine, profile_for
-from energy.phone_engine import PROFILE_KEY, PhoneEngine
+from energy.phone_engine import PROFILE_KEY, PhoneEngine, PhoneEngineConfig
 from models.batch import BatchError, SensorBatch
 
 ANCHOR = (49.4612, 11.1113, 300.0)
@@ -185,23 +185,36 @@ def test_late_samples_are_counted_per_stream() -> None:
 
 
 def test_sensor_configuration_follows_behaviour() -> None:
+    """always-on: every sensor at its full rate. auto: walking, the gyroscope on at the low rates; standing, the low
+    rates and the gyroscope off once its vertical bias has settled. walk_gyro="on-demand": the gyroscope also goes
+    off walking, and less of the time is spent with it."""
     rec = _rec("phone-walk")
+    cfg = PhoneEngineConfig()
     on = replay(PhoneEngine("always-on", anchor=ANCHOR), rec.batch, 1.0)
-    assert all(c.gyro_on and c.acc_rate_hz == 50.0 and c.mag_rate_hz == 50.0 for _, c in on.configs)
+    assert all(c.gyro_on and (c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz) == (cfg.acc_rate_hz, cfg.gyr_rate_hz, cfg.mag_rate_hz)
+               for _, c in on.configs)
     auto = replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0)
     cfgs = [c for _, c in auto.configs]
-    settled, standing = False, []
+    settled, standing, walking = False, [], []
     for c, u in zip(cfgs[1:], auto.updates):
         settled = settled or any(e.kind == "gyro_bias" and e.detail["settled"] for e in u.events)
-        if u.behaviour == "stand":
-            standing.append((c, settled))
-    assert standing and all(c.acc_rate_hz == 25.0 and c.mag_rate_hz == 10.0 for c, _ in standing)
+        (standing if u.behaviour == "stand" else walking).append((c, settled))
+    assert standing and all(c.acc_rate_hz == cfg.stand_acc_rate_hz and c.mag_rate_hz == cfg.stand_mag_rate_hz
+                            for c, _ in standing)
     # standing, the gyroscope runs only until its vertical bias has settled (the quasi-static field settles it)
     assert all(c.gyro_on != s for c, s in standing)
-    walking = [c for c in cfgs if c.gyro_on and c.acc_rate_hz == 50.0]
-    assert walking and all(c.gyr_rate_hz <= 50.0 and c.mag_rate_hz <= 10.0 for c in walking)
-    assert any(c.gyro_on for c in cfgs)  # the first steps learn the compass's noise with the gyroscope on
-    assert auto.gyro_on_fraction < on.gyro_on_fraction
+    assert walking and all(c.gyro_on and (c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz)
+                           == (cfg.auto_acc_rate_hz, cfg.auto_gyr_rate_hz, cfg.walk_mag_rate_hz) for c, _ in walking)
+    assert sum(auto.samples_sent.values()) < 0.6 * sum(on.samples_sent.values())
+    demand = replay(PhoneEngine("auto", anchor=ANCHOR, config=PhoneEngineConfig(walk_gyro="on-demand")), rec.batch, 1.0)
+    went_off = [c for c, u in zip([c for _, c in demand.configs][1:], demand.updates) if u.behaviour != "stand" and not c.gyro_on]
+    assert went_off and demand.gyro_on_fraction < auto.gyro_on_fraction
+    assert demand.configs[0][1].gyro_on  # the first steps learn the compass's noise with the gyroscope on
+
+
+def test_walk_gyro_is_validated() -> None:
+    with pytest.raises(ValueError, match="walk_gyro"):
+        PhoneEngineConfig(walk_gyro="sometimes")
 
 
 def test_synthetic_walks_are_navigated() -> None:
