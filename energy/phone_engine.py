@@ -19,7 +19,8 @@ out. What it does per step (003 Figure 5, eq. 24):
    ``marg_settled_std_rad``), and takes the MARG filter's heading as an observation while it is still
    converging; without the gyroscope its straight and turn models and the compass carry it (a compass change
    only a turn explains is taken as the turn; after a stand at one place the compass's change is the turn made
-   standing). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
+   standing; a step whose interval the gyroscope saw only in part, as when it came on during a stand, adds the
+   free turn of the unseen time, so the compass can supply a turn made there). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
    carries the heading and held, as the compass's spatially correlated error, when it is off;
 4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
    pull straight steps along them onto them (:meth:`models.heading.HeadingEstimator.update_dominant`, 003
@@ -27,16 +28,18 @@ out. What it does per step (003 Figure 5, eq. 24):
 5. the step length (:mod:`models.pdr_step_length`, Weinberg 000 eq. 35 or 003 eq. 28), calibrated per user and
    placement from known distances (:meth:`PhoneEngine.calibrate_distance`), places the step.
 
-Energy (``mode="auto"``): the gyroscope runs only while the heading needs it (first steps, until the compass's
-noise is known; after a turn; whenever the estimator's forecast standard deviation one gyroscope-off step ahead
-(:meth:`models.heading.HeadingEstimator.forecast`) would exceed ``max_heading_std_rad``, except straight along the
-building's dominant directions) at 50 Hz, the magnetometer at 10 Hz; standing, the accelerometer and magnetometer
-run at their low rates and the gyroscope is off once the MARG filter's vertical bias has settled
-(:func:`models.marg.bias_settled`: after the start and after the device was waved about it stays on, the
-quasi-static field settling the bias). A gyroscope that comes back with a settled bias carries the heading by its
-own measured turn (``gyro_dyaw``) until the MARG filter has settled again. With ``gyro_duty_period_s`` (off by
-default) the walking gyroscope-off batches ask for a duty-cycled gyroscope instead, whose gaps :class:`_DutyFill`
-fills. ``mode="always-on"``: every sensor at its full rate, the baseline the energy is compared with.
+Energy (``mode="auto"``): walking, the gyroscope runs at 25 Hz with the accelerometer at 25 Hz and the
+magnetometer at 5 Hz (``walk_gyro="on"``); standing (no step for ``stand_after_s`` with a still accelerometer) the
+gyroscope is off once the MARG filter's vertical bias has settled (:func:`models.marg.bias_settled`: after the start
+and after the device was waved about it stays on, the quasi-static field settling the bias), the turn made standing
+coming from the compass's change at that one place. With ``walk_gyro="on-demand"`` the gyroscope runs walking only
+while the heading needs it (first steps, until the compass's noise is known; after a turn; whenever the estimator's
+forecast standard deviation one gyroscope-off step ahead (:meth:`models.heading.HeadingEstimator.forecast`) would
+exceed ``max_heading_std_rad``, except straight along the building's dominant directions); a gyroscope that comes
+back with a settled bias carries the heading by its own measured turn (``gyro_dyaw``) until the MARG filter has
+settled again, and with ``gyro_duty_period_s`` (off by default) the walking gyroscope-off batches ask for a
+duty-cycled gyroscope instead, whose gaps :class:`_DutyFill` fills. ``mode="always-on"``: every sensor at its
+full rate, the baseline the energy is compared with.
 North is magnetic (:attr:`PhoneEngine.NORTH_REFERENCE`): the declination is applied where the track is
 geo-referenced (:func:`models.geo.georeference`, server and replay alike). An anchor gives the engine the World
 Magnetic Model's field there (in the magnetic frame), against which a still device's compass is weighed.
@@ -64,9 +67,10 @@ from models.pdr_step_length import PdrStepLength, StepLengthConfig
 from models.placement import STEP_AND_HEADING, PlacementConfig, PlacementRecognizer
 from models.step_detector import StepDetectorConfig
 
-__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_HEADING", "PHONE_MODES", "PROFILE_KEY", "steady_step"]
+__all__ = ["PhoneEngine", "PhoneEngineConfig", "PHONE_HEADING", "PHONE_MODES", "PROFILE_KEY", "WALK_GYRO", "steady_step"]
 
 PHONE_MODES: tuple[str, ...] = ("auto", "always-on")
+WALK_GYRO: tuple[str, ...] = ("on", "on-demand")  # PhoneEngineConfig.walk_gyro
 PROFILE_KEY = "pdr"  # the profile's entry of the step-and-heading engines (energy.profile.PROFILE_BEHAVIOURS)
 _STATE_VERSION = 2
 _F = {k: i for i, k in enumerate(STEP_RECORD)}
@@ -128,17 +132,30 @@ class PhoneEngineConfig:
         The parts' own configurations (``directions``: None switches the dominant directions off).
     acc_rate_hz, gyr_rate_hz, mag_rate_hz : float
         Full rates (the always-on baseline: a phone's usual 50 / 100 / 50 Hz).
+    walk_gyro : str
+        ``auto`` while walking: ``"on"`` (the default), the gyroscope runs whenever the walker is not standing;
+        ``"on-demand"``, only while the heading needs it (the rules below: first steps, after a turn, a forecast
+        above ``max_heading_std_rad``; off straight along the building's directions). Measured on the IPIN dev
+        trials (docs/phone.md, "The gyroscope while walking, at the low rates"): with the gyroscope off walking
+        the compass must find the turns, which it does late and with its place errors; at 25 Hz the gyroscope
+        walking costs less than the errors it saves.
+    auto_acc_rate_hz : float
+        Accelerometer rate walking in ``auto``: 25 Hz, the low end of a phone's rates and ten times a walker's step
+        frequency (the Weinberg feature's peaks are taken at this rate; the always-on fit of its constant is at
+        ``acc_rate_hz``, the path comes out 0.7 % shorter).
     walk_mag_rate_hz : float
-        Magnetometer rate while walking in ``auto``: 10 Hz, the rate the MARG filter reads the compass at
-        (``marg.compass_interval_s``); faster samples are skipped by it.
+        Magnetometer rate walking in ``auto``: 5 Hz (the MARG filter reads the compass at most every
+        ``marg.compass_interval_s``, 0.1 s; the compass's error is correlated over seconds, so fewer readings
+        lose little).
     auto_gyr_rate_hz : float
-        Gyroscope rate in ``auto`` when on: 50 Hz, twice the 25 Hz above which a hand-held walk has little
-        rotation (the accelerometer's own 50 Hz; its compute per sample is what the rate saves, the BMI270's
-        gyroscope current being flat in rate).
+        Gyroscope rate in ``auto`` when on: 25 Hz, the BMI270's lowest gyroscope output rate; a hand-held walk
+        has little rotation above a few hertz. Its current being flat in rate, what the lower rate saves is the
+        samples' upload and compute.
     stand_acc_rate_hz, stand_mag_rate_hz : float
         Rates while standing in ``auto``.
     stand_after_s : float
-        No step for this long with a still accelerometer: standing.
+        No step for this long with a still accelerometer: standing (the gyroscope goes off in ``auto``); also,
+        a step this long after the previous one comes after a stand at one place.
     max_heading_std_rad : float
         ``auto`` asks for the gyroscope when the heading's standard deviation one step ahead without it would
         exceed this.
@@ -218,11 +235,13 @@ class PhoneEngineConfig:
     acc_rate_hz: float = 50.0
     gyr_rate_hz: float = 100.0
     mag_rate_hz: float = 50.0
-    walk_mag_rate_hz: float = 10.0
-    auto_gyr_rate_hz: float = 50.0
+    walk_gyro: str = "on"
+    auto_acc_rate_hz: float = 25.0
+    walk_mag_rate_hz: float = 5.0
+    auto_gyr_rate_hz: float = 25.0
     stand_acc_rate_hz: float = 25.0
-    stand_mag_rate_hz: float = 10.0
-    stand_after_s: float = 2.0
+    stand_mag_rate_hz: float = 5.0
+    stand_after_s: float = 1.0
     max_heading_std_rad: float = math.radians(6.0)
     gyro_min_steps: int = 6
     marg_settled_std_rad: float = math.radians(20.0)
@@ -241,7 +260,10 @@ class PhoneEngineConfig:
     run_step_hz: float = 2.4
 
     def __post_init__(self) -> None:
-        for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "walk_mag_rate_hz", "auto_gyr_rate_hz", "stand_acc_rate_hz",
+        if self.walk_gyro not in WALK_GYRO:
+            raise ValueError(f"PhoneEngineConfig: walk_gyro must be one of {', '.join(WALK_GYRO)}, got {self.walk_gyro!r}")
+        for name in ("acc_rate_hz", "gyr_rate_hz", "mag_rate_hz", "auto_acc_rate_hz", "walk_mag_rate_hz", "auto_gyr_rate_hz",
+                     "stand_acc_rate_hz",
                      "stand_mag_rate_hz", "stand_after_s", "max_heading_std_rad", "marg_settled_std_rad", "swing_rad",
                      "swing_window_s", "swing_sleep_s", "batch_s", "stream_wait_s", "stream_max_lag_s", "run_step_hz"):
             v = float(getattr(self, name))
@@ -835,6 +857,14 @@ class PhoneEngine:
         dc = 0.0 if not math.isfinite(change) else change
         dyaw = float(r[_F["gyro_dyaw"]])
         extra = self._duty_var(r, t_ns) if gyro else 0.0
+        if gyro:  # the time since the previous step the gyroscope did not see (after a stand, part of it) turns freely
+            frac = float(r[_F["gyro_frac"]])
+            since = float(r[_F["t_s"]]) - self._last_step_s if math.isfinite(self._last_step_s) else 0.0
+            unseen = (1.0 - frac) * since
+            if unseen > c.marg.gyro_gap_s:
+                extra += c.marg.no_gyro_rad_s ** 2 * unseen
+                if stood:
+                    dc = 0.0  # one place: the compass's change is the turn
         learn = walking and extra == 0.0
         settled = (gyro and self._prev_gyro and math.isfinite(self._prev_dir) and self._gyro_run >= c.gyro_min_steps
                    and yaw_std < c.marg_settled_std_rad)
@@ -897,10 +927,10 @@ class PhoneEngine:
         return c.gyro_duty_sigma_rad ** 2 * min(1.0, frac / off)
 
     def _schedule(self, t_ns: int, events: list[Event]) -> None:
-        """Gyroscope on demand (``auto``): after each step."""
-        if self.mode != "auto":
-            return
+        """Gyroscope on demand (``auto``, ``walk_gyro="on-demand"``): after each step."""
         c = self.config
+        if self.mode != "auto" or c.walk_gyro != "on-demand":
+            return
         hd = self._heading
         locked = self._locked
         learnt = len(hd.noise.samples)
@@ -945,16 +975,16 @@ class PhoneEngine:
             if self._bias_pending:  # the quasi-static field settles the gyroscope's bias: keep it on
                 return SensorConfig(True, c.stand_acc_rate_hz, c.auto_gyr_rate_hz, c.stand_mag_rate_hz, c.batch_s)
             return SensorConfig(False, c.stand_acc_rate_hz, 0.0, c.stand_mag_rate_hz, c.batch_s)
-        if self._gyro_want:
-            return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
+        if c.walk_gyro == "on" or self._gyro_want:
+            return SensorConfig(True, c.auto_acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s)
         if c.gyro_duty_period_s > 0:  # the device duty-cycles the gyroscope by itself
-            return SensorConfig(True, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
+            return SensorConfig(True, c.auto_acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
                                 gyr_duty_period_s=c.gyro_duty_period_s, gyr_duty_on_s=c.gyro_duty_on_s)
         if c.swing_wake:  # the device wakes the gyroscope itself on a turn (compass swing)
-            return SensorConfig(False, c.acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
+            return SensorConfig(False, c.auto_acc_rate_hz, c.auto_gyr_rate_hz, c.walk_mag_rate_hz, c.batch_s,
                                 gyro_wake_on_motion=True, sleep_after_s=c.swing_sleep_s, wake_mode="compass_swing",
                                 wake_swing_rad=c.swing_rad, wake_window_s=c.swing_window_s)
-        return SensorConfig(False, c.acc_rate_hz, 0.0, c.walk_mag_rate_hz, c.batch_s)
+        return SensorConfig(False, c.auto_acc_rate_hz, 0.0, c.walk_mag_rate_hz, c.batch_s)
 
     def _update(self, positions: list[Position], events: list[Event]) -> Update:
         self._config_now = self._sensor_config()

@@ -244,8 +244,8 @@ class Timeline:
         return int(sum(self.steps_by_mode.values()))
 
     @classmethod
-    def from_replay(cls, res: ReplayResult, t_end_ns: int) -> Timeline:
-        """Build the timeline of a replay (``energy.device.replay``).
+    def from_replay(cls, res: ReplayResult, t_end_ns: int, window_ns: tuple[int, int] | None = None) -> Timeline:
+        """Build the timeline of a replay (``energy.device.replay``), of the whole replay or of a time window.
 
         Intervals come from ``res.configs`` (batch start [ns], configuration used for that batch), the last
         one ending at ``t_end_ns``, split by ``res.spans`` where the device's sensors changed state within a
@@ -255,10 +255,17 @@ class Timeline:
         samples actually sent; batches per cost class of their configuration. Steps per mode from ``res.positions``; bytes from ``res.samples_sent``
         (``SAMPLE_BYTES + TIMESTAMP_BYTES`` per sample, ``REQUEST_OVERHEAD_BYTES`` per request).
         :func:`energy.simulate.run_engine` counts the samples and bytes of every batch exactly instead.
+
+        ``window_ns`` ``(t0, t1)`` [ns]: only that stretch: intervals clipped to it, batches that start in it,
+        positions in it, accelerometer samples as the whole replay's scaled estimate over the clipped intervals,
+        bytes as the whole replay's in proportion to those samples (an estimate: the replay does not keep the
+        samples' times).
         """
+        w0, w1 = window_ns if window_ns is not None else (-(2 ** 62), 2 ** 62)
         cfgs = list(res.configs)
         intervals = []
         est: dict[str, float] = {}
+        est_all = 0.0
         batches: dict[str, int] = {}
         for i, (t0, c) in enumerate(cfgs):
             t1 = cfgs[i + 1][0] if i + 1 < len(cfgs) else int(t_end_ns)
@@ -266,25 +273,33 @@ class Timeline:
             spans = res.spans[i] if i < len(res.spans) else [(t0, t1, c.acc_rate_hz, c.gyr_rate_hz if c.gyro_on else 0.0, c.mag_rate_hz)]
             behaviour = res.updates[i - 1].behaviour if 0 < i <= len(res.updates) else "stand"
             kb = cost_class(bool(c.gyro_on or any(sp[3] > 0 for sp in spans)), str(behaviour))
-            batches[kb] = batches.get(kb, 0) + 1  # every batch is one Engine.feed
+            if w0 <= t0 < w1:
+                batches[kb] = batches.get(kb, 0) + 1  # every batch is one Engine.feed
             if t1 <= t0:
                 continue
             for a, b, acc_hz, gyr_hz, mag_hz in spans:
                 a, b = max(a, t0), min(b, t1)
                 if b <= a:
                     continue
-                intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
                 k = cost_class(bool(c.gyro_on or gyr_hz > 0), str(behaviour))
+                est_all += (b - a) / 1e9 * acc_hz
+                a, b = max(a, w0), min(b, w1)
+                if b <= a:
+                    continue
+                intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
                 est[k] = est.get(k, 0.0) + (b - a) / 1e9 * acc_hz
         n_acc = int(res.samples_sent.get("acc", 0))
-        total = sum(est.values()) or 1.0
-        samples = {m: int(round(v * n_acc / total)) for m, v in est.items()}
+        scale = n_acc / (est_all or 1.0)
+        samples = {m: int(round(v * scale)) for m, v in est.items()}
+        share = sum(est.values()) / (est_all or 1.0)  # the window's part of the samples sent
         steps: dict[str, int] = {}
         for p in res.positions:
-            steps[p.mode] = steps.get(p.mode, 0) + 1
-        n_samples = int(sum(res.samples_sent.values()))
-        nbytes = n_samples * (SAMPLE_BYTES + TIMESTAMP_BYTES) + res.batches * REQUEST_OVERHEAD_BYTES
-        return cls(intervals, samples, steps, nbytes, int(res.batches), batches)
+            if w0 <= p.t_ns < w1:
+                steps[p.mode] = steps.get(p.mode, 0) + 1
+        n_samples = int(round(sum(res.samples_sent.values()) * share))
+        requests = int(sum(batches.values())) if window_ns is not None else int(res.batches)
+        nbytes = n_samples * (SAMPLE_BYTES + TIMESTAMP_BYTES) + requests * REQUEST_OVERHEAD_BYTES
+        return cls(intervals, samples, steps, nbytes, requests, batches)
 
 
 @dataclass(frozen=True)

@@ -652,9 +652,12 @@ def _run_ipin(args: argparse.Namespace) -> int:
             print(f"pednav eval ipin: --gyro-duty wants P,ON[,ONLY[,SIGMA_DEG]] in seconds with 0 < ON < P, got {args.gyro_duty!r}",
                   file=sys.stderr)
             return 2
+    walk_gyro = args.walk_gyro
+    if walk_gyro is None and (bound is not None or duty is not None):
+        walk_gyro = "on-demand"  # those options act where the gyroscope goes off walking
     doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
                         max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration,
-                        gyro_duty=duty)  # type: ignore[arg-type]
+                        gyro_duty=duty, walk_gyro=walk_gyro)  # type: ignore[arg-type]
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:
@@ -667,13 +670,14 @@ def _run_ipin(args: argparse.Namespace) -> int:
         s = doc["summary"]
         print(f"\n{s['trials']} trials ({args.mode}): median mean error {_fmt(s['mean_err_m']['median'], '.2f')} m "
               f"(worst {_fmt(s['mean_err_m']['worst'], '.2f')}), median p75 {_fmt(s['p75_err_m']['median'], '.2f')} m, "
-              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')}; always-on "
+              f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')} "
+              f"({_fmt(s['energy_ratio_landmarks']['median'], '.2f')} between the landmarks); always-on "
               f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
         if "phases" in doc:
             m = doc["phases"]["mean"]
             print(f"over {doc['phases']['phases']} batch phases: median mean error {m['mean_err_m']:.2f} m "
                   f"(worst {m['worst_mean_err_m']:.2f}), median p75 {m['p75_err_m']:.2f} m, energy ratio "
-                  f"{m['energy_ratio']:.2f}; always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
+                  f"{m['energy_ratio']:.2f} ({m['energy_ratio_landmarks']:.2f} between the landmarks); always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
                   f"{m['ratio_of_medians']:.2f}")
     return 1 if rows_failed else 0
 
@@ -774,9 +778,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     pi.add_argument("--limit", type=int, default=None, metavar="N", help="evaluate at most N recordings")
     pi.add_argument("--match", action="append", default=None, metavar="TEXT", help="only recordings whose name contains TEXT (repeatable)")
     pi.add_argument("--batch-seconds", type=float, default=1.0, metavar="S", help="upload batch duration of the replay [s]")
+    pi.add_argument("--walk-gyro", choices=("on", "on-demand"), default=None,
+                    help="auto: the gyroscope while walking, always on (the engine's default) or only while the heading "
+                         "needs it (PhoneEngineConfig.walk_gyro; implied by --max-heading-std-deg and --gyro-duty)")
     pi.add_argument("--max-heading-std-deg", type=float, default=None, metavar="DEG",
-                    help="auto: the heading standard deviation above which the gyroscope is asked for (default: the "
-                         "engine's, 6 deg): the energy / accuracy trade-off")
+                    help="auto, on demand: the heading standard deviation above which the gyroscope is asked for "
+                         "(default: the engine's, 6 deg): the energy / accuracy trade-off")
     pi.add_argument("--gyro-duty", default=None, metavar="P,ON[,ONLY[,DEG]]",
                     help="auto: duty-cycle the gyroscope where it would be off walking, on for ON of every P seconds "
                          "(PhoneEngineConfig.gyro_duty_period_s / gyro_duty_on_s; default: off); a third field 1: "

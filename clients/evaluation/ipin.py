@@ -11,7 +11,10 @@ landmark, their mean and 75th percentile (the competition's metric), the error a
 return to the first: the loop error), the path ratio (sum of the step lengths between the first and last
 landmark over the surveyed path, the sum of landmark-to-landmark distances; the walk between landmarks is not
 guaranteed straight, so the surveyed path is a lower bound), the steps between the two, and the energy ratio
-(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`), and the samples per
+(the energy-aware replay over the always-on replay of the whole file, :func:`phone_energy`; ``energy_ratio_landmarks``
+the same between the first and the last landmark, the stretch the errors score: the files begin with about a
+minute of the competition's calibration manoeuvre, the device waved about, during which ``auto`` keeps the
+gyroscope on for its bias), and the samples per
 stream the engine received too late to use (``late_samples``, :attr:`energy.phone_engine.PhoneEngine.late_samples`).
 
 Fitted on the data, and so left out per trial (leave-one-route-out: the two repetitions of a route are one
@@ -179,13 +182,14 @@ def _anchor_and_date(rec: Recording) -> tuple[tuple[float, float, float], _dt.da
     return (float(lat), float(lon), 0.0), (_dt.date.fromisoformat(day) if day else None)
 
 
-def phone_energy(res: Any, t_end_ns: int) -> Any:
+def phone_energy(res: Any, t_end_ns: int, window_ns: tuple[int, int] | None = None) -> Any:
     """Energy of a replay (:func:`energy.device.replay`) on the phone power profile ``phone-bmi270``, with the
-    step-and-heading engine's measured compute costs (``compute_costs.json``, engine ``phone``)."""
+    step-and-heading engine's measured compute costs (``compute_costs.json``, engine ``phone``); of the stretch
+    ``window_ns`` ``(t0, t1)`` [ns] only if given (:meth:`energy.power.Timeline.from_replay`)."""
     from energy.power import Timeline, account, load_compute_costs, load_profile
 
     prof = load_profile(POWER_PROFILE, compute=load_compute_costs().for_engine("phone"))
-    return account(Timeline.from_replay(res, t_end_ns), prof)
+    return account(Timeline.from_replay(res, t_end_ns, window_ns), prof)
 
 
 @dataclass
@@ -199,17 +203,20 @@ class TrialResult:
     gyro_on_fraction: float
     events: dict[str, int] = field(default_factory=dict)
     late_samples: dict[str, int] = field(default_factory=dict)
+    energy_landmarks_mj: float = math.nan  # between the first and the last landmark
 
 
 def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | None = "phone-hand",
               batch_seconds: float = 1.0, max_heading_std_rad: float | None = None,
-              start_offset_s: float = 0.0, gyro_duty: tuple[float, ...] | None = None) -> TrialResult:
+              start_offset_s: float = 0.0, gyro_duty: tuple[float, ...] | None = None,
+              walk_gyro: str | None = None) -> TrialResult:
     """Replay a recording through the step-and-heading engine as a phone obeying its sensor configuration
     (``max_heading_std_rad``: the energy-aware mode's bound, default the engine's; ``start_offset_s`` [s]: the
     replay starts this long after the recording, which moves the upload batches' boundaries against the walk;
     ``gyro_duty``: ``(P, on)`` [s], ``auto`` duty-cycles the gyroscope where it would switch it off walking,
     ``PhoneEngineConfig.gyro_duty_period_s`` / ``gyro_duty_on_s``; ``(P, on, 1)``: also ``gyro_duty_only``; ``(P, on, only,
-    sigma_deg)``: also ``gyro_duty_sigma_rad``; None: the engine's default)."""
+    sigma_deg)``: also ``gyro_duty_sigma_rad``; None: the engine's default; ``walk_gyro``:
+    :attr:`energy.phone_engine.PhoneEngineConfig.walk_gyro`, None: the engine's default)."""
     from dataclasses import replace
 
     from energy.device import replay
@@ -220,6 +227,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     cfg = replace(base, step_length=replace(base.step_length, weinberg_k=float(weinberg_k)))
     if max_heading_std_rad is not None:
         cfg = replace(cfg, max_heading_std_rad=float(max_heading_std_rad))
+    if walk_gyro is not None:
+        cfg = replace(cfg, walk_gyro=walk_gyro)
     if gyro_duty is not None:
         cfg = replace(cfg, gyro_duty_period_s=float(gyro_duty[0]), gyro_duty_on_s=float(gyro_duty[1]),
                       gyro_duty_only=len(gyro_duty) > 2 and bool(gyro_duty[2]),
@@ -231,6 +240,8 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
     res = replay(eng, batch, batch_seconds)
     t_end = int(rec.batch.t_end_ns or 0) + 1
     report = phone_energy(res, t_end)
+    T, _ = landmarks(rec)
+    walked = phone_energy(res, t_end, (int(T[0]), int(T[-1])))
     ev: dict[str, int] = {}
     for u in res.updates:
         for e in u.events:
@@ -243,7 +254,7 @@ def run_phone(rec: Recording, mode: str, weinberg_k: float, placement: str | Non
                              np.array([p.heading_rad for p in pos]), decl)
     return TrialResult(np.array([p.t_ns for p in pos], dtype=np.int64), np.column_stack([n, e]).reshape(-1, 2),
                        np.array([p.step_length_m for p in pos]), float(report.total_mj), float(res.gyro_on_fraction), ev,
-                       eng.late_samples)
+                       eng.late_samples, float(walked.total_mj))
 
 
 def baseline_track(rec: Recording, weinberg_k: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -335,7 +346,8 @@ def _surveyed(rec: Recording) -> float:
 def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str | None = "phone-hand",
                   batch_seconds: float = 1.0, progress: Callable[[str], None] | None = None,
                   max_heading_std_rad: float | None = None, phases: int = 1,
-                  calibration: str = "population", gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
+                  calibration: str = "population", gyro_duty: tuple[float, ...] | None = None,
+                  walk_gyro: str | None = None) -> dict[str, Any]:
     """The ``pednav eval ipin`` document for loaded recordings (see the module docstring; ``calibration``:
     ``"population"`` or ``"returning-user"``).
 
@@ -348,7 +360,8 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
     the first landmark). An energy-aware engine switches its sensors at batch boundaries, so whether the
     gyroscope is back in time for a turn depends on where they fall: ``doc["phases"]`` holds the medians of each
     phase and their mean, the figure that does not depend on that luck (the rows are phase 0's).
-    ``gyro_duty``: ``(P, on)`` [s] of the energy-aware mode's duty-cycled gyroscope (:func:`run_phone`).
+    ``gyro_duty``: ``(P, on)`` [s] of the energy-aware mode's duty-cycled gyroscope, ``walk_gyro`` its gyroscope
+    while walking (:func:`run_phone`).
     """
     from energy.phone_engine import PhoneEngineConfig
 
@@ -379,13 +392,14 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
             k = _returning_user_k(rec.name, k, walked)
         on = run_phone(rec, "always-on", k, placement, batch_seconds)
         run = on if mode == "always-on" else run_phone(rec, mode, k, placement, batch_seconds, max_heading_std_rad,
-                                                       gyro_duty=gyro_duty)
+                                                       gyro_duty=gyro_duty, walk_gyro=walk_gyro)
         e = landmark_errors(T, L, run.t_ns, run.ne, run.step_m)
         e_on = landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
         kb = _loo_k(rec.name, base_totals)
         bt, bne, bsl, _ = baseline_track(rec, kb)
         e_b = landmark_errors(T, L, bt, bne, bsl)
         row = {"name": rec.name, **e.row(), "energy_ratio": run.energy_mj / on.energy_mj,
+               "energy_ratio_landmarks": run.energy_landmarks_mj / on.energy_landmarks_mj,
                "accuracy_ratio": e.mean_err_m / e_on.mean_err_m if e_on.mean_err_m > 0 else None,
                "gyro_on_fraction": run.gyro_on_fraction, "weinberg_k": k, "landmarks": int(len(T)),
                "phone": (rec.aux.get("device") or {}).get("Model"), "events": run.events,
@@ -397,22 +411,26 @@ def evaluate_ipin(recs: Sequence[Recording], mode: str = "auto", placement: str 
            "summary": ipin_summary(trials)}
     if phases > 1:
         doc["phases"] = _phases(recs, trials, mode, placement, batch_seconds, max_heading_std_rad, int(phases), progress,
-                                gyro_duty)
+                                gyro_duty, walk_gyro)
     if max_heading_std_rad is not None:
         doc["max_heading_std_rad"] = max_heading_std_rad
     if gyro_duty is not None:
         doc["gyro_duty"] = [float(x) for x in gyro_duty]
+    if walk_gyro is not None:
+        doc["walk_gyro"] = walk_gyro
     return doc
 
 
 def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, placement: str | None,
             batch_seconds: float, max_heading_std_rad: float | None, phases: int,
-            progress: Callable[[str], None] | None, gyro_duty: tuple[float, ...] | None = None) -> dict[str, Any]:
+            progress: Callable[[str], None] | None, gyro_duty: tuple[float, ...] | None = None,
+            walk_gyro: str | None = None) -> dict[str, Any]:
     """Median and worst mean landmark error, median 75th percentile and median energy ratio of ``mode`` and of
     always-on for each batch phase (phase 0: ``trials``), their means over the phases, and each trial's mean
     error averaged over the phases."""
     rows: list[list[dict[str, float]]] = [[{"mean": t["mean_err_m"], "p75": t["p75_err_m"], "on": t["always_on"]["mean_err_m"],
-                                             "on_p75": t["always_on"]["p75_err_m"], "energy": t["energy_ratio"]}
+                                             "on_p75": t["always_on"]["p75_err_m"], "energy": t["energy_ratio"],
+                                             "energy_lm": t["energy_ratio_landmarks"]}
                                             for t in trials]]
     ks = {t["name"]: t["weinberg_k"] for t in trials}
     for k in range(1, phases):
@@ -424,16 +442,19 @@ def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, 
             T, L = landmarks(rec)
             on = run_phone(rec, "always-on", ks[rec.name], placement, batch_seconds, start_offset_s=off)
             run = on if mode == "always-on" else run_phone(rec, mode, ks[rec.name], placement, batch_seconds,
-                                                           max_heading_std_rad, start_offset_s=off, gyro_duty=gyro_duty)
+                                                           max_heading_std_rad, start_offset_s=off, gyro_duty=gyro_duty,
+                                                           walk_gyro=walk_gyro)
             e, e_on = landmark_errors(T, L, run.t_ns, run.ne, run.step_m), landmark_errors(T, L, on.t_ns, on.ne, on.step_m)
             per.append({"mean": e.mean_err_m, "p75": e.p75_err_m, "on": e_on.mean_err_m, "on_p75": e_on.p75_err_m,
-                        "energy": run.energy_mj / on.energy_mj})
+                        "energy": run.energy_mj / on.energy_mj,
+                        "energy_lm": run.energy_landmarks_mj / on.energy_landmarks_mj})
         rows.append(per)
     out: list[dict[str, Any]] = []
     for k, per in enumerate(rows):
-        med = {f: float(np.median([r[f] for r in per])) for f in ("mean", "p75", "on", "on_p75", "energy")}
+        med = {f: float(np.median([r[f] for r in per])) for f in ("mean", "p75", "on", "on_p75", "energy", "energy_lm")}
         out.append({"offset_s": k * batch_seconds / phases, "mean_err_m": med["mean"], "p75_err_m": med["p75"],
                     "worst_mean_err_m": float(max(r["mean"] for r in per)), "energy_ratio": med["energy"],
+                    "energy_ratio_landmarks": med["energy_lm"],
                     "always_on": {"mean_err_m": med["on"], "p75_err_m": med["on_p75"],
                                   "worst_mean_err_m": float(max(r["on"] for r in per))},
                     "ratio_of_medians": med["mean"] / med["on"] if med["on"] > 0 else None})
@@ -444,6 +465,7 @@ def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, 
     return {"phases": phases, "per_phase": out,
             "mean": {"mean_err_m": avg("mean_err_m"), "p75_err_m": avg("p75_err_m"),
                      "worst_mean_err_m": avg("worst_mean_err_m"), "energy_ratio": avg("energy_ratio"),
+                     "energy_ratio_landmarks": avg("energy_ratio_landmarks"),
                      "ratio_of_medians": float(np.mean([p["ratio_of_medians"] for p in out])),
                      "always_on": {"mean_err_m": avg("mean_err_m", "always_on"), "p75_err_m": avg("p75_err_m", "always_on"),
                                    "worst_mean_err_m": avg("worst_mean_err_m", "always_on")}},
@@ -465,7 +487,8 @@ def ipin_summary(trials: Sequence[dict[str, Any]]) -> dict[str, Any]:
     the evaluated mode, the always-on replay and the baseline; path ratios per phone model too."""
     ok = [t for t in trials if "error" not in t]
     out: dict[str, Any] = {"trials": len(ok)}
-    for k in ("mean_err_m", "p75_err_m", "final_err_m", "energy_ratio", "accuracy_ratio", "gyro_on_fraction"):
+    for k in ("mean_err_m", "p75_err_m", "final_err_m", "energy_ratio", "energy_ratio_landmarks", "accuracy_ratio",
+              "gyro_on_fraction"):
         out[k] = _stats([t.get(k) for t in ok], "max")
     out["path_ratio"] = _stats([t["path_ratio"] for t in ok], "far")
     out["steps"] = _stats([t["steps"] for t in ok], "max")

@@ -6,6 +6,8 @@ when it switches the gyroscope off walking and navigates with the samples the de
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import json
 import math
 
@@ -115,11 +117,13 @@ def test_compass_swing_configs_are_validated_and_served() -> None:
 
 def test_the_phone_engine_asks_for_the_swing_wake_and_uses_the_samples_it_did_not_ask_for() -> None:
     rec = synthesize_phone("phone-walk", seed=1)
-    res = replay(PhoneEngine("auto", placement="phone-hand", config=PhoneEngineConfig(swing_wake=True)), rec.batch, 1.0)
+    demand = PhoneEngineConfig(walk_gyro="on-demand")  # the swing wakes a gyroscope switched off walking
+    res = replay(PhoneEngine("auto", placement="phone-hand", config=replace(demand, swing_wake=True)), rec.batch, 1.0)
     t0 = int(rec.batch.t_start_ns)
     asked = {t: c for t, c in res.configs}
     swing = [c for c in asked.values() if c.wake_mode == "compass_swing"]
-    assert swing and all(not c.gyro_on and c.gyro_wake_on_motion and c.acc_rate_hz == 50.0 for c in swing)
+    assert swing and all(not c.gyro_on and c.gyro_wake_on_motion and c.acc_rate_hz == demand.auto_acc_rate_hz
+                         for c in swing)
 
     def config_at(t_ns: int) -> SensorConfig:
         return asked[max(t for t in asked if t <= t_ns)]
@@ -131,7 +135,7 @@ def test_the_phone_engine_asks_for_the_swing_wake_and_uses_the_samples_it_did_no
     step_t = np.asarray(rec.truth.t_ns, dtype=np.int64)
     turning = step_t[np.flatnonzero(np.abs(np.diff(heading)) > math.radians(10.0)) + 1]
     assert len(turning) and all(np.min(np.abs(turning - p.t_ns)) < 3e9 for p in unasked)
-    off = replay(PhoneEngine("auto", placement="phone-hand"), rec.batch, 1.0)  # the default: no swing wake
+    off = replay(PhoneEngine("auto", placement="phone-hand", config=demand), rec.batch, 1.0)  # the default: no swing wake
     assert not any(c.gyro_wake_on_motion for _, c in off.configs)
     assert not any(p.gyro_on and not c.gyro_on for p in off.positions
                    for c in [max(((t, c) for t, c in off.configs if t <= p.t_ns), key=lambda x: x[0])[1]])

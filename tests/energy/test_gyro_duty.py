@@ -23,7 +23,7 @@ from server.schemas import SensorConfigOut
 ANCHOR = (49.4612, 11.1113, 300.0)
 P, ON = 0.5, 0.15
 DUTY = SensorConfig(True, 50.0, 50.0, 10.0, 1.0, gyr_duty_period_s=P, gyr_duty_on_s=ON)
-CFG = PhoneEngineConfig(gyro_duty_period_s=P, gyro_duty_on_s=ON)
+CFG = PhoneEngineConfig(gyro_duty_period_s=P, gyro_duty_on_s=ON, walk_gyro="on-demand")  # duty-cycled where it would go off
 
 
 @lru_cache(maxsize=None)
@@ -166,9 +166,11 @@ def test_auto_asks_for_the_duty_cycle_walking() -> None:
     res = replay(PhoneEngine("auto", config=CFG, anchor=ANCHOR), rec.batch, 1.0)
     duty = [c for _, c in res.configs if c.gyr_duty]
     assert duty and all(c.gyro_on and c.gyr_duty_period_s == P and c.gyr_duty_on_s == ON for c in duty)
-    plain = replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0)
-    assert not any(c.gyr_duty for _, c in plain.configs)  # off by default
-    # where the default switches the gyroscope off walking, the duty cycle's steps are gyroscope steps
+    plain = replay(PhoneEngine("auto", config=replace(CFG, gyro_duty_period_s=0.0, gyro_duty_on_s=0.0), anchor=ANCHOR),
+                   rec.batch, 1.0)
+    assert not any(c.gyr_duty for _, c in plain.configs)
+    assert not any(c.gyr_duty for _, c in replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0).configs)  # off by default
+    # where on demand switches the gyroscope off walking, the duty cycle's steps are gyroscope steps
     assert np.mean([p.gyro_on for p in res.positions]) > np.mean([p.gyro_on for p in plain.positions])
 
 

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from clients.phone_synth import PHONE_SCENARIOS, synthesize_phone
 from energy.device import replay
 from energy.engines import EngineSpec, engine_from_bytes, new_engine, profile_for
-from energy.phone_engine import PROFILE_KEY, PhoneEngine
+from energy.phone_engine import PROFILE_KEY, PhoneEngine, PhoneEngineConfig
 from models.batch import BatchError, SensorBatch
 
 ANCHOR = (49.4612, 11.1113, 300.0)
@@ -185,23 +185,36 @@ def test_late_samples_are_counted_per_stream() -> None:
 
 
 def test_sensor_configuration_follows_behaviour() -> None:
+    """always-on: every sensor at its full rate. auto: walking, the gyroscope on at the low rates; standing, the low
+    rates and the gyroscope off once its vertical bias has settled. walk_gyro="on-demand": the gyroscope also goes
+    off walking, and less of the time is spent with it."""
     rec = _rec("phone-walk")
+    cfg = PhoneEngineConfig()
     on = replay(PhoneEngine("always-on", anchor=ANCHOR), rec.batch, 1.0)
-    assert all(c.gyro_on and c.acc_rate_hz == 50.0 and c.mag_rate_hz == 50.0 for _, c in on.configs)
+    assert all(c.gyro_on and (c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz) == (cfg.acc_rate_hz, cfg.gyr_rate_hz, cfg.mag_rate_hz)
+               for _, c in on.configs)
     auto = replay(PhoneEngine("auto", anchor=ANCHOR), rec.batch, 1.0)
     cfgs = [c for _, c in auto.configs]
-    settled, standing = False, []
+    settled, standing, walking = False, [], []
     for c, u in zip(cfgs[1:], auto.updates):
         settled = settled or any(e.kind == "gyro_bias" and e.detail["settled"] for e in u.events)
-        if u.behaviour == "stand":
-            standing.append((c, settled))
-    assert standing and all(c.acc_rate_hz == 25.0 and c.mag_rate_hz == 10.0 for c, _ in standing)
+        (standing if u.behaviour == "stand" else walking).append((c, settled))
+    assert standing and all(c.acc_rate_hz == cfg.stand_acc_rate_hz and c.mag_rate_hz == cfg.stand_mag_rate_hz
+                            for c, _ in standing)
     # standing, the gyroscope runs only until its vertical bias has settled (the quasi-static field settles it)
     assert all(c.gyro_on != s for c, s in standing)
-    walking = [c for c in cfgs if c.gyro_on and c.acc_rate_hz == 50.0]
-    assert walking and all(c.gyr_rate_hz <= 50.0 and c.mag_rate_hz <= 10.0 for c in walking)
-    assert any(c.gyro_on for c in cfgs)  # the first steps learn the compass's noise with the gyroscope on
-    assert auto.gyro_on_fraction < on.gyro_on_fraction
+    assert walking and all(c.gyro_on and (c.acc_rate_hz, c.gyr_rate_hz, c.mag_rate_hz)
+                           == (cfg.auto_acc_rate_hz, cfg.auto_gyr_rate_hz, cfg.walk_mag_rate_hz) for c, _ in walking)
+    assert sum(auto.samples_sent.values()) < 0.6 * sum(on.samples_sent.values())
+    demand = replay(PhoneEngine("auto", anchor=ANCHOR, config=PhoneEngineConfig(walk_gyro="on-demand")), rec.batch, 1.0)
+    went_off = [c for c, u in zip([c for _, c in demand.configs][1:], demand.updates) if u.behaviour != "stand" and not c.gyro_on]
+    assert went_off and demand.gyro_on_fraction < auto.gyro_on_fraction
+    assert demand.configs[0][1].gyro_on  # the first steps learn the compass's noise with the gyroscope on
+
+
+def test_walk_gyro_is_validated() -> None:
+    with pytest.raises(ValueError, match="walk_gyro"):
+        PhoneEngineConfig(walk_gyro="sometimes")
 
 
 def test_synthetic_walks_are_navigated() -> None:
@@ -365,3 +378,34 @@ def test_ipin_returning_user_calibration(ipin_dir) -> None:  # type: ignore[no-u
     assert ru[alone]["weinberg_k"] == pop[alone]["weinberg_k"]
     with pytest.raises(ValueError, match="calibration"):
         evaluate_ipin(recs[:1], calibration="per-trial")
+
+
+def test_turn_standing_before_the_gyroscope_came_on_is_taken(ipin_dir) -> None:  # type: ignore[no-untyped-def]
+    """A stand whose turn falls where the gyroscope was not yet on (it came on a moment after the walker stopped,
+    as ``auto`` switches it at batch boundaries): most of the stand had the gyroscope, but the turn is the part it
+    did not see, so the compass's change at that one place must still turn the heading. IPIN Trial27 rep01's
+    34-s stand with its 100-deg turn, in an always-on replay with the gyroscope cut as ``auto`` had it: off for
+    the last 15 s of walking before the stand (straight along a corridor) and the stand's first 2 s."""
+    from clients.importers import load
+
+    rec = load(ipin_dir / "IPIN2023_T3_TrainingTrial27_repetition01.txt")
+    kw = dict(rec.batch._kwargs())
+
+    def run(batch: SensorBatch) -> np.ndarray:
+        eng = PhoneEngine(mode="always-on", device_kind="phone", placement="phone-hand", anchor=ANCHOR)
+        return _positions(eng, batch.split_seconds(1.0))
+
+    whole = run(rec.batch)
+    t = whole[:, 0]
+    i = int(np.argmax(np.diff(t)))  # the longest stand
+    turned = math.degrees(abs(math.remainder(whole[i + 1, 3] - whole[i, 3], math.tau)))
+    assert np.diff(t)[i] > 20e9 and turned > 60.0
+    g = kw["gyr_t_ns"]
+    keep = (g < t[i] - 15e9) | (g >= t[i] + 2e9)  # off for the walk's last 15 s and the stand's first 2 s
+    kw["gyr_t_ns"], kw["gyr"] = g[keep], kw["gyr"][keep]
+    cut = run(SensorBatch(**kw))
+    j = int(np.argmin(np.abs(cut[:, 0] - t[i + 1])))
+    assert cut[j, 0] == t[i + 1]
+    after = slice(j, j + 5)  # the first steps after the stand
+    miss = np.degrees(np.abs(np.remainder(cut[after, 3] - whole[i + 1: i + 6, 3] + math.pi, math.tau) - math.pi))
+    assert np.max(miss) < 25.0, miss

@@ -194,3 +194,30 @@ def test_timeline_from_replay_puts_standing_in_idle():
     tl = Timeline.from_replay(res, int(r.batch.t_end_ns))
     assert tl.samples_by_mode.get("idle", 0) > 0
     assert abs(sum(tl.samples_by_mode.values()) - res.samples_sent["acc"]) <= len(tl.samples_by_mode)
+
+
+@pytest.mark.slow
+def test_timeline_windows_add_up_to_the_whole():
+    """A replay's timeline cut at any time into two windows: each sensor's energy, the steps, the batches and the
+    accelerometer samples of the two add up to the whole replay's; a window over everything is the whole."""
+    from clients.phone_synth import synthesize_phone
+    from energy.device import replay
+    from energy.phone_engine import PhoneEngine
+
+    r = synthesize_phone("phone-out-and-back", seed=3)
+    res = replay(PhoneEngine(mode="auto", device_kind="phone", placement="phone-hand"), r.batch, 1.0)
+    t0, t1 = int(r.batch.t_start_ns), int(r.batch.t_end_ns) + 1
+    prof = load_profile("phone-bmi270")
+    whole = Timeline.from_replay(res, t1)
+    assert account(Timeline.from_replay(res, t1, (t0, t1)), prof).total_mj == pytest.approx(account(whole, prof).total_mj)
+    for f in (0.2, 0.5, 0.77):
+        cut = int(t0 + f * (t1 - t0))
+        a, b = Timeline.from_replay(res, t1, (t0, cut)), Timeline.from_replay(res, t1, (cut, t1))
+        ea, eb, ew = account(a, prof), account(b, prof), account(whole, prof)
+        for s in ("acc", "gyr", "mag"):
+            assert ea.components_mj[s] + eb.components_mj[s] == pytest.approx(ew.components_mj[s])
+        assert a.steps + b.steps == whole.steps
+        assert a.requests + b.requests == whole.requests
+        assert abs(sum(a.samples_by_mode.values()) + sum(b.samples_by_mode.values())
+                   - sum(whole.samples_by_mode.values())) <= 2 * len(whole.samples_by_mode)
+        assert a.duration_s + b.duration_s == pytest.approx(whole.duration_s)
