@@ -20,8 +20,9 @@ out. What it does per step (003 Figure 5, eq. 24):
    converging; without the gyroscope its straight and turn models and the compass carry it (a compass change
    only a turn explains is taken as the turn; after a stand at one place the compass's change is the turn made
    standing; a step whose interval the gyroscope saw only in part, as when it came on during a stand, adds the
-   free turn of the unseen time, so the compass can supply a turn made there). The compass reads ``theta + d``: the local field's deflection ``d`` is learnt while the gyroscope
-   carries the heading and held, as the compass's spatially correlated error, when it is off;
+   free turn of the unseen time, so the compass can supply a turn made there). The compass reads ``theta + d``:
+   the local field's deflection ``d`` is learnt while the gyroscope carries the heading and held, as the
+   compass's spatially correlated error, when it is off;
 4. the building's dominant directions (:mod:`models.dominant_directions`, learnt from the walk's own compass)
    pull straight steps along them onto them (:meth:`models.heading.HeadingEstimator.update_dominant`, 003
    Section 6.1);

@@ -677,8 +677,8 @@ def _run_ipin(args: argparse.Namespace) -> int:
             m = doc["phases"]["mean"]
             print(f"over {doc['phases']['phases']} batch phases: median mean error {m['mean_err_m']:.2f} m "
                   f"(worst {m['worst_mean_err_m']:.2f}), median p75 {m['p75_err_m']:.2f} m, energy ratio "
-                  f"{m['energy_ratio']:.2f} ({m['energy_ratio_landmarks']:.2f} between the landmarks); always-on {m['always_on']['mean_err_m']:.2f} m; ratio of the medians "
-                  f"{m['ratio_of_medians']:.2f}")
+                  f"{m['energy_ratio']:.2f} ({m['energy_ratio_landmarks']:.2f} between the landmarks); always-on "
+                  f"{m['always_on']['mean_err_m']:.2f} m; ratio of the medians {m['ratio_of_medians']:.2f}")
     return 1 if rows_failed else 0
 
 
