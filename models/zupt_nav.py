@@ -640,7 +640,8 @@ class ZuptNavigator:
         fast = _inputs_checked(t_s, acc, gyr, mag, self._t_last)
         if fast is not None:  # the common case: arrays as the checks below would pass and convert them
             self._t_last = float(fast[0][-1])
-            self._append(*self._clip.push(*fast))
+            self._clip.push_into(*fast, self._rows)
+            self._views()
             return self._run(final=False)
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         n = t.shape[0]
@@ -655,7 +656,8 @@ class ZuptNavigator:
         if n == 0:
             return NavOutput.empty()
         self._t_last = float(t[-1])
-        self._append(*self._clip.push(t, acc, gyr, mag))
+        self._clip.push_into(t, acc, gyr, mag, self._rows)
+        self._views()
         return self._run(final=False)
 
     def _set_buffer(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
@@ -664,13 +666,6 @@ class ZuptNavigator:
         self._rows = RowBuffer(t, acc, gyr, mag, sat, sig)
         self._views()
 
-    def _append(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
-                sig: np.ndarray) -> None:
-        """Samples the clipping repair has decided join the kernel's buffer (written in place, :class:`RowBuffer`)."""
-        if t.shape[0]:
-            self._rows.extend(t, acc, gyr, mag, sat, sig)
-            self._views()
-
     def _views(self) -> None:
         self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = self._rows.views()
 
@@ -678,7 +673,8 @@ class ZuptNavigator:
         """End of recording: process the samples held back for the detector's look-ahead (and the clipping
         repair's)."""
         e = np.zeros((0, 3))
-        self._append(*self._clip.push(np.zeros(0), e, e, e, final=True))
+        self._clip.push_into(np.zeros(0), e, e, e, self._rows, final=True)
+        self._views()
         return self._run(final=True)
 
     def _run(self, final: bool) -> NavOutput:
