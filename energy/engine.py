@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 from bisect import bisect_right
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -766,9 +766,8 @@ class Engine:
     def _session_stance(self, st: Stance) -> Stance:
         """A ZUPT-KF stance in the session frame: turned by ``_yaw``, translated by ``_offset``."""
         if self._yaw == 0.0:
-            return replace(st, position=st.position + self._offset)
-        return replace(st, position=self._turn(st.position) + self._offset, heading=wrap_angle(st.heading + self._yaw),
-                       delta=self._turn(st.delta))
+            return st.placed(st.position + self._offset, st.heading, st.delta)
+        return st.placed(self._turn(st.position) + self._offset, wrap_angle(st.heading + self._yaw), self._turn(st.delta))
 
     def _emit(self, pos: Position, positions: list[Position], events: list[Event]) -> None:
         """Output a position; where its mode differs from the last one's, a ``mode_switch`` event says so with

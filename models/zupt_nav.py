@@ -431,6 +431,13 @@ class Stance:
         """Horizontal length of the position increment [m]."""
         return float(math.hypot(self.delta[0], self.delta[1]))
 
+    def placed(self, position: np.ndarray, heading: float, delta: np.ndarray) -> Stance:
+        """This stance with another ``position`` [m NED], ``heading`` [rad] and ``delta`` [m] (another frame), the
+        rest as it is (``dataclasses.replace`` without its generic field walk: once per stance on the engine's
+        path)."""
+        return Stance(self.t_start_s, self.t_end_s, position, heading, delta, self.peak_speed, self.samples,
+                      self.mag_used, self.heading_sigma, self.pos_sigma, self.clipped)
+
 
 def _none_u8() -> np.ndarray:
     return np.zeros(0, dtype=np.uint8)
@@ -699,12 +706,10 @@ class ZuptNavigator:
         out = NavOutput(
             self._bt[self._next : nxt].copy(), o_pos[:k], o_vel[:k], o_head[:k], o_zupt[:k], o_stat[:k],
             [
-                Stance(
-                    float(r[0]), float(r[1]), r[2:5].copy(), float(r[5]), r[6:9].copy(), float(r[9]), int(r[10]),
-                    bool(r[11]), float(r[12]), float(r[13]), int(r[14]),
-                )
-                for r in st[:n_st]
-            ],
+                Stance(r[0], r[1], np.array(r[2:5]), r[5], np.array(r[6:9]), r[9], int(r[10]), bool(r[11]), r[12], r[13],
+                       int(r[14]))
+                for r in st[:n_st].tolist()  # (Python floats: the same values as float() of each element)
+            ] if n_st else [],
             o_sat[:k], o_hsig[:k], o_psig[:k],
         )
         self._next = nxt
