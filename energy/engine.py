@@ -436,7 +436,7 @@ class Engine:
         self._acc_v = np.concatenate([self._acc_v, acc])
         wait = int(self.config.rates.stream_wait_s * 1e9)
         limit = min(self._gyr.complete_until(self._last_acc_t, wait), self._mag.complete_until(self._last_acc_t, wait))
-        return self._pair_and_process(int(np.searchsorted(self._acc_t, limit, side="right")), final=False)
+        return self._pair_and_process(int(self._acc_t.searchsorted(limit, side="right")), final=False)
 
     def flush(self) -> Update:
         """End of the session: process what the detectors' look-ahead still holds."""
@@ -770,7 +770,8 @@ class Engine:
         """A ZUPT-KF stance in the session frame: turned by ``_yaw``, translated by ``_offset``."""
         if self._yaw == 0.0:
             return st.placed(st.position + self._offset, st.heading, st.delta)
-        return st.placed(self._turn(st.position) + self._offset, wrap_angle(st.heading + self._yaw), self._turn(st.delta))
+        return st.placed(self._turn(st.position) + self._offset, wrap_angle(st.heading + self._yaw),
+                         self._turn(st.delta))
 
     def _emit(self, pos: Position, positions: list[Position], events: list[Event]) -> None:
         """Output a position; where its mode differs from the last one's, a ``mode_switch`` event says so with

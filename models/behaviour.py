@@ -703,7 +703,8 @@ class BehaviourRecognizer:
     def from_state(cls, d: dict[str, Any]) -> BehaviourRecognizer:
         """Restore from :meth:`get_state` output."""
         r = cls(d["rate_hz_hint"])
-        r._rows = RowBuffer(np.array(d["t"], dtype=np.float64).reshape(-1), np.array(d["n"], dtype=np.float64).reshape(-1))
+        r._rows = RowBuffer(np.array(d["t"], dtype=np.float64).reshape(-1),
+                            np.array(d["n"], dtype=np.float64).reshape(-1))
         r._t0 = None if d["t0"] is None else float(d["t0"])
         r._k = int(d["k"])
         r.label = str(d["label"])

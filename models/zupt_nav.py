@@ -706,8 +706,8 @@ class ZuptNavigator:
         out = NavOutput(
             self._bt[self._next : nxt].copy(), o_pos[:k], o_vel[:k], o_head[:k], o_zupt[:k], o_stat[:k],
             [
-                Stance(r[0], r[1], np.array(r[2:5]), r[5], np.array(r[6:9]), r[9], int(r[10]), bool(r[11]), r[12], r[13],
-                       int(r[14]))
+                Stance(r[0], r[1], np.array(r[2:5]), r[5], np.array(r[6:9]), r[9], int(r[10]), bool(r[11]), r[12],
+                       r[13], int(r[14]))
                 for r in st[:n_st].tolist()  # (Python floats: the same values as float() of each element)
             ] if n_st else [],
             o_sat[:k], o_hsig[:k], o_psig[:k],
