@@ -199,6 +199,13 @@ def _repair(buf, lo, scanned, final, par):
     1-sigma error of each flagged value. Returns the first row of the earliest undecided run (or ``scanned``): the rows before it are decided."""
     fit_n = int(par[_FITN])
     release = scanned
+    any_flag = False
+    for i in range(lo, scanned):  # (most batches flag nothing: then nothing below changes a row)
+        if buf[i, _F] != 0.0:
+            any_flag = True
+            break
+    if not any_flag:
+        return release
     tt = np.empty(2 * fit_n)
     yy = np.empty(2 * fit_n)
     for ch in range(6):
