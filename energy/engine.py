@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 from bisect import bisect_right
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -154,38 +154,39 @@ def _zoh_pair(ts: np.ndarray, vs: np.ndarray, t_acc: np.ndarray, max_age_ns: int
 
 @njit(cache=True)
 def _gyro_rows(t_s: np.ndarray, g0: np.ndarray, m0: np.ndarray, missing: bool, last_s: float, gap_s: float,
-               off_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               off_s: float) -> tuple[np.ndarray, int, int]:
     """The gyroscope rows of a paired chunk and where ZUPT-KF segments break (:meth:`Engine._ingest`'s array
     steps in one compiled pass, the same comparisons).
 
-    ``t_s`` [s] the rows' times, ``g0``/``m0`` the first gyroscope/magnetometer axis (NaN: no sample), ``missing``
-    the previous chunk ended without a gyroscope sample, ``last_s`` [s] the last gyroscope row's time. Returns
-    ``idx`` (the rows with a gyroscope sample), ``gaps`` (positions in ``idx`` that start a new segment: the
-    interval before the row exceeds ``gap_s`` [s], or ``off_s`` [s] after accelerometer rows without a
-    gyroscope sample) and ``mag_n`` (``mag_n[k]``: how many of ``idx[:k]`` have a magnetometer sample)."""
+    ``t_s`` [s] the rows' times (``n`` of them), ``g0``/``m0`` the first gyroscope/magnetometer axis (NaN: no
+    sample), ``missing`` the previous chunk ended without a gyroscope sample, ``last_s`` [s] the last gyroscope
+    row's time. Returns ``(out, m, ng)``, three results in one array (one array to hand back instead of three):
+    ``out[:m]`` the rows with a gyroscope sample (``idx``), ``out[n:n + ng]`` the positions in ``idx`` that
+    start a new segment (the interval before the row exceeds ``gap_s`` [s], or ``off_s`` [s] after accelerometer
+    rows without a gyroscope sample) and ``out[2 n:2 n + m + 1]`` how many of ``idx[:k]`` have a magnetometer
+    sample, ``k = 0 .. m``."""
     n = t_s.shape[0]
-    idx = np.empty(n, dtype=np.int64)
+    out = np.empty(3 * n + 1, dtype=np.int64)
     m = 0
     for i in range(n):
         if not np.isnan(g0[i]):
-            idx[m] = i
+            out[m] = i
             m += 1
-    gaps = np.empty(m, dtype=np.int64)
-    mag_n = np.zeros(m + 1, dtype=np.int64)
     ng = 0
+    out[2 * n] = 0
     for k in range(m):
-        i = idx[k]
+        i = out[k]
         if k == 0:
             off = missing or i > 0
             dt = t_s[i] - last_s
         else:
-            off = i - idx[k - 1] > 1
-            dt = t_s[i] - t_s[idx[k - 1]]
+            off = i - out[k - 1] > 1
+            dt = t_s[i] - t_s[out[k - 1]]
         if dt > gap_s or (off and dt > off_s):
-            gaps[ng] = k
+            out[n + ng] = k
             ng += 1
-        mag_n[k + 1] = mag_n[k] + (0 if np.isnan(m0[i]) else 1)
-    return idx[:m], gaps[:ng], mag_n
+        out[2 * n + k + 1] = out[2 * n + k] + (0 if np.isnan(m0[i]) else 1)
+    return out, m, ng
 
 
 class _StreamPairing:
@@ -435,7 +436,7 @@ class Engine:
         self._acc_v = np.concatenate([self._acc_v, acc])
         wait = int(self.config.rates.stream_wait_s * 1e9)
         limit = min(self._gyr.complete_until(self._last_acc_t, wait), self._mag.complete_until(self._last_acc_t, wait))
-        return self._pair_and_process(int(np.searchsorted(self._acc_t, limit, side="right")), final=False)
+        return self._pair_and_process(int(self._acc_t.searchsorted(limit, side="right")), final=False)
 
     def flush(self) -> Update:
         """End of the session: process what the detectors' look-ahead still holds."""
@@ -482,8 +483,10 @@ class Engine:
         # the rows with a gyroscope sample and the segment breaks: accelerometer rows without a gyroscope sample
         # before a gyroscope row mean the gyroscope was off (a wake-on-motion device powers it down and up within
         # a fraction of a second); a data dropout loses the accelerometer too and splits only beyond gyro_gap_s
-        idx, cuts, mag_n = _gyro_rows(t_s, gyr[:, 0], mag[:, 0], bool(self._gyro_missing), float(self._last_gyr_s),
-                                      sc.gyro_gap_s, sc.gyro_off_s)
+        rows, m_gyr, n_cuts = _gyro_rows(t_s, gyr[:, 0], mag[:, 0], bool(self._gyro_missing),
+                                         float(self._last_gyr_s), sc.gyro_gap_s, sc.gyro_off_s)
+        n = len(t_s)
+        idx, cuts, mag_n = rows[:m_gyr], rows[n:n + n_cuts], rows[2 * n:2 * n + m_gyr + 1]
         if len(idx):
             every = len(idx) == len(t_s)
             ts = t_s if every else t_s[idx]
@@ -766,9 +769,9 @@ class Engine:
     def _session_stance(self, st: Stance) -> Stance:
         """A ZUPT-KF stance in the session frame: turned by ``_yaw``, translated by ``_offset``."""
         if self._yaw == 0.0:
-            return replace(st, position=st.position + self._offset)
-        return replace(st, position=self._turn(st.position) + self._offset, heading=wrap_angle(st.heading + self._yaw),
-                       delta=self._turn(st.delta))
+            return st.placed(st.position + self._offset, st.heading, st.delta)
+        return st.placed(self._turn(st.position) + self._offset, wrap_angle(st.heading + self._yaw),
+                         self._turn(st.delta))
 
     def _emit(self, pos: Position, positions: list[Position], events: list[Event]) -> None:
         """Output a position; where its mode differs from the last one's, a ``mode_switch`` event says so with

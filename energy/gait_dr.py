@@ -248,9 +248,12 @@ class _LowRate:
             # instead of the array steps below (the same comparisons and the same median)
             all_fast, dt = _fast_run(t_s, self.prev_t, 1.0 / (1.6 * self.rate_hz))
             if all_fast and max(1, int(round(1.0 / (dt * self.rate_hz)))) == self.dec.factor:
-                ot, ox = self.dec.process(np.round(t_s * 1e9).astype(np.int64), x)
+                ot, ox = self.dec.process((t_s * 1e9).round().astype(np.int64), x)  # (np.round without its wrapper)
                 self.prev_t = float(t_s[-1])
-                return self._newer(ot / 1e9, ox)
+                ot_s = ot / 1e9
+                if not len(ot_s) or ot_s[0] > self.last_t:  # one decimator's output times increase: all newer
+                    return self._newer_all(ot_s, ox)
+                return self._newer(ot_s, ox)
         prev = np.empty(len(t_s))  # = np.concatenate([[self.prev_t], t_s[:-1]]), without its generic machinery
         prev[0] = self.prev_t
         prev[1:] = t_s[:-1]
@@ -294,6 +297,10 @@ class _LowRate:
         keep = out_s > self.last_t
         if not keep.all():
             out_s, out_x = out_s[keep], out_x[keep]
+        return self._newer_all(out_s, out_x)
+
+    def _newer_all(self, out_s: np.ndarray, out_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Output samples all after the last one returned: returned as they are, the newest remembered."""
         if len(out_s):
             self.last_t = float(out_s[-1])
         return out_s, out_x

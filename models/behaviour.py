@@ -46,6 +46,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from models.rows import RowBuffer
+
 __all__ = [
     "LABELS",
     "WindowFeatures",
@@ -452,49 +454,48 @@ def _rules_code(still: float, var: float, stance: float, gait_s: float, gait_std
 
 
 @njit(cache=True)
-def _row_norms(a: np.ndarray) -> np.ndarray:
-    """|a| of each row of ``a`` (N, 3): ``np.sqrt(np.add.reduce(a * a, axis=1))`` (the same sum, in the same
-    order, x^2 + y^2 + z^2) without its two temporaries."""
-    out = np.empty(a.shape[0])
+def _append_norms(t_store: np.ndarray, n_store: np.ndarray, hi: int, t: np.ndarray, a: np.ndarray) -> None:
+    """Write the times ``t`` [s] and ``|a|`` of the rows of ``a`` (N, 3) [m/s^2] to rows ``hi ..`` of the
+    stores: ``np.sqrt(np.add.reduce(a * a, axis=1))`` (the same sum, in the same order, x^2 + y^2 + z^2) without
+    its temporaries."""
     for i in range(a.shape[0]):
-        out[i] = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2])
-    return out
+        t_store[hi + i] = t[i]
+        n_store[hi + i] = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2])
+
+
+#: columns of :func:`_decisions`' table: decision time [s], window start and end index, label code, features
+_D_T, _D_LO, _D_HI, _D_CODE, _D_F = 0, 1, 2, 3, 4
 
 
 @njit(cache=True)
-def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                                      np.ndarray]:
+def _decisions(t: np.ndarray, x: np.ndarray, t0: float, k: int) -> np.ndarray:
     """Every decision instant ``t0 + j * HOP_S`` (``j >= k``) whose window is complete (a sample at or after
-    it has arrived), its window ``[td - WINDOW_S, td)`` as index bounds, for decided windows (at least
-    ``_MIN_WINDOW_N`` samples and ``td - t0 >= _MIN_SPAN_S``) the :func:`_cheap_features`, and the label code
-    (index into ``LABELS``; -1 when the window is not decided, -2 when the rules need the stride period, see
-    :func:`_rules_code`).
+    it has arrived), one row each (columns :data:`_D_T` ..): the instant, its window ``[td - WINDOW_S, td)`` as
+    index bounds, the label code (index into ``LABELS``; -1 when the window is not decided, -2 when the rules
+    need the stride period, see :func:`_rules_code`) and, for decided windows (at least ``_MIN_WINDOW_N``
+    samples and ``td - t0 >= _MIN_SPAN_S``), the six :func:`_cheap_features` and :func:`_quiet` (NaN else).
 
-    One compiled call per batch instead of two ``searchsorted`` and one kernel call per decision (the module
-    constants are compiled in).
+    One compiled call per batch returning one array, instead of two ``searchsorted`` and one kernel call per
+    decision (the module constants are compiled in).
     """
     hop, window, min_n, min_span = HOP_S, WINDOW_S, _MIN_WINDOW_N, _MIN_SPAN_S
     t_last = t[t.size - 1]
     m = 0
     while t_last >= t0 + (k + m) * hop:
         m += 1
-    td = np.empty(m)
-    lo = np.empty(m, dtype=np.int64)
-    hi = np.empty(m, dtype=np.int64)
-    code = np.full(m, -1, dtype=np.int64)
-    feats = np.full((m, 7), np.nan)
+    out = np.full((m, _D_F + 7), np.nan)
     for j in range(m):
         d = t0 + (k + j) * hop
         i0 = np.searchsorted(t, d - window)
         i1 = np.searchsorted(t, d)
-        td[j], lo[j], hi[j] = d, i0, i1
+        out[j, _D_T], out[j, _D_LO], out[j, _D_HI], out[j, _D_CODE] = d, i0, i1, -1
         if i1 - i0 >= min_n and d - t0 >= min_span:
             f = _cheap_features(t[i0:i1], x[i0:i1], G, STILL_WINDOW_S, STANCE_WINDOW_S, STANCE_TOL, MAX_STANCE_S,
                                 MIN_GAIT_S, MAX_SAMPLE_DT_S)
-            feats[j, :6] = f
-            feats[j, 6] = _quiet(t[i0:i1], x[i0:i1], d, G, QUIET_TOL)
-            code[j] = _rules_code(f[0], f[2], f[3], f[4], f[5])
-    return td, lo, hi, code, feats
+            out[j, _D_F:_D_F + 6] = f
+            out[j, _D_F + 6] = _quiet(t[i0:i1], x[i0:i1], d, G, QUIET_TOL)
+            out[j, _D_CODE] = _rules_code(f[0], f[2], f[3], f[4], f[5])
+    return out
 
 
 def _rules(t: np.ndarray, x: np.ndarray, still: float, dc: float, var: float, stance: float, gait_s: float,
@@ -600,8 +601,8 @@ class BehaviourRecognizer:
 
     def __init__(self, rate_hz_hint: float | None = None) -> None:
         self.rate_hz_hint = rate_hz_hint
-        self._t = np.zeros(0)
-        self._n = np.zeros(0)
+        # the samples of the windows still to come: times [s] and |a| [m/s^2], in place (:class:`RowBuffer`)
+        self._rows = RowBuffer(np.zeros(0), np.zeros(0))
         self._t0: float | None = None
         self._k = 1  # index of the next decision instant
         self.label = "stand"
@@ -623,28 +624,32 @@ class BehaviourRecognizer:
         if t.size == 0:
             return []
         a = np.asarray(acc, dtype=np.float64).reshape(-1, 3)
-        n = _row_norms(a)  # = np.linalg.norm(a, axis=1), bit for bit, in one compiled pass
         if self._t0 is None:
             self._t0 = float(t[0])
-        self._t = np.concatenate([self._t, t])
-        self._n = np.concatenate([self._n, n])
-        td, lo, hi, code, feats = _decisions(self._t, self._n, self._t0, self._k)
+        rows = self._rows
+        rows.reserve(t.size)
+        _append_norms(*rows.storage, rows.hi, t, a)  # = np.linalg.norm(a, axis=1), bit for bit
+        rows.hi += t.size
+        tt, nn = rows.views()
+        table = _decisions(tt, nn, self._t0, self._k).tolist()
         out: list[tuple[float, str]] = []
-        last = -1
+        last: list[float] | None = None
         nan = float("nan")
         per = perio = nan
         label = ""
         current, recent = self.label, self._recent
-        for j, (d, c) in enumerate(zip(td.tolist(), code.tolist())):
+        for r in table:
+            c = int(r[_D_CODE])
             if c != -1:  # a decided window
                 fast = False
-                f = feats[j].tolist()
+                f = r[_D_F:]
                 if c == -2:  # the stride period decides
-                    label, per, perio = _rules(self._t[lo[j]:hi[j]], self._n[lo[j]:hi[j]], *f[:6])
+                    lo, hi = int(r[_D_LO]), int(r[_D_HI])
+                    label, per, perio = _rules(tt[lo:hi], nn[lo:hi], *f[:6])
                     fast = _cadence_agrees(label, f[0], f[3], f[5], per)
                 else:
                     label, per, perio = LABELS[c], nan, nan
-                last = j
+                last = f
                 if f[6] >= STAND_ENTER_S:  # still longer than any stance: a stop, at once
                     if current != "stand":
                         current, recent = "stand", []
@@ -654,14 +659,13 @@ class BehaviourRecognizer:
                     if label != current and (recent.count(label) >= HYSTERESIS
                                              or (fast and recent[-FAST_CONFIRM_OF:].count(label) >= FAST_CONFIRM)):
                         current, recent = label, []
-            out.append((d, current))
+            out.append((r[_D_T], current))
         self.label, self._recent = current, recent
-        if last >= 0:
-            self._feat = (label, feats[last].tolist()[:6], per, perio)
-        self._k += len(td)
-        # the samples of the windows still to come (t increases: one slice, the rows of t >= the start)
-        cut = int(self._t.searchsorted(self._t0 + self._k * HOP_S - WINDOW_S, "left"))
-        self._t, self._n = self._t[cut:], self._n[cut:]
+        if last is not None:
+            self._feat = (label, last[:6], per, perio)
+        self._k += len(table)
+        # the samples of the windows still to come (t increases: the rows of t >= the start)
+        rows.drop(int(tt.searchsorted(self._t0 + self._k * HOP_S - WINDOW_S, "left")))
         return out
 
     @property
@@ -687,8 +691,8 @@ class BehaviourRecognizer:
         """Complete state as plain values and arrays (for ``energy.codec``)."""
         return {
             "rate_hz_hint": self.rate_hz_hint,
-            "t": self._t.copy(),
-            "n": self._n.copy(),
+            "t": self._rows.views()[0].copy(),
+            "n": self._rows.views()[1].copy(),
             "t0": self._t0,
             "k": self._k,
             "label": self.label,
@@ -699,8 +703,8 @@ class BehaviourRecognizer:
     def from_state(cls, d: dict[str, Any]) -> BehaviourRecognizer:
         """Restore from :meth:`get_state` output."""
         r = cls(d["rate_hz_hint"])
-        r._t = np.asarray(d["t"], dtype=np.float64).reshape(-1)
-        r._n = np.asarray(d["n"], dtype=np.float64).reshape(-1)
+        r._rows = RowBuffer(np.array(d["t"], dtype=np.float64).reshape(-1),
+                            np.array(d["n"], dtype=np.float64).reshape(-1))
         r._t0 = None if d["t0"] is None else float(d["t0"])
         r._k = int(d["k"])
         r.label = str(d["label"])

@@ -205,9 +205,9 @@ class Decimator:
         hist = self._fir.history
         if self._count > 0 and t_ns.size and hist is not None and self._t_hist.size == delay \
                 and x.shape[0] == t_ns.size:
-            # the steady state (a history of both streams): the same steps in one compiled call
-            t_out, y, self._fir.history, self._t_hist = _decimate(t_ns, x, hist, self._t_hist, self._count,
-                                                                self.factor, self._fir.taps)
+            # the steady state (a history of both streams): the same steps in one compiled call, the histories
+            # advanced in place (their lengths are fixed; both arrays are this decimator's own)
+            t_out, y = _decimate(t_ns, x, hist, self._t_hist, self._count, self.factor, self._fir.taps)
             self._count += t_ns.size
             return t_out, y
         if self._count == 0 and t_ns.size:
@@ -296,10 +296,10 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
 def _decimate(t_ns, x, hist, t_hist, count, factor, taps):
     """One chunk of :meth:`Decimator.process` once both histories are there (``count > 0``; ``hist`` the FIR's
     last ``L - 1`` inputs, ``t_hist`` the times [ns] of the last ``delay`` inputs): the FIR's input span and
-    time span, the kept rows, their outputs by :func:`_fir_rows` and the advanced histories, with the same
-    values as the array form (concatenations, ``np.arange``, fancy indexing) in one call.
+    time span, the kept rows, their outputs by :func:`_fir_rows`, with the same values as the array form
+    (concatenations, ``np.arange``, fancy indexing) in one call; ``hist`` and ``t_hist`` are advanced in place.
 
-    Returns ``(t_out_ns, y, hist, t_hist)``."""
+    Returns ``(t_out_ns, y)``."""
     n = t_ns.size
     nh = hist.shape[0]
     delay = t_hist.size
@@ -316,4 +316,6 @@ def _decimate(t_ns, x, hist, t_hist, count, factor, taps):
     t_out = np.empty(rows.size, dtype=np.int64)
     for j in range(rows.size):
         t_out[j] = t_all[rows[j]]
-    return t_out, y, ext[n:].copy(), t_all[n:].copy()
+    hist[:] = ext[n:]
+    t_hist[:] = t_all[n:]
+    return t_out, y

@@ -199,6 +199,13 @@ def _repair(buf, lo, scanned, final, par):
     1-sigma error of each flagged value. Returns the first row of the earliest undecided run (or ``scanned``): the rows before it are decided."""
     fit_n = int(par[_FITN])
     release = scanned
+    any_flag = False
+    for i in range(lo, scanned):  # (most batches flag nothing: then nothing below changes a row)
+        if buf[i, _F] != 0.0:
+            any_flag = True
+            break
+    if not any_flag:
+        return release
     tt = np.empty(2 * fit_n)
     yy = np.empty(2 * fit_n)
     for ch in range(6):
@@ -256,6 +263,30 @@ def _repair(buf, lo, scanned, final, par):
     return release
 
 
+@njit(cache=True)
+def _push(buf, k, t, acc, gyr, mag, scanned, lo, final, peaks, par, o_t, o_acc, o_gyr, o_mag, o_flags, o_sigma, hi):
+    """:meth:`ClipRepair.push_into` in one compiled call: the buffer's last ``k`` rows filled from the new
+    samples (:func:`_fill`), flagged (:func:`_scan`, from row ``scanned``) and repaired (:func:`_repair`, rows
+    ``lo ..``), and the decided rows written to the output arrays from their row ``hi`` on (time, repaired acc
+    and gyr, mag, flags, 1-sigma errors). Returns ``(scanned, release)``: the first row not scanned and the first
+    row not decided."""
+    n = buf.shape[0]
+    _fill(buf[n - k:], t, acc, gyr, mag)
+    scanned = _scan(buf, scanned, final, peaks, par)
+    release = _repair(buf, lo, scanned, final, par)
+    for r in range(lo, release):
+        j = hi + r - lo
+        o_t[j] = buf[r, _T]
+        for c in range(3):
+            o_acc[j, c] = buf[r, _R + c]
+            o_gyr[j, c] = buf[r, _R + 3 + c]
+            o_mag[j, c] = buf[r, _M + c]
+        o_flags[j] = np.uint8(buf[r, _F])
+        for c in range(6):
+            o_sigma[j, c] = buf[r, _S + c]
+    return scanned, release
+
+
 class ClipRepair:
     """Streaming detection and repair of range clipping for a ZUPT-KF's input (see the module docstring).
 
@@ -281,16 +312,27 @@ class ClipRepair:
         the rows that are decided: ``(t, acc, gyr, mag, flags, sigma)`` with the clipped values repaired,
         ``flags`` (uint8, :data:`SAT_ACC` | :data:`SAT_GYR` bits) and ``sigma`` (M, 6) the 1-sigma error of each
         flagged value (0 elsewhere). ``final``: the recording ends here, release everything."""
+        out = RowBuffer(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.uint8),
+                        np.zeros((0, 6)))
+        self.push_into(t, acc, gyr, mag, out, final)
+        return out.views()  # type: ignore[return-value]
+
+    def push_into(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, out: RowBuffer,
+                  final: bool = False) -> int:
+        """:meth:`push`, the decided rows appended to ``out`` (a :class:`~models.rows.RowBuffer` of the arrays
+        ``t (n,)``, ``acc``, ``gyr``, ``mag (n, 3)``, ``flags (n,)`` uint8, ``sigma (n, 6)``; C-contiguous
+        float64 but the flags) in one compiled call instead of returned as new arrays. ``t``, ``acc``, ``gyr``,
+        ``mag`` as :meth:`push` takes them (C-contiguous float64). Returns the number of rows appended."""
         k = len(t)
         if k:
-            (new,) = self._rows.grow(k)
-            _fill(new, t, acc, gyr, mag)
+            self._rows.grow(k)
             self._buf = self._rows.views()[0]
         buf = self._buf
-        self._scanned = _scan(buf, self._scanned, final, self._peaks, self._par)
         lo = self._n_tail
-        release = _repair(buf, lo, self._scanned, final, self._par)
-        out = buf[lo:release].copy()
+        out.reserve(buf.shape[0] - lo)  # at most every row held is decided now
+        self._scanned, release = _push(buf, k, t, acc, gyr, mag, self._scanned, lo, final, self._peaks, self._par,
+                                       *out.storage, out.hi)
+        out.hi += release - lo
         if final:
             self.reset()
         else:
@@ -299,8 +341,7 @@ class ClipRepair:
             self._buf = buf[keep_from:]
             self._n_tail = release - keep_from
             self._scanned -= keep_from
-        return (out[:, _T], out[:, _R:_R + 3], out[:, _R + 3:_M], out[:, _M:_S], out[:, _F].astype(np.uint8),
-                out[:, _S:_F])
+        return release - lo
 
     def reset(self) -> None:
         """Forget the held rows (the recording ended, or a new segment of data starts after a gap: no row is context

@@ -431,6 +431,13 @@ class Stance:
         """Horizontal length of the position increment [m]."""
         return float(math.hypot(self.delta[0], self.delta[1]))
 
+    def placed(self, position: np.ndarray, heading: float, delta: np.ndarray) -> Stance:
+        """This stance with another ``position`` [m NED], ``heading`` [rad] and ``delta`` [m] (another frame), the
+        rest as it is (``dataclasses.replace`` without its generic field walk: once per stance on the engine's
+        path)."""
+        return Stance(self.t_start_s, self.t_end_s, position, heading, delta, self.peak_speed, self.samples,
+                      self.mag_used, self.heading_sigma, self.pos_sigma, self.clipped)
+
 
 def _none_u8() -> np.ndarray:
     return np.zeros(0, dtype=np.uint8)
@@ -640,7 +647,8 @@ class ZuptNavigator:
         fast = _inputs_checked(t_s, acc, gyr, mag, self._t_last)
         if fast is not None:  # the common case: arrays as the checks below would pass and convert them
             self._t_last = float(fast[0][-1])
-            self._append(*self._clip.push(*fast))
+            self._clip.push_into(*fast, self._rows)
+            self._views()
             return self._run(final=False)
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         n = t.shape[0]
@@ -655,7 +663,8 @@ class ZuptNavigator:
         if n == 0:
             return NavOutput.empty()
         self._t_last = float(t[-1])
-        self._append(*self._clip.push(t, acc, gyr, mag))
+        self._clip.push_into(t, acc, gyr, mag, self._rows)
+        self._views()
         return self._run(final=False)
 
     def _set_buffer(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
@@ -664,13 +673,6 @@ class ZuptNavigator:
         self._rows = RowBuffer(t, acc, gyr, mag, sat, sig)
         self._views()
 
-    def _append(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, mag: np.ndarray, sat: np.ndarray,
-                sig: np.ndarray) -> None:
-        """Samples the clipping repair has decided join the kernel's buffer (written in place, :class:`RowBuffer`)."""
-        if t.shape[0]:
-            self._rows.extend(t, acc, gyr, mag, sat, sig)
-            self._views()
-
     def _views(self) -> None:
         self._bt, self._ba, self._bg, self._bm, self._bs, self._bsig = self._rows.views()
 
@@ -678,7 +680,8 @@ class ZuptNavigator:
         """End of recording: process the samples held back for the detector's look-ahead (and the clipping
         repair's)."""
         e = np.zeros((0, 3))
-        self._append(*self._clip.push(np.zeros(0), e, e, e, final=True))
+        self._clip.push_into(np.zeros(0), e, e, e, self._rows, final=True)
+        self._views()
         return self._run(final=True)
 
     def _run(self, final: bool) -> NavOutput:
@@ -703,12 +706,10 @@ class ZuptNavigator:
         out = NavOutput(
             self._bt[self._next : nxt].copy(), o_pos[:k], o_vel[:k], o_head[:k], o_zupt[:k], o_stat[:k],
             [
-                Stance(
-                    float(r[0]), float(r[1]), r[2:5].copy(), float(r[5]), r[6:9].copy(), float(r[9]), int(r[10]),
-                    bool(r[11]), float(r[12]), float(r[13]), int(r[14]),
-                )
-                for r in st[:n_st]
-            ],
+                Stance(r[0], r[1], np.array(r[2:5]), r[5], np.array(r[6:9]), r[9], int(r[10]), bool(r[11]), r[12],
+                       r[13], int(r[14]))
+                for r in st[:n_st].tolist()  # (Python floats: the same values as float() of each element)
+            ] if n_st else [],
             o_sat[:k], o_hsig[:k], o_psig[:k],
         )
         self._next = nxt

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from clients.synth import LSM9DS1_CLIPPING, LSM9DS1_TYPICAL, synthesize
+from models.rows import RowBuffer
 from models.saturation import SAT_ACC, SAT_GYR, ClipRepair, SaturationConfig
 from models.zupt_nav import NavOutput, ZuptConfig, ZuptNavigator
 
@@ -81,6 +82,30 @@ def test_the_repair_does_not_depend_on_how_the_samples_are_cut(cuts: list[int]) 
     got = _push_all(ClipRepair(SaturationConfig()), t, acc, gyr, [0, *sorted(cuts), t.size])
     for a, b in zip(ref, got):
         np.testing.assert_array_equal(a, b)
+
+
+def test_push_into_appends_the_decided_rows_after_the_rows_a_buffer_holds() -> None:
+    """The ZUPT-KF's path: the decided rows of each chunk written after the rows its buffer holds (some dropped
+    from the front meanwhile, as its trim does), the same rows as :meth:`ClipRepair.push` returns."""
+    t, acc, gyr, _ = _bumps()
+    mag = np.full((t.size, 3), np.nan)
+    cuts = [0, 7, 60, 61, 200, 333, t.size]
+    ref = _push_all(ClipRepair(SaturationConfig()), t, acc, gyr, cuts)
+    cr = ClipRepair(SaturationConfig())
+    rows = RowBuffer(np.full(5, -1.0), np.zeros((5, 3)), np.zeros((5, 3)), np.zeros((5, 3)), np.zeros(5, dtype=np.uint8),
+                     np.zeros((5, 6)))
+    e = np.zeros((0, 3))
+    chunks = [(t[a:b], acc[a:b], gyr[a:b], mag[a:b], False) for a, b in zip(cuts[:-1], cuts[1:])]
+    for i, (tc, ac, gc, mc, final) in enumerate(chunks + [(np.zeros(0), e, e, e, True)]):
+        before = len(rows)
+        assert cr.push_into(tc, ac, gc, mc, rows, final) == len(rows) - before
+        if i == 1:
+            rows.drop(2)  # the navigator's trim drops rows at the front
+    views = rows.views()
+    np.testing.assert_array_equal(views[0][:3], -1.0)  # the rows held before are untouched
+    for k in range(6):
+        np.testing.assert_array_equal(views[k][3:], ref[k])
+        assert views[k].dtype == ref[k].dtype
 
 
 def test_state_round_trip_while_a_run_is_held_back() -> None:
