@@ -257,15 +257,16 @@ class Timeline:
         :func:`energy.simulate.run_engine` counts the samples and bytes of every batch exactly instead.
 
         ``window_ns`` ``(t0, t1)`` [ns]: only that stretch: intervals clipped to it, batches that start in it,
-        positions in it, accelerometer samples as the whole replay's scaled estimate over the clipped intervals,
-        bytes as the whole replay's in proportion to those samples (an estimate: the replay does not keep the
-        samples' times).
+        positions in it; each stream's samples (accelerometer samples per cost class, bytes) as that stream's
+        samples sent scaled by its rate x duration in the window over the same in the whole replay (an estimate:
+        the replay does not keep the samples' times).
         """
         w0, w1 = window_ns if window_ns is not None else (-(2 ** 62), 2 ** 62)
         cfgs = list(res.configs)
         intervals = []
         est: dict[str, float] = {}
         est_all = 0.0
+        streams = {"acc": [0.0, 0.0], "gyr": [0.0, 0.0], "mag": [0.0, 0.0]}  # rate x duration: whole, window
         batches: dict[str, int] = {}
         for i, (t0, c) in enumerate(cfgs):
             t1 = cfgs[i + 1][0] if i + 1 < len(cfgs) else int(t_end_ns)
@@ -283,20 +284,27 @@ class Timeline:
                     continue
                 k = cost_class(bool(c.gyro_on or gyr_hz > 0), str(behaviour))
                 est_all += (b - a) / 1e9 * acc_hz
+                for name, hz in (("acc", acc_hz), ("gyr", gyr_hz), ("mag", mag_hz)):
+                    streams[name][0] += (b - a) / 1e9 * hz
                 a, b = max(a, w0), min(b, w1)
                 if b <= a:
                     continue
+                for name, hz in (("acc", acc_hz), ("gyr", gyr_hz), ("mag", mag_hz)):
+                    streams[name][1] += (b - a) / 1e9 * hz
                 intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
                 est[k] = est.get(k, 0.0) + (b - a) / 1e9 * acc_hz
         n_acc = int(res.samples_sent.get("acc", 0))
         scale = n_acc / (est_all or 1.0)
         samples = {m: int(round(v * scale)) for m, v in est.items()}
-        share = sum(est.values()) / (est_all or 1.0)  # the window's part of the samples sent
         steps: dict[str, int] = {}
         for p in res.positions:
             if w0 <= p.t_ns < w1:
                 steps[p.mode] = steps.get(p.mode, 0) + 1
-        n_samples = int(round(sum(res.samples_sent.values()) * share))
+        if window_ns is None:
+            n_samples = int(sum(res.samples_sent.values()))
+        else:  # each stream's samples sent, in the window's share of its rate x duration
+            n_samples = int(round(sum(res.samples_sent.get(k, 0) * (w / whole if whole > 0 else 0.0)
+                                      for k, (whole, w) in streams.items())))
         requests = int(sum(batches.values())) if window_ns is not None else int(res.batches)
         nbytes = n_samples * (SAMPLE_BYTES + TIMESTAMP_BYTES) + requests * REQUEST_OVERHEAD_BYTES
         return cls(intervals, samples, steps, nbytes, requests, batches)
