@@ -265,8 +265,7 @@ class Timeline:
         cfgs = list(res.configs)
         intervals = []
         est: dict[str, float] = {}
-        est_all = 0.0
-        streams = {"acc": [0.0, 0.0], "gyr": [0.0, 0.0], "mag": [0.0, 0.0]}  # rate x duration: whole, window
+        streams = {"acc": [0.0, 0.0], "gyr": [0.0, 0.0], "mag": [0.0, 0.0]}  # rate x duration [samples]: whole, window
         batches: dict[str, int] = {}
         for i, (t0, c) in enumerate(cfgs):
             t1 = cfgs[i + 1][0] if i + 1 < len(cfgs) else int(t_end_ns)
@@ -283,18 +282,18 @@ class Timeline:
                 if b <= a:
                     continue
                 k = cost_class(bool(c.gyro_on or gyr_hz > 0), str(behaviour))
-                est_all += (b - a) / 1e9 * acc_hz
+                wa, wb = max(a, w0), min(b, w1)
                 for name, hz in (("acc", acc_hz), ("gyr", gyr_hz), ("mag", mag_hz)):
                     streams[name][0] += (b - a) / 1e9 * hz
-                a, b = max(a, w0), min(b, w1)
+                    if wb > wa:
+                        streams[name][1] += (wb - wa) / 1e9 * hz
+                a, b = wa, wb
                 if b <= a:
                     continue
-                for name, hz in (("acc", acc_hz), ("gyr", gyr_hz), ("mag", mag_hz)):
-                    streams[name][1] += (b - a) / 1e9 * hz
                 intervals.append(Interval(a / 1e9, b / 1e9, acc_hz, gyr_hz, mag_hz))
                 est[k] = est.get(k, 0.0) + (b - a) / 1e9 * acc_hz
         n_acc = int(res.samples_sent.get("acc", 0))
-        scale = n_acc / (est_all or 1.0)
+        scale = n_acc / (streams["acc"][0] or 1.0)
         samples = {m: int(round(v * scale)) for m, v in est.items()}
         steps: dict[str, int] = {}
         for p in res.positions:
