@@ -673,12 +673,20 @@ def _run_ipin(args: argparse.Namespace) -> int:
               f"median energy ratio {_fmt(s['energy_ratio']['median'], '.2f')} "
               f"({_fmt(s['energy_ratio_landmarks']['median'], '.2f')} between the landmarks); always-on "
               f"{_fmt(s['always_on']['mean_err_m']['median'], '.2f')} m, baseline {_fmt(s['baseline']['mean_err_m']['median'], '.2f')} m")
+        pr = s["accuracy_ratio"]["paired"]
+        if args.mode != "always-on" and pr["geomean"] is not None:
+            print(f"error over always-on's, per trial: geometric mean {pr['geomean']:.2f} "
+                  f"(90 % bootstrap interval over the trials {pr['ci90'][0]:.2f}-{pr['ci90'][1]:.2f})")
         if "phases" in doc:
             m = doc["phases"]["mean"]
             print(f"over {doc['phases']['phases']} batch phases: median mean error {m['mean_err_m']:.2f} m "
                   f"(worst {m['worst_mean_err_m']:.2f}), median p75 {m['p75_err_m']:.2f} m, energy ratio "
                   f"{m['energy_ratio']:.2f} ({m['energy_ratio_landmarks']:.2f} between the landmarks); always-on "
                   f"{m['always_on']['mean_err_m']:.2f} m; ratio of the medians {m['ratio_of_medians']:.2f}")
+            pr = m["paired_ratio"]
+            if args.mode != "always-on" and pr["geomean"] is not None:
+                print(f"  per trial (its mean over the phases): geometric mean of the error ratios {pr['geomean']:.2f} "
+                      f"(90 % interval {pr['ci90'][0]:.2f}-{pr['ci90'][1]:.2f})")
     return 1 if rows_failed else 0
 
 

@@ -53,7 +53,7 @@ CALIBRATIONS: tuple[str, ...] = ("population", "returning-user")
 __all__ = ["CALIBRATIONS", "LandmarkErrors", "TrialResult", "landmark_errors", "route_of", "phone_energy", "run_phone",
            "logfile_recordings",
            "baseline_track", "evaluate_ipin", "ipin_summary", "ipin_logfiles", "logfile_cli", "leave_one_route_out",
-           "print_loro", "landmarks", "TRIAL_FIELDS"]
+           "print_loro", "landmarks", "paired_ratio", "TRIAL_FIELDS"]
 
 TRIAL_FIELDS = ("name", "mean_err_m", "p75_err_m", "final_err_m", "path_ratio", "steps", "energy_ratio")
 POWER_PROFILE = "phone-bmi270"
@@ -462,16 +462,54 @@ def _phases(recs: Sequence[Recording], trials: list[dict[str, Any]], mode: str, 
     def avg(key: str, part: str | None = None) -> float:
         return float(np.mean([(p[part] if part else p)[key] for p in out]))
 
+    per_trial = [(float(np.mean([rows[k][i]["mean"] for k in range(phases)])),
+                  float(np.mean([rows[k][i]["on"] for k in range(phases)]))) for i in range(len(trials))]
     return {"phases": phases, "per_phase": out,
             "mean": {"mean_err_m": avg("mean_err_m"), "p75_err_m": avg("p75_err_m"),
                      "worst_mean_err_m": avg("worst_mean_err_m"), "energy_ratio": avg("energy_ratio"),
                      "energy_ratio_landmarks": avg("energy_ratio_landmarks"),
                      "ratio_of_medians": float(np.mean([p["ratio_of_medians"] for p in out])),
+                     "paired_ratio": paired_ratio([a for a, _ in per_trial], [b for _, b in per_trial]),
                      "always_on": {"mean_err_m": avg("mean_err_m", "always_on"), "p75_err_m": avg("p75_err_m", "always_on"),
                                    "worst_mean_err_m": avg("worst_mean_err_m", "always_on")}},
-            "trials": [{"name": t["name"], "mean_err_m": float(np.mean([rows[k][i]["mean"] for k in range(phases)])),
-                        "always_on_mean_err_m": float(np.mean([rows[k][i]["on"] for k in range(phases)]))}
-                       for i, t in enumerate(trials)]}
+            "trials": [{"name": t["name"], "mean_err_m": a, "always_on_mean_err_m": b}
+                       for t, (a, b) in zip(trials, per_trial, strict=True)]}
+
+
+def paired_ratio(errors: Sequence[float], reference: Sequence[float], resamples: int = 4000,
+                 seed: int = 0) -> dict[str, Any]:
+    """Geometric mean of the per-trial error ratios ``errors / reference`` with a bootstrap 90 % interval over
+    the trials.
+
+    The ratio of the two medians mixes each configuration's luck on different trials (a trial's compass offset
+    moves its error by a metre from one configuration to the next); the per-trial ratio pairs them, so the
+    trials' difficulty cancels and the interval says how far the 16 dev trials pin the ratio down.
+
+    Parameters
+    ----------
+    errors, reference : sequence of float
+        Per trial, the configuration's and the reference's error [m] (the same trials in the same order).
+        Pairs with a missing, non-finite or non-positive value are left out.
+    resamples : int
+        Bootstrap resamples of the trials (with replacement).
+    seed : int
+        Seed of the resampling (the interval is reproducible).
+
+    Returns
+    -------
+    dict
+        ``geomean`` [-], ``ci90`` ([5th, 95th] percentile of the resampled geometric means), ``n`` (pairs used);
+        ``None`` values without a pair.
+    """
+    pairs = [(float(a), float(b)) for a, b in zip(errors, reference, strict=True)
+             if a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and a > 0 and b > 0]
+    if not pairs:
+        return {"geomean": None, "ci90": None, "n": 0}
+    lr = np.log([a / b for a, b in pairs])
+    idx = np.random.default_rng(seed).integers(0, len(lr), size=(int(resamples), len(lr)))
+    boot = np.exp(lr[idx].mean(axis=1))
+    lo, hi = np.percentile(boot, [5.0, 95.0])
+    return {"geomean": float(np.exp(lr.mean())), "ci90": [float(lo), float(hi)], "n": len(pairs)}
 
 
 def _stats(values: list[float], worst: str) -> dict[str, Any]:
@@ -490,6 +528,8 @@ def ipin_summary(trials: Sequence[dict[str, Any]]) -> dict[str, Any]:
     for k in ("mean_err_m", "p75_err_m", "final_err_m", "energy_ratio", "energy_ratio_landmarks", "accuracy_ratio",
               "gyro_on_fraction"):
         out[k] = _stats([t.get(k) for t in ok], "max")
+    out["accuracy_ratio"]["paired"] = paired_ratio([t["mean_err_m"] for t in ok],
+                                                   [t["always_on"]["mean_err_m"] for t in ok])
     out["path_ratio"] = _stats([t["path_ratio"] for t in ok], "far")
     out["steps"] = _stats([t["steps"] for t in ok], "max")
     for part in ("always_on", "baseline"):

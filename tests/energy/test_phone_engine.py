@@ -329,6 +329,10 @@ def test_ipin_batch_phases(ipin_dir) -> None:  # type: ignore[no-untyped-def]
     assert p1["always_on"]["mean_err_m"] == pytest.approx(p0["always_on"]["mean_err_m"], rel=0.25)
     assert ph["mean"]["mean_err_m"] == pytest.approx(0.5 * (p0["mean_err_m"] + p1["mean_err_m"]), abs=1e-12)
     assert [t["name"] for t in ph["trials"]] == [t["name"] for t in doc["trials"]]
+    ratios = [t["mean_err_m"] / t["always_on_mean_err_m"] for t in ph["trials"]]
+    paired = ph["mean"]["paired_ratio"]
+    assert paired["n"] == 2 and paired["geomean"] == pytest.approx(math.sqrt(ratios[0] * ratios[1]), rel=1e-12)
+    assert doc["summary"]["accuracy_ratio"]["paired"]["n"] == 2
 
 
 
