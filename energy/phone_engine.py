@@ -851,6 +851,13 @@ class PhoneEngine:
                 hd.start(direction, yaw_std ** 2)  # the MARG filter's heading (its compass updates included)
             elif has_c:
                 hd.start(compass, r_c + hd.noise.place_var)
+            elif gyro and math.isfinite(direction) and math.isfinite(yaw_std):
+                # no compass reading (a device without magnetometer, or none yet): the MARG filter's heading, as
+                # uncertain as it says (its prior: unknown); the gyroscope carries the turns, a later compass sets it
+                hd.start(direction, yaw_std ** 2)
+                events.append(Event(t_ns, "heading_reference", {
+                    "north": "none", "reason": "no magnetometer reading: headings are relative to the device's "
+                    "first attitude until one arrives", "placement": self.placement}))
             else:
                 return
             hd.set_offset_prior(0.0, c.heading.offset_prior_rad)  # the compass reads in theta's frame (magnetic north)

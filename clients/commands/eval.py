@@ -655,9 +655,13 @@ def _run_ipin(args: argparse.Namespace) -> int:
     walk_gyro = args.walk_gyro
     if walk_gyro is None and (bound is not None or duty is not None):
         walk_gyro = "on-demand"  # those options act where the gyroscope goes off walking
-    doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
-                        max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration,
-                        gyro_duty=duty, walk_gyro=walk_gyro)  # type: ignore[arg-type]
+    try:
+        doc = evaluate_ipin(recs, mode=args.mode, placement=placement, batch_seconds=args.batch_seconds,
+                            max_heading_std_rad=bound, phases=max(1, int(args.phases)), calibration=args.calibration,
+                            gyro_duty=duty, walk_gyro=walk_gyro)  # type: ignore[arg-type]
+    except ValueError as exc:  # e.g. no steps on the other routes to fit the step constant on
+        print(f"pednav eval ipin: {exc}", file=sys.stderr)
+        return 1
     doc["trials"] += rows_failed
 
     def line(r: dict[str, Any]) -> str:

@@ -304,7 +304,8 @@ def _loo_k(name: str, totals: dict[str, tuple[float, float]]) -> float:
     num = sum(d for n, (d, _) in totals.items() if route_of(n) != route_of(name))
     den = sum(s for n, (_, s) in totals.items() if route_of(n) != route_of(name))
     if not den > 0:
-        raise ValueError(f"{name}: no other route to fit the Weinberg constant on")
+        raise ValueError(f"{name}: no steps on the other routes' trials to fit the Weinberg step constant on "
+                         "(a logfile with neither gyroscope nor magnetometer has no heading, so no steps are placed)")
     return num / den
 
 

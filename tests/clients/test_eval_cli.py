@@ -319,3 +319,16 @@ def test_a_missing_data_folder_is_one_line_and_exit_2(command: str, dataset: str
     assert err == [f"pednav eval {command}: data folder not found (PEDNAV_DATA/{dataset})"]
     assert main(["eval", command, str(tmp_path / "nope")]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f"pednav eval {command}: data folder not found ({tmp_path / 'nope'})"]
+
+
+def test_ipin_logfiles_without_heading_sensors_are_one_line(ipin_dir: Path, tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """Logfiles with the accelerometer only (no GYRO, no MAGN lines): no heading, so no steps are placed and the
+    step constant cannot be fitted: one line saying so, exit 1, no traceback."""
+    for trial in ("Trial27_repetition01", "Trial23_repetition01"):
+        name = f"IPIN2023_T3_Training{trial}.txt"
+        lines = (ipin_dir / name).read_text(errors="replace").splitlines(keepends=True)
+        (tmp_path / name).write_text("".join(x for x in lines if not x.startswith(("GYRO", "MAGN"))))
+    assert main(["eval", "ipin", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("pednav eval ipin: IPIN2023_T3_Training") and "no heading" in err[0], err

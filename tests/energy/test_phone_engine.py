@@ -77,6 +77,35 @@ def test_works_with_what_the_device_sends() -> None:
     assert not any(np.isnan(pos).ravel())
 
 
+@pytest.mark.parametrize("mode", ["always-on", "auto"])
+def test_a_phone_without_magnetometer_is_navigated(mode: str) -> None:
+    """No magnetometer at all (a phone without one): the same steps and step lengths as with it, headed by the
+    gyroscope from the device's first attitude, which the output says (``heading_reference`` north "none"), and
+    chunk-invariant. (The heading is only relative: the gyroscope's bias is then unobserved, docs/phone.md.)"""
+    rec = _rec("phone-walk")
+    kw = dict(rec.batch._kwargs())
+    kw["mag_t_ns"], kw["mag"] = kw["mag_t_ns"][:0], kw["mag"][:0]
+    blind = SensorBatch(**kw)
+    with_mag = _positions(PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR), rec.batch.split_seconds(1.0))
+    eng = PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR)
+    events = []
+    rows = []
+    for b in blind.split_seconds(1.0):
+        u = eng.feed(b)
+        events += u.events
+        rows += [[p.t_ns, p.north, p.east, p.heading_rad, p.step_length_m] for p in u.positions]
+    rows += [[p.t_ns, p.north, p.east, p.heading_rad, p.step_length_m] for p in eng.flush().positions]
+    got = np.array(rows)
+    assert len(got) == len(with_mag) > 50
+    np.testing.assert_array_equal(got[:, 0], with_mag[:, 0])
+    np.testing.assert_allclose(got[:, 4], with_mag[:, 4], rtol=1e-12)
+    assert np.isfinite(got).all()
+    refs = [e.detail.get("north") for e in events if e.kind == "heading_reference"]
+    assert refs[-1] == "none"
+    whole = _positions(PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR), [blind])
+    np.testing.assert_allclose(whole, got, atol=1e-9, rtol=0)
+
+
 def _lagged(batch: SensorBatch, lag_s: float, edges_s: list[float]) -> list[SensorBatch]:
     """Upload batches ending ``edges_s`` [s] after the recording's start (and one with the rest) in which the
     magnetometer's samples arrive ``lag_s`` after their time stamps (as a decimating filter's delay delivers them:
