@@ -856,8 +856,8 @@ class PhoneEngine:
                 # uncertain as it says (its prior: unknown); the gyroscope carries the turns, a later compass sets it
                 hd.start(direction, yaw_std ** 2)
                 events.append(Event(t_ns, "heading_reference", {
-                    "north": "none", "reason": "no magnetometer reading: headings are relative to the device's "
-                    "first attitude until one arrives", "placement": self.placement}))
+                    "north": "initial-heading", "reason": "no magnetometer reading: headings are relative to the "
+                    "device's first attitude until one arrives", "placement": self.placement}))
             else:
                 return
             hd.set_offset_prior(0.0, c.heading.offset_prior_rad)  # the compass reads in theta's frame (magnetic north)

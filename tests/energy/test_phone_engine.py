@@ -80,7 +80,7 @@ def test_works_with_what_the_device_sends() -> None:
 @pytest.mark.parametrize("mode", ["always-on", "auto"])
 def test_a_phone_without_magnetometer_is_navigated(mode: str) -> None:
     """No magnetometer at all (a phone without one): the same steps and step lengths as with it, headed by the
-    gyroscope from the device's first attitude, which the output says (``heading_reference`` north "none"), and
+    gyroscope from the device's first attitude, which the output says (``heading_reference`` north "initial-heading", as the trajectories' ``north`` calls it), and
     chunk-invariant. (The heading is only relative: the gyroscope's bias is then unobserved, docs/phone.md.)"""
     rec = _rec("phone-walk")
     kw = dict(rec.batch._kwargs())
@@ -101,7 +101,7 @@ def test_a_phone_without_magnetometer_is_navigated(mode: str) -> None:
     np.testing.assert_allclose(got[:, 4], with_mag[:, 4], rtol=1e-12)
     assert np.isfinite(got).all()
     refs = [e.detail.get("north") for e in events if e.kind == "heading_reference"]
-    assert refs[-1] == "none"
+    assert refs[-1] == "initial-heading"
     whole = _positions(PhoneEngine(mode, placement="phone-hand", anchor=ANCHOR), [blind])
     np.testing.assert_allclose(whole, got, atol=1e-9, rtol=0)
 
