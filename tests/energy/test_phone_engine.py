@@ -80,8 +80,9 @@ def test_works_with_what_the_device_sends() -> None:
 @pytest.mark.parametrize("mode", ["always-on", "auto"])
 def test_a_phone_without_magnetometer_is_navigated(mode: str) -> None:
     """No magnetometer at all (a phone without one): the same steps and step lengths as with it, headed by the
-    gyroscope from the device's first attitude, which the output says (``heading_reference`` north "initial-heading", as the trajectories' ``north`` calls it), and
-    chunk-invariant. (The heading is only relative: the gyroscope's bias is then unobserved, docs/phone.md.)"""
+    gyroscope from the device's first attitude, which the output says (``heading_reference`` with north
+    "initial-heading", the trajectories' word), and chunk-invariant. (The heading is only relative: the
+    gyroscope's bias is then unobserved, docs/phone.md.)"""
     rec = _rec("phone-walk")
     kw = dict(rec.batch._kwargs())
     kw["mag_t_ns"], kw["mag"] = kw["mag_t_ns"][:0], kw["mag"][:0]
