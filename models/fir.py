@@ -267,28 +267,33 @@ class Decimator:
 @njit(cache=True)
 def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """``y[j, c] = sum_k taps[k] ext[rows[j] + L - 1 - k, c]`` (what ``np.convolve(..., "valid")`` gives at
-    ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked."""
+    ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked: each
+    channel's sum from 0.0 over ``k = 0 .. L - 1``. Channels go four at a time (four independent sums in
+    registers instead of one chain of dependent additions after another: the same sums, about twice as fast),
+    the rest one by one."""
     n_taps = taps.size
     nc = ext.shape[1]
     y = np.empty((rows.size, nc))
-    if nc >= 4:  # many channels: taps outermost, the channels of one input row together (same sums per channel)
-        acc = np.empty(nc)
-        for j in range(rows.size):
-            r = rows[j] + n_taps - 1
-            acc[:] = 0.0
-            for k in range(n_taps):
-                h = taps[k]
-                for c in range(nc):
-                    acc[c] += h * ext[r - k, c]
-            y[j, :] = acc
-        return y
     for j in range(rows.size):
         r = rows[j] + n_taps - 1
-        for c in range(nc):
+        c = 0
+        while c + 4 <= nc:
+            a0 = a1 = a2 = a3 = 0.0
+            for k in range(n_taps):
+                h = taps[k]
+                e = r - k
+                a0 += h * ext[e, c]
+                a1 += h * ext[e, c + 1]
+                a2 += h * ext[e, c + 2]
+                a3 += h * ext[e, c + 3]
+            y[j, c], y[j, c + 1], y[j, c + 2], y[j, c + 3] = a0, a1, a2, a3
+            c += 4
+        while c < nc:
             a = 0.0
             for k in range(n_taps):
                 a += taps[k] * ext[r - k, c]
             y[j, c] = a
+            c += 1
     return y
 
 
