@@ -761,6 +761,9 @@ class Engine:
         if yaw == 0.0:
             return p
         c, s = math.cos(yaw), math.sin(yaw)
+        if p.ndim == 1:  # one vector (a stance's position or stride): the same products, on floats
+            x, y = float(p[0]), float(p[1])
+            return np.array([c * x - s * y, s * x + c * y, float(p[2])])
         q = np.array(p, dtype=float, copy=True)
         q[..., 0] = c * p[..., 0] - s * p[..., 1]
         q[..., 1] = s * p[..., 0] + c * p[..., 1]

@@ -450,7 +450,7 @@ class GaitPipeline:
         self.queue.append(e)
         fa = self._stance_field(e.t_s)
         self.stance_mag[e.index] = None if fa is None else fa[1]
-        if fa is not None and np.isfinite(fa[0]).all():  # (restored states carry no specific force: NaN)
+        if fa is not None and all(map(math.isfinite, fa[0].tolist())):  # (restored states carry no specific force: NaN)
             self.stance_acc[e.index] = fa[0]
             sw = self._swing_field(e.t_s)
             if sw is not None:

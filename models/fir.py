@@ -109,7 +109,11 @@ class FirFilter:
         x2 = x.reshape(-1, self.channels)
         if x2.shape[0] == 0:
             return x.copy()
-        y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
+        if self._hist is not None and self._hist.shape[0] and x2.shape[0] >= self._hist.shape[0]:
+            # the steady state: the same outputs, the history advanced in place, in one compiled call
+            y = _fir_advance(self._hist, x2, self.taps)
+        else:
+            y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
         return y.reshape(-1) if squeeze else y
 
     def process_rows(self, x: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -294,6 +298,20 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
                 a += taps[k] * ext[r - k, c]
             y[j, c] = a
             c += 1
+    return y
+
+
+@njit(cache=True)
+def _fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """:meth:`FirFilter.process` of a chunk ``x`` (N, C) at least as long as the history ``hist`` (L - 1, C):
+    the outputs of every row by :func:`_fir_rows` over the span history + chunk, and the history advanced in
+    place to the chunk's last ``L - 1`` rows (what the concatenation, ``np.arange`` and copy gave)."""
+    n, nh = x.shape[0], hist.shape[0]
+    ext = np.empty((nh + n, x.shape[1]))
+    ext[:nh] = hist
+    ext[nh:] = x
+    y = _fir_rows(ext, taps, np.arange(n))
+    hist[:] = x[n - nh:]
     return y
 
 
