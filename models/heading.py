@@ -354,7 +354,8 @@ class HeadingEstimator:
 
     def _q(self, theta_var: float, field_change: float) -> np.ndarray:
         c = self.config
-        return np.diag([theta_var, 0.0, c.deflection_walk_rad**2 + field_change**2])
+        # diag(theta_var, 0, ...) built directly (np.diag's Python wrapper is most of this call)
+        return np.array([[theta_var, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, c.deflection_walk_rad**2 + field_change**2]])
 
     def predict_gyro(self, delta: float, field_change: float = 0.0, extra_var: float = 0.0) -> None:
         """A stride whose heading change ``delta`` [rad] the gyroscope measured (ZUPT-KF); ``field_change`` [rad]

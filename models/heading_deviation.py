@@ -100,7 +100,7 @@ class HeadingDeviationKF:
     def predict(self, dt: float) -> None:
         """Propagate over one step of ``dt`` seconds, 004 eq. (18)."""
         phi = np.array([[1.0, 0.0], [dt, 1.0]])
-        q = np.diag([self.q_rate * dt, self.q_dev * dt])  # Q^II = diag(Q_w1, Q_w2)
+        q = np.array([[self.q_rate * dt, 0.0], [0.0, self.q_dev * dt]])  # Q^II = diag(Q_w1, Q_w2)
         self.x = phi @ self.x
         self.p = phi @ self.p @ phi.T + q
 
@@ -133,8 +133,9 @@ class HeadingDeviationKF:
         k = self.p @ h / s  # 004 eq. (19), H = [0 1]
         self.x = self.x + k * nu
         self.x[1] = wrap_angle(self.x[1])
-        ikh = np.eye(2) - np.outer(k, h)
-        self.p = ikh @ self.p @ ikh.T + np.outer(k, k) * self.r_var  # Joseph form
+        # (np.eye and np.outer built directly: the same values, without their Python wrappers)
+        ikh = np.array([[1.0, 0.0], [0.0, 1.0]]) - k[:, None] * h[None, :]
+        self.p = ikh @ self.p @ ikh.T + (k[:, None] * k[None, :]) * self.r_var  # Joseph form
         self.n_updates += 1
         return True
 

@@ -57,7 +57,7 @@ class RowBuffer:
             self.storage = new
         else:
             for a in self.storage:
-                a[:n] = a[lo:hi].copy()  # (overlapping ranges: through a copy)
+                a[:n] = a[lo:hi]  # (NumPy copies through a temporary itself where the ranges overlap)
         self.lo, self.hi = 0, n
 
     def grow(self, k: int) -> tuple[np.ndarray, ...]:

@@ -251,7 +251,7 @@ class StepSegmenter:
         if self._run[0] > 0.0 and self._run[8] <= 0.0:
             first = min(first, int(self._run[1]))
         if self._ist[3]:
-            first = min(first, int(self._aw[: self._ist[3], 0].min()))
+            first = min(first, int(min(self._aw[: self._ist[3], 0].tolist())))
         t = float(self._bt[min(max(first - w1 - b0, 0), self._bt.size - 1)])
         if self._pend[0] > 0.0:
             t = min(t, float(self._pend[1]))
@@ -314,9 +314,12 @@ class StepSegmenter:
         """Statistic, candidates and selection (compiled kernel) for filtered samples ``af`` stamped ``t_out``."""
         n = t_out.size
         w = self._w
-        mag = np.sqrt(np.einsum("ij,ij->i", af, af))
-        self._bt = np.concatenate([self._bt, t_out])
-        self._bm = np.concatenate([self._bm, mag])
+        # the buffer extended by this chunk's times and |a| (one compiled pass instead of a norm and two
+        # concatenations)
+        nb = self._bt.size
+        bt, bm = np.empty(nb + n), np.empty(nb + n)
+        _k_append(self._bt, self._bm, t_out, af, bt, bm)
+        self._bt, self._bm = bt, bm
         win = np.concatenate([self._win, af])
         ev = np.empty((n // 2 + 8, 11))
         n_ev = _k_process(win, t_out, self._bt, self._bm, self._fs, self._run, self._aw, self._pend, self._last,
@@ -328,7 +331,7 @@ class StepSegmenter:
         need = min(count - back, count - self._keep if self._last[0] <= 0.0
                    else max(int(self._last[5]), count - self._keep))
         if self._ist[3]:
-            need = min(need, int(self._aw[: self._ist[3], 0].min()) - back)
+            need = min(need, int(min(self._aw[: self._ist[3], 0].tolist())) - back)
         if self._run[0] > 0.0:
             need = min(need, int(self._run[1]) - back)
         if self._pend[0] > 0.0:
@@ -441,6 +444,20 @@ _AW_MAX = 64
 _N_PER = 9
 _REST_STANCE_S = 0.25  # nominal stance added to the swing time of the first step after a rest [s] (_k_confirm)
 _PAUSE_STANCE_FRAC = 0.75  # a stance longer than this fraction of the stride period is a pause (_k_confirm)
+
+
+@njit(cache=True)
+def _k_append(bt, bm, t_out, af, bt_new, bm_new):
+    """``bt_new = concatenate([bt, t_out])`` and ``bm_new = concatenate([bm, |af|])`` (preallocated, ``len(bt) +
+    len(t_out)`` rows)."""
+    nb = bt.size
+    for i in range(nb):
+        bt_new[i] = bt[i]
+        bm_new[i] = bm[i]
+    for i in range(t_out.size):
+        x, y, z = af[i, 0], af[i, 1], af[i, 2]
+        bt_new[nb + i] = t_out[i]
+        bm_new[nb + i] = math.sqrt(x * x + y * y + z * z)
 
 
 @njit(cache=True)

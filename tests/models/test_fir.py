@@ -85,3 +85,22 @@ def test_decimator_flush_reaches_the_last_input_on_the_same_grid() -> None:
     assert np.all(np.diff(tt) == 40_000_000) and tt[0] == 0
     assert t[-1] - tt[-1] < 40_000_000  # nothing held back any more
     assert np.allclose(np.r_[y1, y2][:, 2], 1.0)
+
+
+@pytest.mark.parametrize("channels", [1, 3, 4, 7, 9])
+def test_fir_rows_sum_each_channel_in_tap_order(channels: int) -> None:
+    """``_fir_rows`` (channels four at a time) gives each channel's sum from 0.0 over the taps in order, to the
+    bit, whatever the channel count (issue #28, eng12: the form the engine's fingerprint was taken with)."""
+    from models.fir import _fir_rows
+
+    rng = np.random.default_rng(channels)
+    taps = hamming_lowpass(33, 10.0, 200.0)
+    ext = rng.normal(size=(32 + 40, channels)) * 10.0
+    rows = np.arange(0, 40, 3)
+    y = _fir_rows(ext, taps, rows)
+    for j, r in enumerate(rows.tolist()):
+        for c in range(channels):
+            a = 0.0
+            for k in range(taps.size):
+                a += float(taps[k]) * float(ext[r + taps.size - 1 - k, c])
+            assert y[j, c] == a

@@ -392,3 +392,18 @@ def test_a_sudden_slow_down_reaches_the_period_estimate() -> None:
     assert np.sum(periods[7:] < 1.3) == 3  # the first slow strides, every other one
     assert np.allclose(periods[-4:], 1.6, rtol=0.05)
     assert seg._last[8] == 0.0
+
+
+def test_buffer_appends_times_and_norms() -> None:
+    """The segmenter's buffer append (``_k_append``): the old rows, then the new times and each new row's |a|."""
+    from models.steps import _k_append
+
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(2000, 3)) * rng.lognormal(size=(2000, 1)) * 5.0
+    t = np.arange(2000.0)
+    for lo, hi in ((0, 1), (0, 25), (3, 60), (7, 2000)):
+        bt, bm = np.empty(5 + hi - lo), np.empty(5 + hi - lo)
+        _k_append(np.arange(5.0), np.ones(5), t[lo:hi], np.ascontiguousarray(a[lo:hi]), bt, bm)
+        np.testing.assert_allclose(bm[5:], np.linalg.norm(a[lo:hi], axis=1), rtol=1e-15, atol=0)
+        assert np.array_equal(bt, np.concatenate([np.arange(5.0), t[lo:hi]]))
+        assert np.array_equal(bm[:5], np.ones(5))
