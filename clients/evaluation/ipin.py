@@ -41,6 +41,7 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -182,14 +183,22 @@ def _anchor_and_date(rec: Recording) -> tuple[tuple[float, float, float], _dt.da
     return (float(lat), float(lon), 0.0), (_dt.date.fromisoformat(day) if day else None)
 
 
+@lru_cache(maxsize=1)
+def _phone_profile() -> Any:
+    """The phone power profile with the step-and-heading engine's compute costs (read once: every replay is
+    accounted twice, the whole file and the landmarks' stretch)."""
+    from energy.power import load_compute_costs, load_profile
+
+    return load_profile(POWER_PROFILE, compute=load_compute_costs().for_engine("phone"))
+
+
 def phone_energy(res: Any, t_end_ns: int, window_ns: tuple[int, int] | None = None) -> Any:
     """Energy of a replay (:func:`energy.device.replay`) on the phone power profile ``phone-bmi270``, with the
     step-and-heading engine's measured compute costs (``compute_costs.json``, engine ``phone``); of the stretch
     ``window_ns`` ``(t0, t1)`` [ns] only if given (:meth:`energy.power.Timeline.from_replay`)."""
-    from energy.power import Timeline, account, load_compute_costs, load_profile
+    from energy.power import Timeline, account
 
-    prof = load_profile(POWER_PROFILE, compute=load_compute_costs().for_engine("phone"))
-    return account(Timeline.from_replay(res, t_end_ns, window_ns), prof)
+    return account(Timeline.from_replay(res, t_end_ns, window_ns), _phone_profile())
 
 
 @dataclass
