@@ -244,6 +244,8 @@ def _run_vicon(args: argparse.Namespace) -> int:
     files = harness.select(harness.vicon_files(directory), lambda f: f.stem, args.match, args.limit)
     if not files:
         _nothing_found("vicon", directory, args.match)
+        if not args.json:
+            return 1  # the line says it all; --json still prints its (empty) document
     runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_vicon
 
@@ -294,6 +296,8 @@ def _run_gdin(args: argparse.Namespace) -> int:
     entries = harness.select(harness.gdin_entries(directory), lambda e: e.name, args.match, args.limit)
     if not entries:
         _nothing_found("gdin", directory, args.match)
+        if not args.json:
+            return 1  # the line says it all; --json still prints its (empty) document
     runner = _runner(_batch(args), args.conventional, _settings(getattr(args, "set", None)))
     rows: list[dict[str, Any]] = []
     failed = 0
@@ -465,6 +469,8 @@ def _run_gaitmap(args: argparse.Namespace) -> int:
                            args.limit)
     if not items:
         _nothing_found("gaitmap", directory, args.match)
+        if not args.json:
+            return 1  # the line says it all; --json still prints its (empty) document
     runner = _runner(_batch(args), settings=_settings(getattr(args, "set", None)))
     from clients.evaluation.plots import plot_gaitmap
 

@@ -99,6 +99,11 @@ def test_eval_of_a_folder_without_recordings_is_not_a_success(
     code, doc, err = _run(capsys, ["eval", dataset, str(tmp_path), "--json"])
     assert code == 1 and "no recording found" in err
     assert doc["trials" if dataset == "vicon" else "recordings"] == []
+    # as text: the one line, not an empty table and summary after it
+    code = main(["eval", dataset, str(tmp_path)])
+    cap = capsys.readouterr()
+    assert code == 1 and cap.out == "" and cap.err.strip().splitlines() == [
+        f"pednav eval {dataset}: no recording found in {tmp_path}"]
 
 
 # ---------------------------------------------------------------------------------------------- gdin CLI, real files
