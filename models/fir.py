@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-__all__ = ["hamming_lowpass", "FirFilter", "Decimator"]
+__all__ = ["hamming_lowpass", "FirFilter", "Decimator", "fir_advance"]
 
 
 def hamming_lowpass(numtaps: int, cutoff_hz: float, rate_hz: float) -> np.ndarray:
@@ -111,7 +111,7 @@ class FirFilter:
             return x.copy()
         if self._hist is not None and self._hist.shape[0] and x2.shape[0] >= self._hist.shape[0]:
             # the steady state: the same outputs, the history advanced in place, in one compiled call
-            y = _fir_advance(self._hist, x2, self.taps)
+            y = fir_advance(self._hist, x2, self.taps)
         else:
             y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
         return y.reshape(-1) if squeeze else y
@@ -302,7 +302,7 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
 
 
 @njit(cache=True)
-def _fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
+def fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """:meth:`FirFilter.process` of a chunk ``x`` (N, C) at least as long as the history ``hist`` (L - 1, C):
     the outputs of every row by :func:`_fir_rows` over the span history + chunk, and the history advanced in
     place to the chunk's last ``L - 1`` rows (what the concatenation, ``np.arange`` and copy gave)."""
