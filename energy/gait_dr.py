@@ -245,9 +245,8 @@ class _LowRate:
             # instead of the array steps below (the same comparisons and the same median)
             all_fast, dt = _fast_run(t_s, self.prev_t, 1.0 / (1.6 * self.rate_hz))
             if all_fast and max(1, int(round(1.0 / (dt * self.rate_hz)))) == self.dec.factor:
-                ot, ox = self.dec.process((t_s * 1e9).round().astype(np.int64), x)  # (np.round without its wrapper)
+                ot_s, ox = self.dec.process_seconds(t_s, x)
                 self.prev_t = float(t_s[-1])
-                ot_s = ot / 1e9
                 if not len(ot_s) or ot_s[0] > self.last_t:  # one decimator's output times increase: all newer
                     return self._newer_all(ot_s, ox)
                 return self._newer(ot_s, ox)

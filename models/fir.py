@@ -227,6 +227,20 @@ class Decimator:
         self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
         return t_centre[rows], y
 
+    def process_seconds(self, t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`process` with the times in seconds: the input stamped ``round(t_s * 1e9)`` [ns] (``t_s`` [s],
+        float64, shape (N,)), the output times [ns] returned divided by 1e9 [s]. In the steady state (both
+        histories there, ``x`` float64 of shape (N, C)) the conversions and the down-sampling are one compiled
+        call (the same values)."""
+        hist = self._fir.history
+        if (self._count > 0 and t_s.size and hist is not None and self._t_hist.size == int(self._fir.delay_samples)
+                and x.shape[0] == t_s.size and x.dtype == np.float64 and x.ndim == 2 and x.shape[1] == self.channels):
+            t_out, y = _decimate_s(t_s, x, hist, self._t_hist, self._count, self.factor, self._fir.taps)
+            self._count += t_s.size
+            return t_out, y
+        t_out_ns, y = self.process(np.round(t_s * 1e9).astype(np.int64), x)
+        return t_out_ns / 1e9, y
+
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """End of the stream: the outputs still held back by the filter's latency.
 
@@ -342,3 +356,18 @@ def _decimate(t_ns, x, hist, t_hist, count, factor, taps):
     hist[:] = ext[n:]
     t_hist[:] = t_all[n:]
     return t_out, y
+
+
+@njit(cache=True)
+def _decimate_s(t_s, x, hist, t_hist, count, factor, taps):
+    """:func:`_decimate` with the times in seconds (:meth:`Decimator.process_seconds`): the input times
+    ``rint(t_s * 1e9)`` as int64 (what ``np.round(t_s * 1e9).astype(np.int64)`` gives), the output times [ns]
+    divided by 1e9 [s]. Returns ``(t_out_s, y)``."""
+    t_ns = np.empty(t_s.size, dtype=np.int64)
+    for i in range(t_s.size):
+        t_ns[i] = np.int64(np.rint(t_s[i] * 1e9))
+    t_out, y = _decimate(t_ns, x, hist, t_hist, count, factor, taps)
+    t_out_s = np.empty(t_out.size)
+    for j in range(t_out.size):
+        t_out_s[j] = t_out[j] / 1e9
+    return t_out_s, y
