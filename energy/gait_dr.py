@@ -463,7 +463,7 @@ class GaitPipeline:
             # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
             for name in ("stance_mag", "stance_acc", "stance_swing", "stride_peak"):
                 table = getattr(self, name)
-                if table.keys() - live:
+                if not table.keys() <= live:  # (a subset test: no set of the difference built)
                     setattr(self, name, {k: v for k, v in table.items() if k in live})
 
     def _queue_event(self, e: StepEvent) -> None:
