@@ -500,13 +500,13 @@ class GaitPipeline:
         (magnetometer off or paused).
         """
         self.queue.append(e)
-        f, seg = self._field, self._seg
+        seg = self._seg
         n = seg._w
         dt = 1.0 / self.rate_hz
-        hi_s = e.t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6
+        hi_s = e.t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6  # the last window's end [s]
         b0, acc, mag, t_end, lo, hi, peak_ok, peak = _event_fields(
-            f.storage[0][f.lo:f.hi], f.storage[2][f.lo:f.hi], f.storage[1][f.lo:f.hi], float(e.t_s), float(hi_s),
-            float(dt), int(n), float(seg.stance_threshold), _G0, float(self._window_end), _SWING_MAX_S,
+            self._mag_t, self._mag_a, self._mag_v, float(e.t_s), float(hi_s), float(dt), int(n),
+            float(seg.stance_threshold), _G0, float(self._window_end), _SWING_MAX_S,
             float(e.t_s - min(e.period_s, _SWING_MAX_S)), 1.5 / self.rate_hz)
         self.stance_mag[e.index] = None if b0 < 0 else mag
         if b0 >= 0 and all(map(math.isfinite, acc.tolist())):
