@@ -416,7 +416,7 @@ class Engine:
         g_t, m_t = batch.gyr_t_ns, batch.mag_t_ns
         sched = self._sched
         sched.device_gyro_awake = bool(
-            sched.sensor_config().gyro_wake_on_motion and len(g_t) and len(t_acc)
+            sched.gyro_wake_on_motion() and len(g_t) and len(t_acc)
             and int(g_t[-1]) >= int(t_acc[-1]) - int(self.config.segments.gyro_off_s * 1e9))
         if len(t_acc) and self._last_acc_t is not None and t_acc[0] <= self._last_acc_t:
             raise BatchError("acc_t_ns", f"sample at {int(t_acc[0])} ns is not after the last one processed ({self._last_acc_t} ns)")

@@ -91,7 +91,7 @@ def _no_gap(tm, lo, hi, gap):
 
 @njit(cache=True)
 def _stance_rows(tm, a, t_s, hi_s, dt, n, threshold, g0):
-    """Rows ``[b0, b1)`` of the stance's stillest window (:meth:`GaitPipeline._stance_field`): among the rows of
+    """Rows ``[b0, b1)`` of the stance's stillest window (:meth:`GaitPipeline._queue_event`): among the rows of
     ``tm`` in ``[t_s - 1e-6, hi_s]`` that follow the onset without a gap (> 1.5 ``dt``), the first ``n``, or the
     quietest ``n`` by :func:`_stillest_window` when there are more; ``(-1, -1)`` without a sample within
     ``dt / 2`` of the onset. The same comparisons as the array form it replaced, without its ~15 us of calls."""
@@ -114,7 +114,7 @@ def _stance_rows(tm, a, t_s, hi_s, dt, n, threshold, g0):
 def _swing_rows(tm, t0, t_s, gap):
     """Rows ``[lo, hi)`` strictly inside ``(t0, t_s)`` (1e-6 s margins) when there are two or more, the first
     within ``gap`` of ``t0``, the last within ``gap`` of ``t_s`` and none ``gap`` apart (:meth:`GaitPipeline.
-    _swing_field`); ``(-1, -1)`` otherwise."""
+    _queue_event`); ``(-1, -1)`` otherwise."""
     lo = np.searchsorted(tm, t0 + 1e-6, side="right")
     hi = np.searchsorted(tm, t_s - 1e-6, side="left")
     if hi - lo < 2 or tm[lo] - t0 > gap or t_s - tm[hi - 1] > gap or not _no_gap(tm, lo, hi, gap):
@@ -124,7 +124,7 @@ def _swing_rows(tm, t0, t_s, gap):
 
 @njit(cache=True)
 def _stride_peak_of(tm, a, t0, t_end, gap):
-    """Largest ``|a|`` over the rows of ``tm`` in ``[t0 - 1e-6, t_end + 1e-6]`` (:meth:`GaitPipeline._stride_peak`);
+    """Largest ``|a|`` over the rows of ``tm`` in ``[t0 - 1e-6, t_end + 1e-6]`` (:meth:`GaitPipeline._queue_event`);
     ``(False, 0)`` when there are fewer than two, the first is more than ``gap`` after ``t0`` or two are more than
     ``gap`` apart."""
     lo = np.searchsorted(tm, t0 - 1e-6, side="left")
@@ -151,6 +151,32 @@ def _row_mean(a, b0, b1):
         for k in range(a.shape[1]):
             out[k] += a[i, k]
     return out / (b1 - b0)
+
+
+@njit(cache=True)
+def _event_fields(tm, ma, mv, t_s, hi_s, dt, n, threshold, g0, prev_end, swing_max_s, peak_t0, gap):
+    """The low-rate field buffer's part of a new step event (:meth:`GaitPipeline._queue_event`) in one call, the
+    steps of the separate calls it replaced in their order: the stance's stillest window (:func:`_stance_rows`
+    over ``tm`` [s], ``ma`` [m/s^2]) and its mean specific force and field (``mv`` [uT], :func:`_row_mean`); where
+    there is one and its specific force is finite, the swing rows since the previous window's end ``prev_end``
+    [s] if within ``swing_max_s`` (:func:`_swing_rows`); the stride's peak from ``peak_t0`` [s] to the new
+    window's end (:func:`_stride_peak_of`; to ``-inf`` without a window).
+
+    Returns ``(b0, acc, mag, t_end, lo, hi, peak_ok, peak)``: ``b0 < 0`` without a window (``acc``, ``mag`` NaN,
+    ``t_end = -inf``), ``lo < 0`` without swing rows."""
+    acc = np.full(3, np.nan)
+    mag = np.full(3, np.nan)
+    t_end = -np.inf
+    lo, hi = -1, -1
+    b0, b1 = _stance_rows(tm, ma, t_s, hi_s, dt, n, threshold, g0)
+    if b0 >= 0:
+        acc = _row_mean(ma, b0, b1)
+        mag = _row_mean(mv, b0, b1)
+        t_end = tm[b1 - 1]
+        if np.isfinite(acc[0]) and np.isfinite(acc[1]) and np.isfinite(acc[2]) and t_s - prev_end <= swing_max_s:
+            lo, hi = _swing_rows(tm, prev_end, t_s, gap)
+    ok, peak = _stride_peak_of(tm, ma, peak_t0, t_end, gap)
+    return b0, acc, mag, t_end, lo, hi, ok, peak
 
 
 @njit(cache=True)
@@ -213,10 +239,7 @@ def warm_kernels() -> None:
     t = np.arange(12) * 0.04
     a = np.zeros((12, 3))
     a[:, 2] = _G0
-    _stance_rows(t, a, 0.0, 0.4, 0.04, 3, 1.0, _G0)
-    _swing_rows(t, 0.0, 0.4, 0.06)
-    _stride_peak_of(t, a, 0.0, 0.4, 0.06)
-    _row_mean(a, 0, 3)
+    _event_fields(t, a, a, 0.2, 0.4, 0.04, 3, 1.0, _G0, 0.0, _SWING_MAX_S, 0.0, 0.06)
 
 
 _SWING_KEEP: dict[int, np.ndarray] = {}  # rows kept of a swing of m samples (they depend on m only)
@@ -245,9 +268,8 @@ class _LowRate:
             # instead of the array steps below (the same comparisons and the same median)
             all_fast, dt = _fast_run(t_s, self.prev_t, 1.0 / (1.6 * self.rate_hz))
             if all_fast and max(1, int(round(1.0 / (dt * self.rate_hz)))) == self.dec.factor:
-                ot, ox = self.dec.process((t_s * 1e9).round().astype(np.int64), x)  # (np.round without its wrapper)
+                ot_s, ox = self.dec.process_seconds(t_s, x)
                 self.prev_t = float(t_s[-1])
-                ot_s = ot / 1e9
                 if not len(ot_s) or ot_s[0] > self.last_t:  # one decimator's output times increase: all newer
                     return self._newer_all(ot_s, ox)
                 return self._newer(ot_s, ox)
@@ -441,46 +463,64 @@ class GaitPipeline:
             # (a table is rebuilt only when it holds a step no longer queued: same entries, same order)
             for name in ("stance_mag", "stance_acc", "stance_swing", "stride_peak"):
                 table = getattr(self, name)
-                if table.keys() - live:
+                if not table.keys() <= live:  # (a subset test: no set of the difference built)
                     setattr(self, name, {k: v for k, v in table.items() if k in live})
 
     def _queue_event(self, e: StepEvent) -> None:
-        """A new step event joins the queue with the stance field and specific force of its stillest window,
-        and the field samples of the swing since the previous stance's window (:meth:`_swing_field`)."""
+        """A new step event joins the queue with the stance field and specific force of its stillest window, the
+        field samples of the swing since the previous stance's window (:meth:`_swing_samples`) and the stride's
+        peak specific force, from the low-rate field buffer in one compiled call (:func:`_event_fields`).
+
+        The stance field: the mean low-rate specific force [m/s^2] and field [uT] (body) over the stance's
+        stillest window. Windows of the step segmentation's ``window_s`` (:class:`models.steps.StepSegmenter`)
+        start at the onset ``e.t_s`` [s] and move on one sample at a time while the foot stays quiet (the
+        segmenter's quietness statistic, vector variance plus the squared departure of the mean magnitude from
+        g, below its stance threshold) and the window ends within ``context_s`` of the onset's quiet window
+        (always received when the event is emitted, so the choice does not depend on batch cuts); the quietest
+        one is taken. Both means come from the same samples, so the compass's tilt is the attitude the field
+        was measured in. None (no field) without magnetometer samples at the onset, not one from later in the
+        stride.
+
+        Before, the field was the mean over the 0.12 s *before* the onset (the end of the swing: the foot
+        pitched -1.9 deg on average and still rotating; synthetic mixed day, seed 1000) and the tilt the
+        segmenter's 8-Hz-FIR-filtered specific force over the first quiet window after it (heel-strike
+        accelerations smeared in: pitch std 1.35 deg on stances that are exactly level). That tilt error grew
+        with the tilt (slope 0.53), which the hard-iron fit took for a vertical hard iron of 15-17 uT, and its
+        mean (+1.6 deg) for a horizontal one of 1.7 uT (b = [1.77, -0.09, 14.8] uT fitted, none there). The
+        first quiet window right after the heel strike still carries the decimation filter's ringing (pitch
+        error std 1.0 deg while walking); the stillest window in the stance, 0.08 deg.
+
+        The swing (only after a window whose specific force is finite: restored states carry none, NaN): the
+        rows strictly between the previous stance's window and this onset, when that window ended within
+        ``_SWING_MAX_S`` and the magnetometer did not pause in between.
+
+        The stride's peak: the largest absolute low-rate specific force on an axis [m/s^2] over the stride that
+        ends at ``e`` (at most ``_SWING_MAX_S`` before its onset, up to the end of its stance's window): what a
+        high-g interrupt at this rate sees of it; none where the stride's samples are not all there
+        (magnetometer off or paused).
+        """
         self.queue.append(e)
-        fa = self._stance_field(e.t_s)
-        self.stance_mag[e.index] = None if fa is None else fa[1]
-        if fa is not None and all(map(math.isfinite, fa[0].tolist())):  # (restored states carry no specific force: NaN)
-            self.stance_acc[e.index] = fa[0]
-            sw = self._swing_field(e.t_s)
-            if sw is not None:
-                self.stance_swing[e.index] = sw
-        self._window_end = -math.inf if fa is None else fa[2]
-        peak = self._stride_peak(e)
-        if peak is not None:
-            self.stride_peak[e.index] = peak
+        seg = self._seg
+        n = seg._w
+        dt = 1.0 / self.rate_hz
+        hi_s = e.t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6  # the last window's end [s]
+        b0, acc, mag, t_end, lo, hi, peak_ok, peak = _event_fields(
+            self._mag_t, self._mag_a, self._mag_v, float(e.t_s), float(hi_s), float(dt), int(n),
+            float(seg.stance_threshold), _G0, float(self._window_end), _SWING_MAX_S,
+            float(e.t_s - min(e.period_s, _SWING_MAX_S)), 1.5 / self.rate_hz)
+        self.stance_mag[e.index] = None if b0 < 0 else mag
+        if b0 >= 0 and all(map(math.isfinite, acc.tolist())):
+            self.stance_acc[e.index] = acc
+            if lo >= 0:
+                self.stance_swing[e.index] = self._swing_samples(int(lo), int(hi))
+        self._window_end = -math.inf if b0 < 0 else float(t_end)
+        if peak_ok:
+            self.stride_peak[e.index] = float(peak)
 
-    def _stride_peak(self, e: StepEvent) -> float | None:
-        """Largest absolute low-rate specific force on an axis [m/s^2] over the stride that ends at ``e`` (at
-        most ``_SWING_MAX_S`` before its onset, up to the end of its stance's field window): what a high-g
-        interrupt at this rate sees of it. None where the stride's samples are not all there (magnetometer
-        off or paused)."""
-        t0 = e.t_s - min(e.period_s, _SWING_MAX_S)
-        ok, peak = _stride_peak_of(self._mag_t, self._mag_a, float(t0), float(self._window_end), 1.5 / self.rate_hz)
-        return float(peak) if ok else None
-
-    def _swing_field(self, t_s: float) -> np.ndarray | None:
-        """Up to ``_SWING_SAMPLES`` low-rate field samples [uT] (body), evenly spread over the swing between the
-        previous stance's field window and this stance's onset ``t_s`` [s]; None when there was no such window
-        within ``_SWING_MAX_S`` or the magnetometer paused in between. For the magnitude constraint of the
-        compass calibration (:meth:`models.compass.MagCalibrator.add_swing`)."""
-        t0 = self._window_end
-        if not t_s - t0 <= _SWING_MAX_S:
-            return None
-        # _mag_t increases: the rows strictly inside (t0, t_s) are one range
-        lo, hi = _swing_rows(self._mag_t, float(t0), float(t_s), 1.5 / self.rate_hz)
-        if lo < 0:
-            return None  # too few samples, or the magnetometer paused
+    def _swing_samples(self, lo: int, hi: int) -> np.ndarray:
+        """Up to ``_SWING_SAMPLES`` low-rate field samples [uT] (body) of the field buffer's rows ``lo .. hi - 1``
+        (a swing), evenly spread over them. For the magnitude constraint of the compass calibration
+        (:meth:`models.compass.MagCalibrator.add_swing`)."""
         if hi - lo <= _SWING_SAMPLES:
             return self._mag_v[lo:hi].copy()
         keep = _SWING_KEEP.get(hi - lo)
@@ -511,38 +551,6 @@ class GaitPipeline:
         median instead of the fixed ``SEGMENTER_LATENCY_S`` (1.5 s, still its tested upper bound), so a hand-over
         to Gait-DR is decided about a batch sooner."""
         return self._seg.final_before_s if math.isfinite(self.t_in) else self.t_in
-
-    def _stance_field(self, t_s: float) -> tuple[np.ndarray, np.ndarray, float] | None:
-        """Mean low-rate specific force [m/s^2] and field [uT] (body) over the stance's stillest window.
-
-        Windows of the step segmentation's ``window_s`` (:class:`models.steps.StepSegmenter`) start at the onset
-        ``t_s`` [s] and move on one sample at a time while the foot stays quiet (the segmenter's quietness
-        statistic, vector variance plus the squared departure of the mean magnitude from g, below its stance
-        threshold) and the window ends within ``context_s`` of the onset's quiet window (always received when
-        the event is emitted, so the choice does not depend on batch cuts); the quietest one is taken. Both
-        means come from the same samples, so the compass's tilt is the attitude the field was measured in.
-
-        Before, the field was the mean over the 0.12 s *before* the onset (the end of the swing: the foot
-        pitched -1.9 deg on average and still rotating; synthetic mixed day, seed 1000) and the tilt the
-        segmenter's 8-Hz-FIR-filtered specific force over the first quiet window after it (heel-strike
-        accelerations smeared in: pitch std 1.35 deg on stances that are exactly level). That tilt error grew
-        with the tilt (slope 0.53), which the hard-iron fit took for a vertical hard iron of 15-17 uT, and its
-        mean (+1.6 deg) for a horizontal one of 1.7 uT (b = [1.77, -0.09, 14.8] uT fitted, none there). The
-        first quiet window right after the heel strike still carries the decimation filter's ringing (pitch
-        error std 1.0 deg while walking); the stillest window in the stance, 0.08 deg.
-        Returns (specific force, field, time of the window's last sample [s]); None without magnetometer
-        samples at the onset.
-        """
-        seg = self._seg
-        n = seg._w
-        dt = 1.0 / self.rate_hz
-        hi = t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6
-        # _mag_t increases: the rows of [t_s, hi] are one range, and so is the window chosen among them
-        b0, b1 = _stance_rows(self._mag_t, self._mag_a, float(t_s), float(hi), float(dt), int(n),
-                              float(seg.stance_threshold), _G0)
-        if b0 < 0:
-            return None  # no field at the onset (magnetometer off): not one from later in the stride
-        return _row_mean(self._mag_a, b0, b1), _row_mean(self._mag_v, b0, b1), float(self._mag_t[b1 - 1])
 
     def mag_at(self, e: StepEvent) -> np.ndarray | None:
         """Mean field [uT] (body) over the stance's quiet window; None without magnetometer."""

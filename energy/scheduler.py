@@ -342,20 +342,38 @@ class Scheduler:
     def sensor_config(self) -> SensorConfig:
         return self.config_and_idle()[0]
 
-    def config_and_idle(self) -> tuple[SensorConfig, bool]:
-        """:meth:`sensor_config` and :meth:`idle` together."""
-        r, c = self.config.rates, self.config.scheduler
+    def _config_case(self) -> str:
+        """Which of :meth:`config_and_idle`'s configurations applies: ``stand`` (standing, gyroscope off),
+        ``stand_wake`` (standing, the device wakes the gyroscope on motion), ``gyro`` (on), ``run_wake``
+        (de-sampled Gait-DR, the device wakes the gyroscope on a run) or ``pdr``."""
         gyro = self.gyro_wanted()
         standing = self.mode == "auto" and self.behaviour == "stand"
         if standing and not gyro:
+            return "stand"
+        if standing and self.zupt_aligned:
+            return "stand_wake"
+        if gyro:
+            return "gyro"
+        return "run_wake" if self.run_wake() else "pdr"
+
+    def gyro_wake_on_motion(self) -> bool:
+        """``sensor_config().gyro_wake_on_motion`` without building the configuration (the engine asks at every
+        batch)."""
+        return self._config_case() in ("stand_wake", "run_wake")
+
+    def config_and_idle(self) -> tuple[SensorConfig, bool]:
+        """:meth:`sensor_config` and :meth:`idle` together."""
+        r, c = self.config.rates, self.config.scheduler
+        case = self._config_case()
+        if case == "stand":
             return _sensor_config(False, r.stand_rate_hz, 0.0, 0.0, batch_s=self.batch_s(False)), True
-        if standing and self.zupt_aligned:  # wake-on-motion: the device wakes the gyroscope (and the full rate)
+        if case == "stand_wake":  # wake-on-motion: the device wakes the gyroscope (and the full rate)
             return _sensor_config(False, r.stand_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(False),
                                   gyro_wake_on_motion=True, wake_threshold_ms2=c.wake_threshold_ms2,
                                   sleep_after_s=c.sleep_after_s, mag_follows_gyro=True), False
-        if gyro:
+        if case == "gyro":
             return _sensor_config(True, r.full_rate_hz, r.full_rate_hz, r.mag_rate_hz, batch_s=self.batch_s(True)), False
-        if self.run_wake():  # de-sampled Gait-DR; the device wakes the gyroscope on a run
+        if case == "run_wake":  # de-sampled Gait-DR; the device wakes the gyroscope on a run
             return _sensor_config(False, r.pdr_rate_hz, r.full_rate_hz, r.pdr_rate_hz, batch_s=self.batch_s(False),
                                   gyro_wake_on_motion=True, wake_threshold_ms2=float(self.run_wake_ms2 or 0.0),
                                   sleep_after_s=c.sleep_after_s, wake_mode="high_g"), False

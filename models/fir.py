@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-__all__ = ["hamming_lowpass", "FirFilter", "Decimator"]
+__all__ = ["hamming_lowpass", "FirFilter", "Decimator", "fir_advance"]
 
 
 def hamming_lowpass(numtaps: int, cutoff_hz: float, rate_hz: float) -> np.ndarray:
@@ -111,7 +111,7 @@ class FirFilter:
             return x.copy()
         if self._hist is not None and self._hist.shape[0] and x2.shape[0] >= self._hist.shape[0]:
             # the steady state: the same outputs, the history advanced in place, in one compiled call
-            y = _fir_advance(self._hist, x2, self.taps)
+            y = fir_advance(self._hist, x2, self.taps)
         else:
             y = _fir_rows(self._extend(x2), self.taps, np.arange(x2.shape[0]))
         return y.reshape(-1) if squeeze else y
@@ -227,6 +227,20 @@ class Decimator:
         self._t_hist = t_all[max(t_all.size - delay, 0) :].copy() if delay else t_all[:0].copy()
         return t_centre[rows], y
 
+    def process_seconds(self, t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`process` with the times in seconds: the input stamped ``round(t_s * 1e9)`` [ns] (``t_s`` [s],
+        float64, shape (N,)), the output times [ns] returned divided by 1e9 [s]. In the steady state (both
+        histories there, ``x`` float64 of shape (N, C)) the conversions and the down-sampling are one compiled
+        call (the same values)."""
+        hist = self._fir.history
+        if (self._count > 0 and t_s.size and hist is not None and self._t_hist.size == int(self._fir.delay_samples)
+                and x.shape[0] == t_s.size and x.dtype == np.float64 and x.ndim == 2 and x.shape[1] == self.channels):
+            t_out, y = _decimate_s(t_s, x, hist, self._t_hist, self._count, self.factor, self._fir.taps)
+            self._count += t_s.size
+            return t_out, y
+        t_out_ns, y = self.process(np.round(t_s * 1e9).astype(np.int64), x)
+        return t_out_ns / 1e9, y
+
     def flush(self) -> tuple[np.ndarray, np.ndarray]:
         """End of the stream: the outputs still held back by the filter's latency.
 
@@ -302,7 +316,7 @@ def _fir_rows(ext: np.ndarray, taps: np.ndarray, rows: np.ndarray) -> np.ndarray
 
 
 @njit(cache=True)
-def _fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
+def fir_advance(hist: np.ndarray, x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     """:meth:`FirFilter.process` of a chunk ``x`` (N, C) at least as long as the history ``hist`` (L - 1, C):
     the outputs of every row by :func:`_fir_rows` over the span history + chunk, and the history advanced in
     place to the chunk's last ``L - 1`` rows (what the concatenation, ``np.arange`` and copy gave)."""
@@ -342,3 +356,18 @@ def _decimate(t_ns, x, hist, t_hist, count, factor, taps):
     hist[:] = ext[n:]
     t_hist[:] = t_all[n:]
     return t_out, y
+
+
+@njit(cache=True)
+def _decimate_s(t_s, x, hist, t_hist, count, factor, taps):
+    """:func:`_decimate` with the times in seconds (:meth:`Decimator.process_seconds`): the input times
+    ``rint(t_s * 1e9)`` as int64 (what ``np.round(t_s * 1e9).astype(np.int64)`` gives), the output times [ns]
+    divided by 1e9 [s]. Returns ``(t_out_s, y)``."""
+    t_ns = np.empty(t_s.size, dtype=np.int64)
+    for i in range(t_s.size):
+        t_ns[i] = np.int64(np.rint(t_s[i] * 1e9))
+    t_out, y = _decimate(t_ns, x, hist, t_hist, count, factor, taps)
+    t_out_s = np.empty(t_out.size)
+    for j in range(t_out.size):
+        t_out_s[j] = t_out[j] / 1e9
+    return t_out_s, y

@@ -119,8 +119,11 @@ class HeadingDeviationKF:
             self.n_updates = 1
             return True
         self.predict(dt)
-        h = np.array([0.0, 1.0])
-        nu = wrap_angle(float(z) - float(h @ self.x))
+        # H = [0 1]: H x, P H^T and the gain's products below are written out element by element (the same
+        # IEEE operations as the array forms they replace, without a dozen small temporaries); the two
+        # matrix products of the Joseph form stay NumPy's
+        x0, x1 = self.x.tolist()
+        nu = wrap_angle(float(z) - x1)
         hph = float(self.p[1, 1])
         s = hph + self.r_var
         if self.gate_sigma > 0 and self.n_updates >= 3 and abs(nu) > self.gate_sigma * math.sqrt(s):
@@ -130,12 +133,13 @@ class HeadingDeviationKF:
             b = self.adapt_r
             self.r_var = max(self.r_obs**2, (1.0 - b) * self.r_var + b * (nu * nu - hph))  # Sage-Husa R^II
             s = hph + self.r_var
-        k = self.p @ h / s  # 004 eq. (19), H = [0 1]
-        self.x = self.x + k * nu
-        self.x[1] = wrap_angle(self.x[1])
-        # (np.eye and np.outer built directly: the same values, without their Python wrappers)
-        ikh = np.array([[1.0, 0.0], [0.0, 1.0]]) - k[:, None] * h[None, :]
-        self.p = ikh @ self.p @ ikh.T + (k[:, None] * k[None, :]) * self.r_var  # Joseph form
+        k0, k1 = self.p[0, 1] / s, self.p[1, 1] / s  # K = P H^T / S, 004 eq. (19), H = [0 1]
+        k0, k1 = float(k0), float(k1)
+        self.x = np.array([x0 + k0 * nu, wrap_angle(x1 + k1 * nu)])
+        ikh = np.array([[1.0, 0.0 - k0], [0.0, 1.0 - k1]])  # I - K H
+        r = self.r_var
+        kkr = np.array([[k0 * k0 * r, k0 * k1 * r], [k1 * k0 * r, k1 * k1 * r]])  # K K^T R
+        self.p = ikh @ self.p @ ikh.T + kkr  # Joseph form
         self.n_updates += 1
         return True
 

@@ -40,7 +40,7 @@ class RowBuffer:
     def views(self) -> tuple[np.ndarray, ...]:
         """The rows held, one view per array (valid until the next :meth:`reserve` / :meth:`grow`)."""
         lo, hi = self.lo, self.hi
-        return tuple(a[lo:hi] for a in self.storage)
+        return tuple([a[lo:hi] for a in self.storage])
 
     def reserve(self, k: int) -> None:
         """Room for ``k`` more rows after ``hi``: the held rows move to the front of the storage, or to a new
@@ -65,7 +65,7 @@ class RowBuffer:
         self.reserve(k)
         hi = self.hi
         self.hi = hi + k
-        return tuple(a[hi:hi + k] for a in self.storage)
+        return tuple([a[hi:hi + k] for a in self.storage])
 
     def extend(self, *rows: np.ndarray) -> None:
         """Append ``rows`` (one array per storage array, same number of rows)."""

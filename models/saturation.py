@@ -325,8 +325,10 @@ class ClipRepair:
         ``mag`` as :meth:`push` takes them (C-contiguous float64). Returns the number of rows appended."""
         k = len(t)
         if k:
-            self._rows.grow(k)
-            self._buf = self._rows.views()[0]
+            rows = self._rows
+            rows.reserve(k)  # (grow without its views: the rows are filled by _push)
+            rows.hi += k
+            self._buf = rows.storage[0][rows.lo:rows.hi]
         buf = self._buf
         lo = self._n_tail
         out.reserve(buf.shape[0] - lo)  # at most every row held is decided now

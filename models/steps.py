@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from models.fir import FirFilter, hamming_lowpass
+from models.fir import FirFilter, fir_advance, hamming_lowpass
 
 __all__ = ["StepEvent", "StepSegmenter", "G0"]
 
@@ -278,7 +278,17 @@ class StepSegmenter:
         t_s = np.asarray(t_s, dtype=np.float64).reshape(-1)
         if t_s.size == 0:
             return []
-        af = self._fir.process(np.asarray(acc, dtype=np.float64).reshape(-1, 3))
+        acc = np.asarray(acc, dtype=np.float64).reshape(-1, 3)
+        hist, n = self._fir.history, t_s.size
+        if (hist is not None and 0 < hist.shape[0] <= n and self._delay <= n and self._t_hist.size == self._delay
+                and self._win.shape[0] == self._w - 1):
+            # the steady state (every history full, a chunk at least as long as each): the filter, the buffer's
+            # extension and the kernel in one compiled call, the histories advanced in place
+            self._bt, self._bm, ev, n_ev = _k_feed(hist, self._fir.taps, self._t_hist, t_s, acc, self._win, self._bt,
+                                                   self._bm, self._fs, self._run, self._aw, self._pend, self._last,
+                                                   self._per, self._ist, self._pf, self._pi)
+            return self._trim(ev, n_ev)
+        af = self._fir.process(acc)
         if self._ist[0] == 0 and self._t_hist.size == 0:
             self._t_hist = np.repeat(t_s[:1], self._delay)  # matches the FIR's replicated start
         t_all = np.concatenate([self._t_hist, t_s])
@@ -313,7 +323,6 @@ class StepSegmenter:
     def _process(self, t_out: np.ndarray, af: np.ndarray) -> list[StepEvent]:
         """Statistic, candidates and selection (compiled kernel) for filtered samples ``af`` stamped ``t_out``."""
         n = t_out.size
-        w = self._w
         # the buffer extended by this chunk's times and |a| (one compiled pass instead of a norm and two
         # concatenations)
         nb = self._bt.size
@@ -324,10 +333,15 @@ class StepSegmenter:
         ev = np.empty((n // 2 + 8, 11))
         n_ev = _k_process(win, t_out, self._bt, self._bm, self._fs, self._run, self._aw, self._pend, self._last,
                           self._per, self._ist, self._pf, self._pi, ev)
-        self._win = win[max(win.shape[0] - (w - 1), 0):].copy()
+        self._win = win[max(win.shape[0] - (self._w - 1), 0):].copy()
+        return self._trim(ev, n_ev)
+
+    def _trim(self, ev: np.ndarray, n_ev: int) -> list[StepEvent]:
+        """After a chunk: trim the buffer and collapse a long quiet stretch; the chunk's ``n_ev`` events (rows of
+        ``ev``)."""
         # trim the buffer: keep what open candidates, the level look-back and the step features need
         count, b0 = int(self._ist[0]), int(self._ist[1])
-        back = self._n_lvl + self._n_ctx + w
+        back = self._n_lvl + self._n_ctx + self._w
         need = min(count - back, count - self._keep if self._last[0] <= 0.0
                    else max(int(self._last[5]), count - self._keep))
         if self._ist[3]:
@@ -839,6 +853,35 @@ def _k_process(win, t_out, bt, bm, fs, run, aw, pend, last, per, ist, pf, pi, ev
     fs[4] = muz
     ist[0] = base + n
     return n_ev
+
+
+@njit(cache=True)
+def _k_feed(hist, taps, t_hist, t_s, acc, win, bt, bm, fs, run, aw, pend, last, per, ist, pf, pi):
+    """:meth:`StepSegmenter.feed` of a chunk in the steady state, in one call: the FIR (``hist`` its last ``L - 1``
+    inputs, ``taps``) by :func:`models.fir.fir_advance`, the filter delay's times (``t_hist``, the ``delay``
+    input times [s] before the chunk's), the buffer's extension (:func:`_k_append`) and :func:`_k_process`.
+    ``hist``, ``t_hist`` and ``win`` (the last ``w - 1`` filtered samples) are advanced in place; the caller
+    guarantees ``len(t_s)`` at least as long as each. The same values as the array steps of ``feed`` and
+    ``_process`` (concatenations and slices). Returns ``(bt, bm, ev, n_ev)``: the extended buffer and the
+    chunk's events."""
+    n = t_s.size
+    af = fir_advance(hist, acc, taps)
+    delay = t_hist.size
+    t_out = np.empty(n)  # the input time at the centre of the filter: (t_hist + t_s)[:n]
+    t_out[:delay] = t_hist
+    t_out[delay:] = t_s[:n - delay]
+    t_hist[:] = t_s[n - delay:]
+    nb = bt.size
+    bt_new, bm_new = np.empty(nb + n), np.empty(nb + n)
+    _k_append(bt, bm, t_out, af, bt_new, bm_new)
+    nw = win.shape[0]
+    ext = np.empty((nw + n, 3))
+    ext[:nw] = win
+    ext[nw:] = af
+    ev = np.empty((n // 2 + 8, 11))
+    n_ev = _k_process(ext, t_out, bt_new, bm_new, fs, run, aw, pend, last, per, ist, pf, pi, ev)
+    win[:] = ext[n:]
+    return bt_new, bm_new, ev, n_ev
 
 
 @njit(cache=True)

@@ -473,7 +473,7 @@ def _event_fields_reference(tm: np.ndarray, ma: np.ndarray, mv: np.ndarray, t_s:
 def test_step_event_kernels_equal_the_numpy_form(seed: int, m: int, n: int, pause: bool) -> None:
     """The compiled stance window (with its means), swing rows and stride peak give what the array code gave,
     to the bit: 25 Hz field samples with jitter, sometimes a pause of the magnetometer, onsets anywhere."""
-    from energy.gait_dr import _row_mean, _stance_rows, _stride_peak_of, _swing_rows
+    from energy.gait_dr import _event_fields, _row_mean, _stance_rows, _stride_peak_of, _swing_rows
 
     rng = np.random.default_rng(seed)
     dt = 0.04
@@ -501,3 +501,14 @@ def test_step_event_kernels_equal_the_numpy_form(seed: int, m: int, n: int, paus
             assert (None if lo < 0 else (lo, hi)) == swing
             ok, pk = _stride_peak_of(tm, ma, t0, t_end, gap)
             assert (float(pk) if ok else None) == peak
+            # the three in one call (a new step event): the swing after a window only, the peak to its end
+            b0, acc, mag, t_win, lo, hi, ok, pk = _event_fields(tm, ma, mv, t_s, hi_s, dt, n, thr, 9.80665, t0, 10.0,
+                                                                t0, gap)
+            assert (b0 < 0) == (stance is None)
+            if stance is not None:
+                assert (acc.tobytes(), mag.tobytes(), float(t_win)) == (stance[0].tobytes(), stance[1].tobytes(),
+                                                                        stance[2])
+            assert (None if lo < 0 else (lo, hi)) == (None if stance is None else swing)
+            t_to = -np.inf if stance is None else stance[2]
+            assert (float(pk) if ok else None) == _event_fields_reference(tm, ma, mv, t_s, hi_s, dt, n, thr, t0, t_to,
+                                                                          gap)[2]
