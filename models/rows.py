@@ -60,11 +60,20 @@ class RowBuffer:
                 a[:n] = a[lo:hi]  # (NumPy copies through a temporary itself where the ranges overlap)
         self.lo, self.hi = 0, n
 
+    def view(self, i: int = 0) -> np.ndarray:
+        """The rows held of the ``i``-th array (a view, valid until the next :meth:`reserve` / :meth:`grow`)."""
+        return self.storage[i][self.lo:self.hi]
+
+    def add(self, k: int) -> None:
+        """``k`` new rows after the held ones (uninitialised), for a caller that fills them through :meth:`view`
+        (:meth:`grow` without its views)."""
+        self.reserve(k)
+        self.hi += k
+
     def grow(self, k: int) -> tuple[np.ndarray, ...]:
         """``k`` new rows after the held ones (uninitialised), one view per array, for the caller to fill."""
-        self.reserve(k)
-        hi = self.hi
-        self.hi = hi + k
+        self.add(k)
+        hi = self.hi - k
         return tuple([a[hi:hi + k] for a in self.storage])
 
     def extend(self, *rows: np.ndarray) -> None:

@@ -325,10 +325,8 @@ class ClipRepair:
         ``mag`` as :meth:`push` takes them (C-contiguous float64). Returns the number of rows appended."""
         k = len(t)
         if k:
-            rows = self._rows
-            rows.reserve(k)  # (grow without its views: the rows are filled by _push)
-            rows.hi += k
-            self._buf = rows.storage[0][rows.lo:rows.hi]
+            self._rows.add(k)  # (the new rows are filled by _push)
+            self._buf = self._rows.view()
         buf = self._buf
         lo = self._n_tail
         out.reserve(buf.shape[0] - lo)  # at most every row held is decided now
