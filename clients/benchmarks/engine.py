@@ -329,7 +329,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     peer.append(_peer_us(batch.acc, batch.gyr, dt, m))
     peer_us = min(peer)
     for r in modes.values():
-        for k in ("helper_cached", "helper_restore"):
+        for k in ("helper_cached", "helper_restore", "server_cached", "server_restore"):
             r[k]["cpu_in_peer_samples"] = round(1e3 * r[k]["cpu_ms_per_batch"] / peer_us, 1)
     return {
         "data": name,

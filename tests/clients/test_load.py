@@ -1,8 +1,10 @@
-"""Helpers of the load benchmark (``pednav bench load``): Server-Timing parsing and the per-window tail."""
+"""Helpers of the load benchmark (``pednav bench load``): Server-Timing parsing and the per-window tail; the engine
+benchmark's output (``pednav bench engine``)."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from clients.benchmarks.load import _by_window, _server_timing
 
@@ -68,3 +70,24 @@ def test_thread_cpu_reads_this_process_main_thread() -> None:
     t1 = _thread_cpu(os.getpid())
     assert 0.15 <= t1 - t0 <= 1.0
     assert t1 <= time.process_time() + 0.05
+
+
+def test_engine_bench_gives_every_path_in_peer_samples(capsys: pytest.CaptureFixture[str]) -> None:
+    """``pednav bench engine --json``: each path's CPU per batch also in samples of the Madgwick peer measured in the
+    same run (the figure that cancels the machine's speed), consistent with the absolute one; a tiny run (the
+    gdin walk when the data is there, else the synthetic walk)."""
+    import json
+
+    from clients.cli import main
+
+    code = main(["bench", "engine", "--json", "--modes", "auto", "--sessions", "2", "--batches", "3",
+                 "--server-sessions", "2", "--peer-samples", "200"])
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    peer = doc["peer_madgwick_us_per_sample"]
+    assert peer > 0
+    paths = doc["modes"]["auto"]
+    for k in ("helper_cached", "helper_restore", "server_cached", "server_restore"):
+        p = paths[k]
+        assert p["cpu_ms_per_batch"] > 0
+        assert p["cpu_in_peer_samples"] == round(1e3 * p["cpu_ms_per_batch"] / peer, 1)
