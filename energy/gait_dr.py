@@ -481,15 +481,6 @@ class GaitPipeline:
         was measured in. None (no field) without magnetometer samples at the onset, not one from later in the
         stride.
 
-        Before, the field was the mean over the 0.12 s *before* the onset (the end of the swing: the foot
-        pitched -1.9 deg on average and still rotating; synthetic mixed day, seed 1000) and the tilt the
-        segmenter's 8-Hz-FIR-filtered specific force over the first quiet window after it (heel-strike
-        accelerations smeared in: pitch std 1.35 deg on stances that are exactly level). That tilt error grew
-        with the tilt (slope 0.53), which the hard-iron fit took for a vertical hard iron of 15-17 uT, and its
-        mean (+1.6 deg) for a horizontal one of 1.7 uT (b = [1.77, -0.09, 14.8] uT fitted, none there). The
-        first quiet window right after the heel strike still carries the decimation filter's ringing (pitch
-        error std 1.0 deg while walking); the stillest window in the stance, 0.08 deg.
-
         The swing (only after a window whose specific force is finite: restored states carry none, NaN): the
         rows strictly between the previous stance's window and this onset, when that window ended within
         ``_SWING_MAX_S`` and the magnetometer did not pause in between.

@@ -74,8 +74,8 @@ _SESSION_TILT_STD = math.radians(0.8)  # prior of a session's tilt offset agains
 # the change of the accelerometer's turn-on offset between two power-ons (10 mg each, the synthesiser's
 # assumption for the LSM9DS1 after a static calibration: sqrt(2) x 0.57 deg)
 _FREEZE_WEIGHTS = 8  # MagCalibrator._fit_joint re-weights (Huber, robust scales) in its first iterations only
-_DIP_NOISE = math.sin(math.radians(0.1))  # floor of that fit's robust scale: the stillest stance's tilt noise
-# (0.08 deg walking, synthetic mixed day, gait_dr.GaitPipeline._queue_event)
+_DIP_NOISE = math.sin(math.radians(0.1))  # floor of that fit's robust scale: the stillest stance window's tilt
+# noise (gait_dr.GaitPipeline._queue_event); a synthesiser figure (0.08 deg walking), not yet measured on a real walk
 
 
 def _table(rows: list[list[float]], width: int) -> np.ndarray:
