@@ -2,8 +2,10 @@
 
 Each device opens a session and sends one 1-s batch of 100 Hz 9-axis samples (accelerometer, gyroscope,
 magnetometer; compact msgpack body, float32 values) every second, waiting for each answer before the next
-batch (sequence numbers must follow each other). The samples are a synthetic walk (stand, walk, turn,
-walk, stand); device ``i`` starts ``i mod 60`` seconds into it, so the devices are not in lockstep. Send instants are spread evenly over the second. The
+batch (sequence numbers must follow each other). ``--batch-seconds S`` makes that one S-s batch every S seconds
+(the same samples per second): the engine asks a calibrated foot device for 4-s uploads with the gyroscope off
+(``energy.config`` ``low_power_batch_s``), and a deployer plans with the mix of periods the fleet uses. The samples are a synthetic walk (stand, walk, turn,
+walk, stand); device ``i`` starts ``i mod 60`` seconds into it, so the devices are not in lockstep. Send instants are spread evenly over the period. The
 benchmark starts the server itself (``uvicorn server.app:app_from_env --factory``, 1 worker) on a free port,
 warms it up (numba compilation of the engine) with one session that is not measured, then runs for
 ``--seconds``. It reports latency percentiles of the batch uploads, throughput, late sends (a device could
@@ -34,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--devices", type=int, default=200, help="simulated devices (default 200)")
     p.add_argument("--seconds", type=float, default=60.0, help="measured duration [s] (default 60)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="sample rate of every stream [Hz] (default 100)")
+    p.add_argument("--batch-seconds", type=_period, default=1.0,
+                   help="upload period of every device [s], one batch of that many seconds each time (default 1; "
+                        "a calibrated foot device uploads every 4 s)")
     p.add_argument("--database-url", default=None,
                    help="SQLAlchemy URL (default: a fresh SQLite file in a temporary folder); for PostgreSQL a "
                         "unique schema is created and dropped")
@@ -48,6 +53,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="database URLs ('sqlite': a fresh file per run)")
     p.add_argument("--p99-ms", type=float, default=250.0, help="latency bound of the sweep's capacity figure")
     p.add_argument("--plot", default=None, help="PNG of p99 latency against devices per database and workers (sweep)")
+
+
+def _period(text: str) -> float:
+    """``--batch-seconds``: a positive number of seconds, at most a minute (argparse names the option on error)."""
+    v = float(text)
+    if not 0.0 < v <= 60.0:
+        raise argparse.ArgumentTypeError(f"{text} s: must be above 0 and at most 60")
+    return v
 
 
 def _proc_stats() -> dict[int, tuple[int, str, float]]:
@@ -119,15 +132,21 @@ _WARM_SESSIONS = 4  # warm-up sessions (covers up to 4 engine helper processes)
 _SPREAD_S = 60  # devices start at different points of the recording (independent people, not in lockstep)
 
 
-def _bodies(seconds: int, rate_hz: float, encoding: str) -> list[tuple[bytes, str]]:
-    """Consecutive 1-s batches of a synthetic walk (foot IMU, all three streams at ``rate_hz``)."""
+def _spread(period: float) -> int:
+    """Batches of ``period`` s in the first ``_SPREAD_S`` seconds of the recording (the devices' starting points)."""
+    return max(1, int(round(_SPREAD_S / period)))
+
+
+def _bodies(count: int, rate_hz: float, encoding: str, batch_s: float = 1.0) -> list[tuple[bytes, str]]:
+    """``count`` consecutive ``batch_s``-s batches of a synthetic walk (foot IMU, all three streams at
+    ``rate_hz``)."""
     from clients.sdk import encode_batch
     from clients.synth import synthesize
 
     rec = synthesize("walk", seed=11, rate_hz=rate_hz)
-    parts = rec.batch.split_seconds(1.0)
+    parts = rec.batch.split_seconds(batch_s)
     out = []
-    for k in range(seconds):
+    for k in range(count):
         # loop the recording if the run is longer: shift time so it keeps increasing
         base = parts[k % len(parts)]
         shift = (k // len(parts)) * (int(rec.batch.t_end_ns) - int(rec.batch.t_start_ns) + 10_000_000)
@@ -266,10 +285,11 @@ def _by_window(sent_s: np.ndarray, lat_ms: np.ndarray, window_s: float) -> list[
 
 
 async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
-                  lat: list[float], stats: dict[str, int], timings: list[dict[str, float]], sent: list[float]) -> None:
+                  lat: list[float], stats: dict[str, int], timings: list[dict[str, float]], sent: list[float],
+                  period: float = 1.0) -> None:
     conn = _Conn("127.0.0.1", port)
     for k, (body, ctype) in enumerate(bodies):
-        due = t0 + phase + k
+        due = t0 + phase + k * period
         now = time.perf_counter()
         if now < due:
             await asyncio.sleep(due - now)
@@ -306,7 +326,7 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
 
 
 async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]],
-                     cpu: Any = lambda: {}) -> dict[str, Any]:
+                     cpu: Any = lambda: {}, period: float = 1.0) -> dict[str, Any]:
     import httpx2
 
     port = int(url.rsplit(":", 1)[1])
@@ -318,7 +338,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         # _WARM_SESSIONS engine helper processes (chosen by session id) runs its kernels once
         async def warm_up() -> None:
             warm = (await client.post("/v1/sessions", json={"device_kind": "foot"}, headers=h)).json()["id"]
-            for k, (body, ctype) in enumerate(bodies[:_SPREAD_S]):  # every phase of the walk (stand, walk, turns)
+            for k, (body, ctype) in enumerate(bodies[:spread]):  # every phase of the walk (stand, walk, turns)
                 # the first batch may wait for numba to compile the engine (about 30 s, more on a busy machine)
                 # a worker still warming up answers 503 Retry-After, and the warm-up sessions share one user, whose
                 # rate limit answers 429 Retry-After: wait as a device does, same sequence number (nothing stored)
@@ -330,6 +350,7 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
                     await asyncio.sleep(float(r.headers.get("retry-after", "1")))
                 r.raise_for_status()
 
+        spread = _spread(period)
         await asyncio.gather(*[warm_up() for _ in range(_WARM_SESSIONS)])
         sids = []
         for i in range(devices):
@@ -341,11 +362,11 @@ async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tup
         sent: list[float] = []
         stats = {"acked": 0, "replayed": 0, "late_sends": 0, "transport_errors": 0, "gave_up": 0}
         t0 = time.perf_counter() + 0.5
-        n = len(bodies) - _SPREAD_S
+        n = len(bodies) - spread
         cpu0 = cpu()
         await asyncio.gather(*[
-            _device(port, tokens[i], sid, bodies[i % _SPREAD_S: i % _SPREAD_S + n], t0, i / devices, lat, stats, timings,
-                    sent)
+            _device(port, tokens[i], sid, bodies[i % spread: i % spread + n], t0, period * i / devices, lat, stats,
+                    timings, sent, period)
             for i, sid in enumerate(sids)
         ])
         wall = time.perf_counter() - t0
@@ -418,15 +439,16 @@ def _sweep(args: argparse.Namespace) -> dict[str, Any]:
             # cores the server could use: each worker has an engine helper; never more than the machine has
             used = min(cores, 2 * w)
             capacity[f"{db}/{w}"] = {"devices": best, "cores_usable": used, "devices_per_core": round(best / used, 1)}
-    out = {"p99_bound_ms": args.p99_ms, "seconds_per_point": args.seconds, "rate_hz": args.rate_hz, "cpus": cores,
+    out = {"p99_bound_ms": args.p99_ms, "seconds_per_point": args.seconds, "rate_hz": args.rate_hz,
+           "batch_seconds": args.batch_seconds, "cpus": cores,
            "points": points, "capacity": capacity}
     if args.plot:
-        _plot(points, args.plot, args.p99_ms)
+        _plot(points, args.plot, args.p99_ms, args.batch_seconds)
         out["plot"] = args.plot
     return out
 
 
-def _plot(points: list[dict[str, Any]], path: str, bound_ms: float) -> None:
+def _plot(points: list[dict[str, Any]], path: str, bound_ms: float, period: float = 1.0) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -442,7 +464,7 @@ def _plot(points: list[dict[str, Any]], path: str, bound_ms: float) -> None:
                 ax.plot([x for x, _ in xs], [y for _, y in xs], marker="o", ls="-" if db == "postgresql" else "--",
                         label=f"{db}, {w} worker{'s' * (w > 1)}")
     ax.axhline(bound_ms, color="k", lw=0.8, ls=":")
-    ax.set_xlabel("devices (one 1-s batch of 100 Hz samples per second each)")
+    ax.set_xlabel(f"devices (one {period:g}-s batch every {period:g} s each)")
     ax.set_ylabel("p99 upload latency [ms]")
     ax.set_yscale("log")
     ax.set_title("pednav bench load --sweep")
@@ -458,8 +480,10 @@ def _run_one(args: argparse.Namespace) -> dict[str, Any]:
     from server.db import drop_schema, make_engine
     from server.settings import Settings
 
+    period = args.batch_seconds
     seconds = max(1, int(round(args.seconds)))
-    bodies = _bodies(seconds + _SPREAD_S, args.rate_hz, args.encoding)
+    n = max(1, int(round(seconds / period)))  # uploads per device
+    bodies = _bodies(n + _spread(period), args.rate_hz, args.encoding, period)
     schema = None
     tmp = None
     if args.database_url:
@@ -485,7 +509,8 @@ def _run_one(args: argparse.Namespace) -> dict[str, Any]:
             tokens = [crud.create_user(db, f"load-{run_id}-{i}")[1] for i in range(args.devices + 1)]
             db.commit()
         eng.dispose()
-        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid, args.workers)))
+        res = asyncio.run(_run_async(srv.url, tokens, args.devices, bodies, lambda: _cpu_probe(srv.proc.pid, args.workers),
+                                     period))
     finally:
         srv.stop()
         if schema:
@@ -499,6 +524,7 @@ def _run_one(args: argparse.Namespace) -> dict[str, Any]:
         "devices": args.devices,
         "seconds": seconds,
         "rate_hz": args.rate_hz,
+        "batch_seconds": period,
         "encoding": args.encoding,
         "body_bytes": len(bodies[0][0]),
         "database": backend,

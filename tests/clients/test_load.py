@@ -41,18 +41,35 @@ def test_engine_bench_sessions_start_apart_and_keep_time_increasing_over_the_loo
         assert np.all(np.diff(ts) > 0) and ts.size == 8 * 100
 
 
-def test_load_bench_bounded_run_loses_and_duplicates_nothing(tmp_path) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("period", [1.0, 2.0])
+def test_load_bench_bounded_run_loses_and_duplicates_nothing(period: float) -> None:
     """CI's bounded version of ``pednav bench load`` (the full sweep: ``pednav bench load --sweep``): a real server
-    with its engine helper, 5 devices for 3 s on SQLite; every batch acknowledged, stored once."""
+    with its engine helper, 5 devices for 4 s on SQLite, one batch every ``period`` s; every batch acknowledged,
+    stored once, each holding ``period`` s of samples."""
     import argparse
 
     from clients.benchmarks.load import run
 
-    args = argparse.Namespace(devices=5, seconds=3.0, rate_hz=100.0, database_url=None, encoding="msgpack", workers=1,
-                              sweep=False)
+    args = argparse.Namespace(devices=5, seconds=4.0, rate_hz=100.0, batch_seconds=period, database_url=None,
+                              encoding="msgpack", workers=1, sweep=False)
     r = run(args)
-    assert r["requests_sent"] == 15 and r["acked"] == 15 and r["stored"] == 15
+    n = 5 * round(4 / period)
+    assert r["requests_sent"] == n and r["acked"] == n and r["stored"] == n
     assert r["lost_batches"] == 0 and r["duplicated_batches"] == 0 and r["other_statuses"] == {}
+    assert r["batch_seconds"] == period
+    # the body holds the period's samples (msgpack, <f4 values: 3 streams x 3 values x 4 bytes per sample)
+    assert 36 * 100 * period <= r["body_bytes"] < 2 * 36 * 100 * period
+
+
+@pytest.mark.parametrize("text", ["0", "-1", "61", "nan"])
+def test_load_bench_refuses_a_period_that_is_not_one_naming_the_option(text: str,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from clients.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "load", "--batch-seconds", text])
+    assert e.value.code == 2
+    assert "--batch-seconds" in capsys.readouterr().err
 
 
 def test_thread_cpu_reads_this_process_main_thread() -> None:
