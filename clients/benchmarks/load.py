@@ -4,12 +4,13 @@ Each device opens a session and sends one 1-s batch of 100 Hz 9-axis samples (ac
 magnetometer; compact msgpack body, float32 values) every second, waiting for each answer before the next
 batch (sequence numbers must follow each other). ``--batch-seconds S`` makes that one S-s batch every S seconds
 (the same samples per second): the engine asks a calibrated foot device for 4-s uploads with the gyroscope off
-(``energy.config`` ``low_power_batch_s``), and a deployer plans with the mix of periods the fleet uses. The samples are a synthetic walk (stand, walk, turn,
-walk, stand); device ``i`` starts ``i mod 60`` seconds into it, so the devices are not in lockstep. Send instants are spread evenly over the period. The
+(``energy.config`` ``low_power_batch_s``), and a deployer plans with the mix of periods the fleet uses. The
+samples are a synthetic walk (stand, walk, turn, walk, stand); device ``i`` starts ``i mod (60 / S)`` batches into
+it, so the devices are not in lockstep, and the send instants are spread evenly over the period. The
 benchmark starts the server itself (``uvicorn server.app:app_from_env --factory``, 1 worker) on a free port,
 warms it up (numba compilation of the engine) with one session that is not measured, then runs for
 ``--seconds``. It reports latency percentiles of the batch uploads, throughput, late sends (a device could
-not keep its 1-s cadence because an answer came late), and — checked against the server's stored batches
+not keep its cadence because an answer came late), and — checked against the server's stored batches
 afterwards — lost batches (sent but not stored/acknowledged) and duplicated batches (stored more than once).
 
 The traffic goes to 127.0.0.1 only and the run is bounded by ``--seconds``.
@@ -137,7 +138,7 @@ def _spread(period: float) -> int:
     return max(1, int(round(_SPREAD_S / period)))
 
 
-def _bodies(count: int, rate_hz: float, encoding: str, batch_s: float = 1.0) -> list[tuple[bytes, str]]:
+def _bodies(count: int, rate_hz: float, encoding: str, batch_s: float) -> list[tuple[bytes, str]]:
     """``count`` consecutive ``batch_s``-s batches of a synthetic walk (foot IMU, all three streams at
     ``rate_hz``)."""
     from clients.sdk import encode_batch
@@ -286,7 +287,7 @@ def _by_window(sent_s: np.ndarray, lat_ms: np.ndarray, window_s: float) -> list[
 
 async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str]], t0: float, phase: float,
                   lat: list[float], stats: dict[str, int], timings: list[dict[str, float]], sent: list[float],
-                  period: float = 1.0) -> None:
+                  period: float) -> None:
     conn = _Conn("127.0.0.1", port)
     for k, (body, ctype) in enumerate(bodies):
         due = t0 + phase + k * period
@@ -326,7 +327,7 @@ async def _device(port: int, token: str, sid: int, bodies: list[tuple[bytes, str
 
 
 async def _run_async(url: str, tokens: list[str], devices: int, bodies: list[tuple[bytes, str]],
-                     cpu: Any = lambda: {}, period: float = 1.0) -> dict[str, Any]:
+                     cpu: Any, period: float) -> dict[str, Any]:
     import httpx2
 
     port = int(url.rsplit(":", 1)[1])
@@ -448,7 +449,7 @@ def _sweep(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def _plot(points: list[dict[str, Any]], path: str, bound_ms: float, period: float = 1.0) -> None:
+def _plot(points: list[dict[str, Any]], path: str, bound_ms: float, period: float) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
