@@ -5,8 +5,7 @@ plain arrays (in and out), so streaming costs no Python per sample. The scalar h
 njit-compiled and are reused by the pure-numpy reference modules' tests.
 
 Every function here compiles with numpy's error model: a division by zero gives inf/NaN instead of raising
-(Python's model tests every divisor, a branch per division: ~7 % of the kernel's time, 116 -> 108 us per
-1-s batch at 200 Hz). The divisors of valid inputs and settings are not zero (norms are tested against zero
+(Python's model tests every divisor, a branch per division: ~7 % of the kernel's time). The divisors of valid inputs and settings are not zero (norms are tested against zero
 first, innovation covariances are positive definite, noise parameters positive by
 :meth:`models.zupt_nav.ZuptConfig.validate`), so the results are the same, bit for bit; where one were, the
 kernel now carries inf/NaN on, as the numpy reference modules do, instead of raising mid-batch.
