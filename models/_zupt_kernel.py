@@ -5,10 +5,11 @@ plain arrays (in and out), so streaming costs no Python per sample. The scalar h
 njit-compiled and are reused by the pure-numpy reference modules' tests.
 
 Every function here compiles with numpy's error model: a division by zero gives inf/NaN instead of raising
-(Python's model tests every divisor, a branch per division: ~7 % of the kernel's time). The divisors of valid inputs and settings are not zero (norms are tested against zero
-first, innovation covariances are positive definite, noise parameters positive by
-:meth:`models.zupt_nav.ZuptConfig.validate`), so the results are the same, bit for bit; where one were, the
-kernel now carries inf/NaN on, as the numpy reference modules do, instead of raising mid-batch.
+(Python's model tests every divisor, a branch per division: ~7 % of the kernel's time). The divisors of valid
+inputs and settings are not zero (norms are tested against zero first, innovation covariances are positive
+definite, noise parameters positive by :meth:`models.zupt_nav.ZuptConfig.validate`), so the results are those of
+Python's model, bit for bit; where one were zero, the kernel carries inf/NaN on, as the numpy reference modules
+do, rather than raising mid-batch.
 
 Error state (004 eq. 6): ``dx = [dp(3), dv(3), phi(3), dba(3), dbg(3)]`` in NED, with the attitude error
 defined by ``C_true = (I + [phi x]) C_est`` (phi in the navigation frame), biases ``b_true = b_est + db``.
