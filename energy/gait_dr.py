@@ -492,7 +492,7 @@ class GaitPipeline:
         """
         self.queue.append(e)
         seg = self._seg
-        n = seg._w
+        n = seg.window_samples
         dt = 1.0 / self.rate_hz
         hi_s = e.t_s + (n - 1 + round(seg.context_s * self.rate_hz)) * dt + 1e-6  # the last window's end [s]
         b0, acc, mag, t_end, lo, hi, peak_ok, peak = _event_fields(

@@ -228,6 +228,11 @@ class StepSegmenter:
         self._compact = True  # collapse long decided quiet stretches (False: the reference, for tests)
 
     @property
+    def window_samples(self) -> int:
+        """Samples in one quietness window (``window_s`` at ``rate_hz``, at least 2)."""
+        return self._w
+
+    @property
     def latency_s(self) -> float:
         """Bound on (input time when a step is emitted) - (its onset) [s]: ``max_latency_s`` + filter delay."""
         return self.max_latency_s + self._delay / self.rate_hz
